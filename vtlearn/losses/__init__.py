@@ -1,0 +1,19 @@
+"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7) and DANN gradient reversal."""
+
+from vtlearn.losses.coral import coral, covariance
+from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
+from vtlearn.losses.mmd import gaussian_bandwidths, mk_mmd, multi_kernel_matrix
+from vtlearn.losses.vtloss import VTLoss
+
+__all__ = [
+    "coral",
+    "covariance",
+    "mk_mmd",
+    "gaussian_bandwidths",
+    "multi_kernel_matrix",
+    "VTLoss",
+    "GradientReversal",
+    "grad_reverse",
+    "dann_lambda",
+    "domain_adversarial_loss",
+]

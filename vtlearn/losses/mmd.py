@@ -1,0 +1,127 @@
+"""Multi-kernel Maximum Mean Discrepancy (MK-MMD), thesis ch.7, eq. (7.5)-(7.6).
+
+MMD between two distributions is the RKHS distance between their mean embeddings (eq. 7.5),
+``MMD²(p_s, p_t) = ‖E_s[φ(x_s)] − E_t[φ(x_t)]‖²_H``. MK-MMD (Gretton et al., 2012) uses a convex
+combination of ``b`` kernels (eq. 7.6), ``k = Σ_u β_u k_u`` with ``Σ β_u = 1``; here ``β_u = 1/b``.
+
+Kernel family (documented bandwidths). Gaussian kernels
+
+    k_u(x, y) = exp(−‖x − y‖² / h_u),   h_u = h₀ · m^(u − ⌊b/2⌋),   u = 0 … b−1,
+
+with multiplier ``m = kernel_mul`` (default 2) and ``b = num_kernels`` (default 5), so by default
+``h ∈ {h₀/4, h₀/2, h₀, 2h₀, 4h₀}``. The base bandwidth ``h₀`` is the mean pairwise squared distance
+of the pooled source+target sample (the "mean heuristic" of DAN, Long et al., 2015), computed without
+gradient so the kernels do not chase their own bandwidth. Fixed bandwidths can be passed instead.
+
+Estimators (stated explicitly):
+
+* biased (default, a V-statistic): ``mean(K_ss) + mean(K_tt) − 2·mean(K_st)``, diagonals included.
+  It is always ≥ 0 and exactly 0 when the two samples are identical.
+* unbiased (``unbiased=True``, a U-statistic, Gretton et al. 2012 eq. 3): diagonals of ``K_ss`` and
+  ``K_tt`` are excluded. It can be slightly negative and needs at least 2 samples per domain.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+__all__ = ["gaussian_bandwidths", "multi_kernel_matrix", "mk_mmd"]
+
+
+def _check_features(x: torch.Tensor, name: str, min_rows: int = 1) -> None:
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if x.dim() != 2:
+        raise ValueError(f"{name} must have shape (n, d), got {tuple(x.shape)}")
+    if x.shape[0] < min_rows or x.shape[1] < 1:
+        raise ValueError(f"{name} needs at least {min_rows} rows and 1 column, got {tuple(x.shape)}")
+    if not torch.isfinite(x).all():
+        raise ValueError(f"{name} contains NaN or inf")
+
+
+def gaussian_bandwidths(
+    pooled: torch.Tensor, num_kernels: int = 5, kernel_mul: float = 2.0
+) -> torch.Tensor:
+    """Bandwidth family ``h_u = h₀ · kernel_mul^(u − ⌊b/2⌋)`` of the module docstring.
+
+    Args:
+        pooled: source and target features stacked.
+        num_kernels: ``b``, the number of Gaussian kernels.
+        kernel_mul: ``m``, the ratio between neighbouring bandwidths.
+
+    Shapes:
+        pooled (n, d) -> (b,), detached from the graph.
+    """
+    if num_kernels < 1:
+        raise ValueError(f"num_kernels must be >= 1, got {num_kernels}")
+    if kernel_mul <= 0:
+        raise ValueError(f"kernel_mul must be > 0, got {kernel_mul}")
+    with torch.no_grad():
+        n = pooled.shape[0]
+        sq = torch.cdist(pooled, pooled).pow(2)
+        h0 = sq.sum() / max(n * n - n, 1)
+        # Identical points give h0 = 0; any positive value then gives k = 1 everywhere, MMD = 0.
+        h0 = torch.clamp(h0, min=torch.finfo(pooled.dtype).eps)
+        exps = torch.arange(num_kernels, dtype=pooled.dtype, device=pooled.device) - num_kernels // 2
+        return h0 * kernel_mul**exps
+
+
+def multi_kernel_matrix(x: torch.Tensor, y: torch.Tensor, bandwidths: torch.Tensor) -> torch.Tensor:
+    """``K_ij = (1/b) Σ_u exp(−‖x_i − y_j‖² / h_u)`` (eq. 7.6 with β_u = 1/b).
+
+    Shapes:
+        x (n, d), y (m, d), bandwidths (b,) -> (n, m)
+    """
+    # Squared distances written out (not cdist) so the float64 gradcheck sees a smooth function at 0.
+    sq = (x * x).sum(-1, keepdim=True) + (y * y).sum(-1)[None, :] - 2.0 * x @ y.T
+    sq = sq.clamp_min(0.0)
+    return torch.exp(-sq[None] / bandwidths[:, None, None]).mean(0)  # b x n x m -> n x m
+
+
+def mk_mmd(
+    source: torch.Tensor,
+    target: torch.Tensor,
+    *,
+    num_kernels: int = 5,
+    kernel_mul: float = 2.0,
+    bandwidths: Sequence[float] | torch.Tensor | None = None,
+    unbiased: bool = False,
+) -> torch.Tensor:
+    """Squared MK-MMD between two feature samples (thesis eq. 7.5-7.6).
+
+    Args:
+        source: source-domain features (e.g. fc1 activations of visual clouds).
+        target: target-domain features (e.g. fc1 activations of tactile clouds).
+        num_kernels, kernel_mul: the Gaussian family of the module docstring (ignored if
+            ``bandwidths`` is given).
+        bandwidths: optional fixed ``h_u`` values (each > 0).
+        unbiased: U-statistic instead of the default biased V-statistic.
+
+    Shapes:
+        source (n_s, d), target (n_t, d) -> scalar. ``n_s`` and ``n_t`` may differ.
+    """
+    min_rows = 2 if unbiased else 1
+    _check_features(source, "source", min_rows)
+    _check_features(target, "target", min_rows)
+    if source.shape[1] != target.shape[1]:
+        raise ValueError(
+            f"source and target must have the same feature size, got {tuple(source.shape)} "
+            f"and {tuple(target.shape)}"
+        )
+    if bandwidths is None:
+        h = gaussian_bandwidths(torch.cat([source, target]), num_kernels, kernel_mul)
+    else:
+        h = torch.as_tensor(bandwidths, dtype=source.dtype, device=source.device).reshape(-1)
+        if h.numel() == 0 or not torch.isfinite(h).all() or (h <= 0).any():
+            raise ValueError(f"bandwidths must be non-empty, finite and > 0, got {h.tolist()}")
+    k_ss = multi_kernel_matrix(source, source, h)
+    k_tt = multi_kernel_matrix(target, target, h)
+    k_st = multi_kernel_matrix(source, target, h)
+    if not unbiased:
+        return k_ss.mean() + k_tt.mean() - 2.0 * k_st.mean()
+    n_s, n_t = source.shape[0], target.shape[0]
+    ss = (k_ss.sum() - k_ss.diagonal().sum()) / (n_s * (n_s - 1))
+    tt = (k_tt.sum() - k_tt.diagonal().sum()) / (n_t * (n_t - 1))
+    return ss + tt - 2.0 * k_st.mean()

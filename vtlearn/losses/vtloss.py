@@ -1,0 +1,132 @@
+"""VTLoss: the visuo-tactile domain-adaptation loss, thesis ch.7, eq. (7.8).
+
+    L_VTLoss = α·L_CE + β·(MMD²_fc1 + MMD²_fc2) + λ·(CORAL_fc1 + CORAL_fc2)
+
+``L_CE`` is the cross-entropy on labelled source (visual) clouds; the MK-MMD (eq. 7.5-7.6,
+:mod:`vtlearn.losses.mmd`) and Deep CORAL (eq. 7.7, :mod:`vtlearn.losses.coral`) terms compare source
+and unlabelled target (tactile) activations of the fully connected layers. Thesis defaults:
+α = β = λ = 10 (section 7.3.1, "Network Implementation").
+
+The switches reproduce the rows of thesis Tables 7.2 and 7.4:
+
+=================  =====================================================
+row                arguments
+=================  =====================================================
+no-DA              ``use_mmd=False, use_coral=False``
+MMD                ``use_coral=False`` (both layers)
+CORAL              ``use_mmd=False`` (both layers)
+VTLoss fc1         ``layers=("fc1",)``
+VTLoss fc2         ``layers=("fc2",)``
+VTLoss             defaults
+=================  =====================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from vtlearn.losses.coral import coral
+from vtlearn.losses.mmd import mk_mmd
+
+__all__ = ["VTLoss"]
+
+
+class VTLoss(nn.Module):
+    """Weighted sum of eq. (7.8).
+
+    Args:
+        alpha, beta, lam: α (cross-entropy), β (MK-MMD), λ (CORAL) weights; each ≥ 0.
+        layers: names of the feature layers adapted, a subset of what the model exposes
+            (xAVTNet exposes ``"fc1"`` and ``"fc2"``).
+        use_mmd, use_coral: switch the MK-MMD and CORAL terms on or off.
+        mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD options (see :func:`mk_mmd`).
+
+    Shapes:
+        logits_source (n_s, k), labels_source (n_s,) int64,
+        features_source[name] (n_s, d_name), features_target[name] (n_t, d_name)
+        -> (scalar total, dict of detached scalar parts: "ce", "mmd", "coral", "mmd_<layer>", ...)
+    """
+
+    def __init__(
+        self,
+        alpha: float = 10.0,
+        beta: float = 10.0,
+        lam: float = 10.0,
+        layers: Sequence[str] = ("fc1", "fc2"),
+        use_mmd: bool = True,
+        use_coral: bool = True,
+        mmd_num_kernels: int = 5,
+        mmd_kernel_mul: float = 2.0,
+        mmd_unbiased: bool = False,
+    ) -> None:
+        super().__init__()
+        for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
+            if not v >= 0:
+                raise ValueError(f"{name} must be >= 0, got {v}")
+        if isinstance(layers, str):
+            layers = (layers,)
+        if (use_mmd or use_coral) and len(layers) == 0:
+            raise ValueError("layers must name at least one layer when MMD or CORAL is on")
+        self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
+        self.layers = tuple(layers)
+        self.use_mmd, self.use_coral = bool(use_mmd), bool(use_coral)
+        self.mmd_kwargs = dict(
+            num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul), unbiased=bool(mmd_unbiased)
+        )
+
+    @property
+    def adapts(self) -> bool:
+        """Whether any domain term is on (False for the no-DA row)."""
+        return self.use_mmd or self.use_coral
+
+    def forward(
+        self,
+        logits_source: torch.Tensor,
+        labels_source: torch.Tensor,
+        features_source: Mapping[str, torch.Tensor] | None = None,
+        features_target: Mapping[str, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        if logits_source.dim() != 2:
+            raise ValueError(f"logits_source must be (n, k), got {tuple(logits_source.shape)}")
+        if labels_source.shape != logits_source.shape[:1]:
+            raise ValueError(
+                f"labels_source must be ({logits_source.shape[0]},), got {tuple(labels_source.shape)}"
+            )
+        ce = F.cross_entropy(logits_source, labels_source)
+        total = self.alpha * ce
+        parts: dict[str, torch.Tensor] = {"ce": ce.detach()}
+        if not self.adapts:
+            return total, parts
+        if features_source is None or features_target is None:
+            raise ValueError("features_source and features_target are required when MMD or CORAL is on")
+        zero = logits_source.new_zeros(())
+        mmd_sum, coral_sum = zero, zero
+        for layer in self.layers:
+            if layer not in features_source or layer not in features_target:
+                raise ValueError(f"layer {layer!r} missing from features_source/features_target")
+            fs, ft = features_source[layer], features_target[layer]
+            if self.use_mmd:
+                m = mk_mmd(fs, ft, **self.mmd_kwargs)
+                mmd_sum = mmd_sum + m
+                parts[f"mmd_{layer}"] = m.detach()
+            if self.use_coral:
+                c = coral(fs, ft)
+                coral_sum = coral_sum + c
+                parts[f"coral_{layer}"] = c.detach()
+        if self.use_mmd:
+            total = total + self.beta * mmd_sum
+            parts["mmd"] = mmd_sum.detach()
+        if self.use_coral:
+            total = total + self.lam * coral_sum
+            parts["coral"] = coral_sum.detach()
+        return total, parts
+
+    def extra_repr(self) -> str:
+        return (
+            f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
+            f"use_mmd={self.use_mmd}, use_coral={self.use_coral}"
+        )
