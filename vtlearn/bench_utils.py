@@ -1,0 +1,83 @@
+"""Helpers shared by the ``vtlearn bench ...`` commands: a plain-text table and JSON output."""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["print_table", "format_table", "write_json", "machine_info", "to_jsonable"]
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Convert numpy scalars/arrays (and NaN) recursively into JSON-safe Python objects."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return to_jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, (float, np.floating)):
+        if not math.isfinite(v):
+            return "nan"
+        a = abs(v)
+        return f"{v:.3g}" if (a != 0 and (a < 1e-2 or a >= 1e5)) else f"{v:.3f}"
+    return str(v)
+
+
+def format_table(rows: list[dict], columns: list[str], title: str | None = None) -> str:
+    """A markdown-style table of ``rows`` (dicts) restricted to ``columns``."""
+    cells = [[_fmt(r.get(c, "")) for c in columns] for r in rows]
+    widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(columns)]
+    lines = []
+    if title:
+        lines.append(f"### {title}")
+    lines.append("| " + " | ".join(c.ljust(w) for c, w in zip(columns, widths)) + " |")
+    lines.append("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    for row in cells:
+        lines.append("| " + " | ".join(v.ljust(w) for v, w in zip(row, widths)) + " |")
+    return "\n".join(lines)
+
+
+def print_table(rows: list[dict], columns: list[str], title: str | None = None) -> str:
+    """Print :func:`format_table` and return the text (so it can also go into a markdown file)."""
+    text = format_table(rows, columns, title)
+    print(text, flush=True)
+    return text
+
+
+def machine_info() -> dict:
+    """What a benchmark ran on: CPU count, Python, torch, threads."""
+    import os
+
+    import torch
+
+    return {
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def write_json(path, obj: Any) -> Path:
+    """Write ``obj`` as indented JSON (numpy converted), creating parent folders."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(to_jsonable(obj), indent=2))
+    return p

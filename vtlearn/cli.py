@@ -1,0 +1,134 @@
+"""The ``vtlearn`` command line.
+
+Feature packages add their commands through a module listed in ``COMMAND_MODULES`` that defines
+``register(subparsers)`` and/or ``register_bench(bench_subparsers)``. A handler is stored as ``func`` in the
+parser defaults; it takes the parsed namespace and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from vtlearn import __version__
+
+# one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
+COMMAND_MODULES: tuple[str, ...] = (
+)
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    import json
+
+    from vtlearn.bench_utils import machine_info
+
+    info = machine_info()
+    for mod in ("numpy", "scipy", "lightning", "torch_geometric", "open3d", "trimesh", "pybullet",
+                "pytorch_kinematics", "wandb"):
+        try:
+            info[mod] = getattr(importlib.import_module(mod), "__version__", "installed")
+        except Exception as exc:  # noqa: BLE001 - report, never crash, an info command
+            info[mod] = f"unavailable ({type(exc).__name__})"
+    info["vtlearn"] = __version__
+    print(json.dumps(info, indent=2))
+    return 0
+
+
+def _cmd_metrics(args: argparse.Namespace) -> int:
+    import json
+
+    from vtlearn.geometry.metrics import chamfer_distance, earth_movers_distance, hausdorff_distance
+    from vtlearn.geometry.sampling import random_subsample
+    from vtlearn.io import read_geometry
+
+    a = read_geometry(args.a, n_points=args.points, seed=0)
+    b = read_geometry(args.b, n_points=args.points, seed=1)
+    out = {
+        "chamfer": chamfer_distance(a, b),
+        "hausdorff": hausdorff_distance(a, b),
+        # EMD is O(n^3): evaluated on at most --emd-points points of each cloud
+        "emd": earth_movers_distance(
+            random_subsample(a, min(len(a), args.emd_points), 0) if len(a) > args.emd_points else a,
+            random_subsample(b, min(len(b), args.emd_points), 1) if len(b) > args.emd_points else b,
+        ),
+        "n_a": len(a),
+        "n_b": len(b),
+        "units": "input units (metres for vtlearn data)",
+    }
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from vtlearn.io import read_cloud_with_normals, read_geometry, write_cloud
+
+    src = args.input
+    if src.lower().endswith((".obj", ".stl", ".off")) or args.sample:
+        pts, nrm = read_geometry(src, n_points=args.points, seed=args.seed), None
+    else:
+        pts, nrm = read_cloud_with_normals(src)
+    write_cloud(args.output, pts, nrm)
+    print(f"wrote {len(pts)} points to {args.output}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vtlearn",
+        description="Visuo-tactile perception and learning: registration, tracking, recognition, reconstruction.",
+    )
+    parser.add_argument("--version", action="version", version=f"vtlearn {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("info", help="versions of vtlearn and its dependencies, as JSON")
+    p.set_defaults(func=_cmd_info)
+
+    p = sub.add_parser("metrics", help="Chamfer / Hausdorff / EMD between two clouds or meshes (eq. 8.1, 8.6, 8.7)")
+    p.add_argument("a", help="cloud or mesh file")
+    p.add_argument("b", help="cloud or mesh file")
+    p.add_argument("--points", type=int, default=2048, help="points sampled from a mesh (default 2048)")
+    p.add_argument("--emd-points", type=int, default=2048, help="subsample size for EMD (default 2048)")
+    p.set_defaults(func=_cmd_metrics)
+
+    p = sub.add_parser("convert", help="convert a cloud between formats, or sample a mesh into a cloud")
+    p.add_argument("input")
+    p.add_argument("output")
+    p.add_argument("--sample", action="store_true", help="treat a .ply input as a mesh and sample it")
+    p.add_argument("--points", type=int, default=2048)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_convert)
+
+    bench = sub.add_parser("bench", help="benchmarks: print a table and write JSON")
+    bench_sub = bench.add_subparsers(dest="bench", metavar="BENCHMARK")
+    bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
+
+    for name in COMMAND_MODULES:
+        module = importlib.import_module(name)
+        if hasattr(module, "register"):
+            module.register(sub)
+        if hasattr(module, "register_bench"):
+            module.register_bench(bench_sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
+    )
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"vtlearn: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

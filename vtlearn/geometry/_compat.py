@@ -1,0 +1,65 @@
+"""numpy/torch interoperability for the geometry kernels.
+
+The kernels are written once in torch. ``numpy_compatible`` lets a user pass numpy arrays instead: inputs are
+converted to float64 tensors and outputs back to numpy, so ``quat_to_matrix(np_array)`` returns an ndarray.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+
+def _to_numpy_tree(x: Any) -> Any:
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    if isinstance(x, tuple):
+        return tuple(_to_numpy_tree(v) for v in x)
+    if isinstance(x, list):
+        return [_to_numpy_tree(v) for v in x]
+    return x
+
+
+def numpy_compatible(fn: Callable) -> Callable:
+    """Decorator: numpy inputs become float64 tensors; if any input was numpy, tensor outputs become numpy."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        was_numpy = False
+
+        def conv(v):
+            nonlocal was_numpy
+            if isinstance(v, np.ndarray):
+                was_numpy = True
+                if v.dtype.kind in "iub":
+                    return torch.from_numpy(np.ascontiguousarray(v))
+                return torch.from_numpy(np.ascontiguousarray(v, dtype=np.float64))
+            return v
+
+        args = tuple(conv(a) for a in args)
+        kwargs = {k: conv(v) for k, v in kwargs.items()}
+        out = fn(*args, **kwargs)
+        return _to_numpy_tree(out) if was_numpy else out
+
+    return wrapper
+
+
+def as_tensor(x: Any, name: str, *, last_dims: tuple[int, ...], dtype: torch.dtype | None = None) -> torch.Tensor:
+    """Return ``x`` as a floating tensor and check its trailing dimensions, raising ``ValueError`` naming ``name``."""
+    if not isinstance(x, torch.Tensor):
+        try:
+            x = torch.as_tensor(np.asarray(x, dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name}: cannot be converted to a tensor ({exc})") from None
+    if not torch.is_floating_point(x):
+        x = x.to(torch.get_default_dtype() if dtype is None else dtype)
+    elif dtype is not None:
+        x = x.to(dtype)
+    n = len(last_dims)
+    if x.dim() < n or tuple(x.shape[-n:]) != tuple(last_dims):
+        want = "(..., " + ", ".join(str(d) for d in last_dims) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {tuple(x.shape)}")
+    return x

@@ -1,0 +1,71 @@
+"""Applying rigid transforms to points and sampling random poses (thesis 5.3.3 benchmark ranges).
+
+A transform ``T_a_b`` maps points expressed in frame b into frame a: ``points_a = transform_points(T_a_b,
+points_b)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from vtlearn.geometry._compat import as_tensor, numpy_compatible
+from vtlearn.geometry.lie import make_transform
+from vtlearn.geometry.quaternion import quat_to_matrix, random_quaternion
+
+__all__ = ["transform_points", "random_pose", "random_rotation"]
+
+
+@numpy_compatible
+def transform_points(T_a_b, points_b):
+    """``points_a = R_a_b points_b + t_a_b``.
+
+    Args:
+        T_a_b: one transform ``(4, 4)`` or a batch ``(B, 4, 4)``.
+        points_b: ``(N, 3)`` with a single transform, or ``(B, N, 3)`` with one transform per cloud.
+
+    Shapes:
+        (4, 4), (N, 3) -> (N, 3);  (4, 4), (B, N, 3) -> (B, N, 3);  (B, 4, 4), (B, N, 3) -> (B, N, 3).
+    """
+    T = as_tensor(T_a_b, "T_a_b", last_dims=(4, 4))
+    p = as_tensor(points_b, "points_b", last_dims=(3,)).to(T.dtype)
+    if T.dim() == 3 and (p.dim() != 3 or p.shape[0] != T.shape[0]):
+        raise ValueError(
+            f"points_b: with a batch of {T.shape[0]} transforms expected shape ({T.shape[0]}, N, 3), "
+            f"got {tuple(p.shape)}"
+        )
+    if T.dim() > 3 or p.dim() > 3:
+        raise ValueError(f"T_a_b/points_b: unsupported shapes {tuple(T.shape)} and {tuple(p.shape)}")
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    return p @ R.transpose(-1, -2) + t.unsqueeze(-2)
+
+
+def random_rotation(n: int | None = None, seed: int | np.random.Generator | None = None) -> np.ndarray:
+    """Uniformly random rotation matrices (numpy). Shapes: ``(3, 3)`` or ``(n, 3, 3)``."""
+    return quat_to_matrix(random_quaternion(n, seed, numpy=True))
+
+
+def random_pose(
+    n: int | None = None,
+    *,
+    trans_range: tuple[float, float] = (-5.0, 5.0),
+    seed: int | np.random.Generator | None = None,
+) -> np.ndarray:
+    """Random rigid transforms: rotation uniform over SO(3), translation uniform in ``trans_range`` per axis.
+
+    The default ``[-5, 5]`` m matches the initial-pose range of the thesis registration benchmark (5.3.3).
+
+    Shapes:
+        output: ``(4, 4)`` or ``(n, 4, 4)`` numpy float64.
+    """
+    lo, hi = trans_range
+    if not hi >= lo:
+        raise ValueError(f"trans_range: expected (low, high) with high >= low, got {trans_range}")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    m = 1 if n is None else n
+    R = quat_to_matrix(random_quaternion(m, rng, numpy=True))
+    t = rng.uniform(lo, hi, size=(m, 3))
+    T = make_transform(R, t)
+    return T[0] if n is None else T
+
+

@@ -1,0 +1,233 @@
+"""Point-cloud and mesh I/O.
+
+Clouds: ``.ply``, ``.pcd`` (Open3D), ``.xyz`` / ``.txt`` (whitespace or comma separated, first three columns
+are x y z, optional next three are normals), ``.npy`` (an ``(N, 3)`` or ``(N, 6)`` array) and ``.npz`` (key
+``points``, optional ``normals``; loaded with ``allow_pickle=False``).
+Meshes: ``.obj``, ``.ply``, ``.stl``, ``.off`` (trimesh).
+
+Every reader raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the file for an
+unreadable, empty or malformed one.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from vtlearn.validation import as_points
+
+__all__ = [
+    "CLOUD_SUFFIXES",
+    "MESH_SUFFIXES",
+    "read_cloud",
+    "read_cloud_with_normals",
+    "write_cloud",
+    "read_mesh",
+    "write_mesh",
+    "read_geometry",
+    "atomic_write_npz",
+]
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz")
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off")
+
+
+def _existing(path) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such file")
+    if not p.is_file():
+        raise ValueError(f"{p}: is not a regular file")
+    return p
+
+
+def _validated(points, normals, p: Path):
+    try:
+        pts = as_points(points, f"{p}")
+    except ValueError as exc:
+        raise ValueError(f"{p}: malformed point cloud ({exc})") from None
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != pts.shape or not np.isfinite(normals).all():
+            normals = None
+    return pts, normals
+
+
+def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a point cloud and its normals, if the file has them.
+
+    Shapes:
+        output: points ``(N, 3)`` float64, normals ``(N, 3)`` or ``None``.
+    """
+    p = _existing(path)
+    suffix = p.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise ValueError(f"{p}: unsupported cloud format {suffix!r}; expected one of {CLOUD_SUFFIXES}")
+    normals = None
+    try:
+        if suffix in (".ply", ".pcd"):
+            import open3d as o3d
+
+            pcd = o3d.io.read_point_cloud(str(p), format="auto")
+            pts = np.asarray(pcd.points)
+            if len(pts) == 0 and suffix == ".ply":
+                # a mesh-only .ply: fall back to its vertices
+                import trimesh
+
+                geom = trimesh.load(str(p), process=False)
+                pts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
+            elif pcd.has_normals():
+                normals = np.asarray(pcd.normals)
+        elif suffix in (".xyz", ".txt"):
+            text = p.read_text().replace(",", " ")
+            rows = [r.split() for r in text.splitlines() if r.strip() and not r.lstrip().startswith("#")]
+            if not rows:
+                raise ValueError("no data rows")
+            width = {len(r) for r in rows}
+            if len(width) != 1 or min(width) < 3:
+                raise ValueError(f"rows have inconsistent or too few columns: {sorted(width)}")
+            arr = np.array(rows, dtype=np.float64)
+            pts = arr[:, :3]
+            normals = arr[:, 3:6] if arr.shape[1] >= 6 else None
+        elif suffix == ".npy":
+            arr = np.load(p, allow_pickle=False)
+            if arr.ndim != 2 or arr.shape[1] not in (3, 6):
+                raise ValueError(f"expected an (N, 3) or (N, 6) array, got {arr.shape}")
+            pts, normals = arr[:, :3], (arr[:, 3:6] if arr.shape[1] == 6 else None)
+        else:  # .npz
+            with np.load(p, allow_pickle=False) as data:
+                if "points" not in data.files:
+                    raise ValueError(f"no 'points' array (keys: {data.files})")
+                pts = data["points"]
+                normals = data["normals"] if "normals" in data.files else None
+    except FileNotFoundError:
+        raise
+    except ValueError as exc:
+        if str(exc).startswith(str(p)):
+            raise
+        raise ValueError(f"{p}: cannot read point cloud ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - any parser failure becomes a clear error naming the file
+        raise ValueError(f"{p}: cannot read point cloud ({type(exc).__name__}: {exc})") from None
+    return _validated(pts, normals, p)
+
+
+def read_cloud(path) -> np.ndarray:
+    """Read a point cloud. Shapes: output ``(N, 3)`` float64."""
+    return read_cloud_with_normals(path)[0]
+
+
+def write_cloud(path, points, normals=None) -> Path:
+    """Write a point cloud (format from the suffix); parent folders are created.
+
+    Shapes:
+        points: ``(N, 3)``; normals: ``(N, 3)`` or ``None``.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise ValueError(f"path: unsupported cloud format {suffix!r}; expected one of {CLOUD_SUFFIXES}")
+    pts = as_points(points, "points")
+    nrm = None if normals is None else as_points(normals, "normals", min_points=len(pts))
+    if nrm is not None and len(nrm) != len(pts):
+        raise ValueError(f"normals: expected {len(pts)} normals, got {len(nrm)}")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    if suffix in (".ply", ".pcd"):
+        import open3d as o3d
+
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        if nrm is not None:
+            pcd.normals = o3d.utility.Vector3dVector(nrm)
+        if not o3d.io.write_point_cloud(str(p), pcd):
+            raise ValueError(f"{p}: Open3D could not write the file")
+    elif suffix in (".xyz", ".txt"):
+        arr = pts if nrm is None else np.hstack([pts, nrm])
+        np.savetxt(p, arr, fmt="%.9g")
+    elif suffix == ".npy":
+        np.save(p, pts if nrm is None else np.hstack([pts, nrm]))
+    else:
+        arrays = {"points": pts} if nrm is None else {"points": pts, "normals": nrm}
+        np.savez(p, **arrays)
+    return p
+
+
+def read_mesh(path):
+    """Read a triangle mesh with trimesh (scenes are concatenated into one mesh).
+
+    Raises:
+        FileNotFoundError: missing file.
+        ValueError: unsupported suffix, unreadable file, or a mesh without faces / with zero area.
+    """
+    import trimesh
+
+    p = _existing(path)
+    suffix = p.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(f"{p}: unsupported mesh format {suffix!r}; expected one of {MESH_SUFFIXES}")
+    try:
+        geom = trimesh.load(str(p), force="mesh", process=True)
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"{p}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+    if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+        raise ValueError(f"{p}: file holds no triangle faces")
+    if not np.isfinite(geom.vertices).all():
+        raise ValueError(f"{p}: mesh has NaN or inf vertices")
+    if not geom.area > 0:
+        raise ValueError(f"{p}: mesh is degenerate (zero surface area)")
+    return geom
+
+
+def write_mesh(path, mesh) -> Path:
+    """Write a trimesh mesh; the format comes from the suffix (.obj, .ply, .stl, .off)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(f"path: unsupported mesh format {suffix!r}; expected one of {MESH_SUFFIXES}")
+    if len(getattr(mesh, "faces", [])) == 0:
+        raise ValueError("mesh: has no faces")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    mesh.export(str(p))
+    return p
+
+
+def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarray:
+    """Read ``path`` as a point cloud: cloud formats as they are, meshes sampled uniformly on the surface.
+
+    A ``.ply`` with faces is treated as a mesh. Shapes: output ``(N, 3)`` (``n_points`` for meshes).
+    """
+    p = _existing(path)
+    suffix = p.suffix.lower()
+    is_mesh = suffix in (".obj", ".stl", ".off")
+    if suffix == ".ply":
+        import trimesh
+
+        try:
+            geom = trimesh.load(str(p), process=False)
+            is_mesh = isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0
+        except Exception:  # noqa: BLE001 - let read_cloud report it
+            is_mesh = False
+    if is_mesh:
+        from vtlearn.geometry.sampling import sample_surface
+
+        return sample_surface(read_mesh(p), n_points, seed)[0]
+    return read_cloud(p)
+
+
+def atomic_write_npz(path, **arrays) -> Path:
+    """Write an ``.npz`` atomically: to a temporary file in the same folder, then ``os.replace``.
+
+    Object arrays are refused, so every file loads with ``allow_pickle=False``.
+    """
+    p = Path(path)
+    for k, v in arrays.items():
+        if np.asarray(v).dtype == object:
+            raise ValueError(f"{k}: object arrays cannot be stored (files must load with allow_pickle=False)")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, p)
+    return p

@@ -1,0 +1,91 @@
+"""Input validation shared by every public entry point.
+
+Every public function in vtlearn validates what a user passes it and raises a ``ValueError`` that names the
+argument and says what was wrong, instead of a traceback from deep inside numpy, Open3D or torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["as_points", "as_transform", "check_not_collinear", "to_numpy"]
+
+
+def to_numpy(x: Any, dtype=np.float64) -> np.ndarray:
+    """Convert a list, numpy array or torch tensor to a numpy array of ``dtype`` (no copy if possible)."""
+    if hasattr(x, "detach") and hasattr(x, "cpu"):  # torch.Tensor without importing torch here
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=dtype)
+
+
+def as_points(
+    x: Any,
+    name: str,
+    *,
+    min_points: int = 1,
+    dim: int = 3,
+    dtype=np.float64,
+) -> np.ndarray:
+    """Validate a point cloud and return it as a numpy array.
+
+    Args:
+        x: points, array-like of shape ``(N, dim)``.
+        name: the argument name used in error messages.
+        min_points: the smallest acceptable ``N``.
+        dim: the number of coordinates per point.
+        dtype: output dtype.
+
+    Shapes:
+        x: ``(N, dim)`` -> ``(N, dim)``.
+
+    Raises:
+        ValueError: wrong shape, fewer than ``min_points`` points, or NaN/inf values.
+    """
+    if x is None:
+        raise ValueError(f"{name}: expected an ({'N'}, {dim}) point array, got None")
+    try:
+        arr = to_numpy(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ValueError(f"{name}: expected shape (N, {dim}), got {tuple(arr.shape)}")
+    if arr.shape[0] < min_points:
+        what = "empty" if arr.shape[0] == 0 else f"has only {arr.shape[0]} points"
+        raise ValueError(f"{name}: point cloud is {what}; at least {min_points} required")
+    if not np.isfinite(arr).all():
+        bad = int((~np.isfinite(arr)).any(axis=1).sum())
+        raise ValueError(f"{name}: contains NaN or inf in {bad} of {arr.shape[0]} points")
+    return arr
+
+
+def as_transform(T: Any, name: str, *, atol: float = 1e-5) -> np.ndarray:
+    """Validate a rigid transform ``T_a_b`` and return it as a ``(4, 4)`` float64 array.
+
+    Raises:
+        ValueError: wrong shape, NaN/inf, non-orthonormal rotation block, or a last row other than (0, 0, 0, 1).
+    """
+    try:
+        arr = to_numpy(T)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    if arr.shape != (4, 4):
+        raise ValueError(f"{name}: expected a (4, 4) homogeneous transform, got shape {tuple(arr.shape)}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name}: contains NaN or inf")
+    if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0], atol=atol):
+        raise ValueError(f"{name}: last row must be (0, 0, 0, 1), got {arr[3].tolist()}")
+    R = arr[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
+        raise ValueError(f"{name}: the 3x3 block is not a proper rotation (R^T R != I or det(R) < 0)")
+    return arr
+
+
+def check_not_collinear(points: np.ndarray, name: str, *, tol: float = 1e-9) -> None:
+    """Raise ``ValueError`` if ``points`` (N, 3) lie on a single point or a line (rank < 2 after centring)."""
+    centred = points - points.mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    scale = max(float(s[0]), 1e-300)
+    if s[0] <= tol or s[1] / scale <= tol:
+        raise ValueError(f"{name}: points are degenerate (all coincident or collinear); need a 2-D spread")
