@@ -1,0 +1,141 @@
+"""A headless pybullet scene holding meshes on a table (shared by the tactile and camera simulators).
+
+pybullet runs in DIRECT mode (no GUI, no GPU), one physics client per :class:`Scene`, so scenes in
+worker processes are independent. The world frame is z-up with the table top at z = 0.
+
+Shapes:
+    add_mesh: canonical mesh vertices (V, 3) times ``scale`` metres, placed by T_world_object (4, 4)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+import trimesh
+
+from vtlearn.geometry import matrix_to_quat
+
+
+@dataclass
+class SceneObject:
+    body_id: int
+    mesh_m: trimesh.Trimesh  # in the object frame, metres
+    T_world_object: np.ndarray
+    fixed: bool
+    transparent: bool
+
+
+def _xyzw(R: np.ndarray) -> list[float]:
+    """pybullet wants (x, y, z, w); vtlearn stores Hamilton (w, x, y, z)."""
+    w, x, y, z = np.asarray(matrix_to_quat(np.asarray(R, dtype=np.float64)), dtype=np.float64)
+    return [float(x), float(y), float(z), float(w)]
+
+
+def pose_to_matrix(pos, quat_xyzw) -> np.ndarray:
+    """T_world_link (4, 4) from a pybullet position and (x, y, z, w) quaternion."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(p.getMatrixFromQuaternion(quat_xyzw), dtype=np.float64).reshape(3, 3)
+    T[:3, 3] = pos
+    return T
+
+
+class Scene:
+    """A pybullet DIRECT client with an optional table plane and the meshes added to it.
+
+    Args:
+        table: add a large static box whose top face is the plane z = 0.
+        gravity: z gravity in m/s^2 (used only when free objects are stepped).
+    """
+
+    def __init__(self, table: bool = True, gravity: float = -9.81):
+        self.client = p.connect(p.DIRECT)
+        p.setGravity(0, 0, gravity, physicsClientId=self.client)
+        self.objects: dict[int, SceneObject] = {}
+        self.table_id: int | None = None
+        if table:
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[1.5, 1.5, 0.01], physicsClientId=self.client)
+            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[1.5, 1.5, 0.01], rgbaColor=[0.55, 0.45, 0.35, 1],
+                                      physicsClientId=self.client)
+            self.table_id = p.createMultiBody(0, col, vis, basePosition=[0, 0, -0.01], physicsClientId=self.client)
+
+    # ------------------------------------------------------------------ objects
+    def add_mesh(self, mesh: trimesh.Trimesh, scale: float = 1.0, T_world_object: np.ndarray | None = None,
+                 fixed: bool = True, transparent: bool = False, rgba=(0.8, 0.3, 0.2, 1.0),
+                 mass: float = 0.2) -> int:
+        """Add ``mesh`` (vertices times ``scale`` = metres) at ``T_world_object``; returns the body id.
+
+        A fixed object gets an exact concave triangle-mesh collider (what the taxel rays hit). A free
+        object gets its convex hull as collider, because Bullet only simulates convex dynamic meshes.
+        """
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError("mesh: need a non-empty trimesh.Trimesh")
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"scale: need a positive finite value, got {scale}")
+        T = np.eye(4) if T_world_object is None else np.asarray(T_world_object, dtype=np.float64)
+        if T.shape != (4, 4):
+            raise ValueError(f"T_world_object: need shape (4, 4), got {T.shape}")
+        mesh_m = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=False)
+        v = mesh_m.vertices.astype(np.float64).tolist()
+        idx = mesh_m.faces.astype(np.int32).ravel().tolist()
+        kw = {"physicsClientId": self.client}
+        if fixed:
+            col = p.createCollisionShape(p.GEOM_MESH, vertices=v, indices=idx,
+                                         flags=p.GEOM_FORCE_CONCAVE_TRIMESH, **kw)
+        else:
+            hull = mesh_m.convex_hull
+            col = p.createCollisionShape(p.GEOM_MESH, vertices=hull.vertices.tolist(), **kw)
+        # Unit normals per vertex make TinyRenderer shading sane for revolved meshes.
+        vis = p.createVisualShape(p.GEOM_MESH, vertices=v, indices=idx, rgbaColor=list(rgba),
+                                  normals=mesh_m.vertex_normals.tolist(), **kw)
+        body = p.createMultiBody(0.0 if fixed else mass, col, vis, basePosition=T[:3, 3].tolist(),
+                                 baseOrientation=_xyzw(T[:3, :3]), **kw)
+        self.objects[body] = SceneObject(body, mesh_m, T, fixed, transparent)
+        return body
+
+    def remove(self, body_id: int) -> None:
+        p.removeBody(body_id, physicsClientId=self.client)
+        self.objects.pop(body_id, None)
+
+    def clear(self) -> None:
+        for b in list(self.objects):
+            self.remove(b)
+
+    def T_world_object(self, body_id: int) -> np.ndarray:
+        """Current pose of a body (free objects may have moved)."""
+        pos, q = p.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
+        return pose_to_matrix(pos, q)
+
+    def ray_test(self, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Batched ray casts. Returns (body ids (R,), hit fractions (R,), hit points (R, 3), normals (R, 3)).
+
+        Missed rays have body id -1 and fraction 1.
+        """
+        out = []
+        # pybullet caps one batch at MAX_RAY_INTERSECTION_BATCH_SIZE (16k) rays.
+        for i in range(0, len(starts), 16000):
+            out += p.rayTestBatch(starts[i:i + 16000].tolist(), ends[i:i + 16000].tolist(),
+                                  physicsClientId=self.client)
+        ids = np.array([o[0] for o in out], dtype=np.int64)
+        frac = np.array([o[2] for o in out], dtype=np.float64)
+        pts = np.array([o[3] for o in out], dtype=np.float64).reshape(-1, 3)
+        nrm = np.array([o[4] for o in out], dtype=np.float64).reshape(-1, 3)
+        return ids, frac, pts, nrm
+
+    def close(self) -> None:
+        if self.client is not None and p.isConnected(self.client):
+            p.disconnect(self.client)
+        self.client = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: pybullet may already be gone
+            pass

@@ -1,0 +1,273 @@
+"""Simulated taxel-array touch and pinch actions (thesis 4.2.4, 5.2.3, 7.2.4, 8.2.3).
+
+Touch action (thesis 4.2.4 / 8.2.3): a ray ``(start, direction)``. The sensor pad, its z-axis along
+``direction``, moves from ``start`` in a guarded straight line and stops when the force on any taxel
+passes the threshold tau_f (thesis 4.3.1: "contact ... when the norm of the 3-axis force of any taxel
+exceeds a threshold"). The positions of the contacted taxels are the tactile points.
+
+Contact model (free-floating sensor, fixed object). Each taxel i casts a ray along ``direction``
+from its rest position; ``t_i`` is the travel at which it first meets the surface. The elastomer is a
+linear spring of stiffness ``k`` per taxel, so after a pad travel ``t`` taxel i presses with
+``f_i = k * max(0, t - t_i)``. The pad stops at ``t* = min_i t_i + tau_f / k``: the first taxel then
+reaches the force threshold. A rigid housing grid between the taxels stops the pad too (it carries
+no taxels). Taxels with ``f_i >= f_min`` are in contact; their point is where the (compressed)
+membrane meets the surface, ``start_i + t_i * direction``, with the surface normal from the ray hit
+and the force ``f_i``. One batched ray cast (pybullet ``rayTestBatch``) replaces the stepped physics,
+so a touch costs a few hundred microseconds.
+
+Pinch action (thesis 8.2.3): two parallel sensorised fingers open to a width wider than the object,
+descend vertically from above to a grasp height (the descent is checked against collisions) and
+close antipodally along an axis in the xy-plane. With a fixed object each finger closes until its own
+first taxel reaches tau_f, the same guarded motion as a touch.
+
+Sensor realism knobs (:class:`TactileConfig`): Gaussian position noise, independent taxel dropout,
+the force threshold, and a minimum contact count below which a touch reports no contact.
+
+Shapes:
+    TouchResult.points (K, 3), normals (K, 3), forces (K,), taxel_ids (K,) in the world frame
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vtlearn.sim_data.scene import Scene
+from vtlearn.sim_data.sensors import TaxelSensor, get_sensor
+
+
+@dataclass
+class TactileConfig:
+    """Sensor realism knobs. Defaults: noise off, no dropout, thesis tau_f = 1.1 (normalised force)."""
+
+    stiffness: float = 500.0  # N/m per taxel: 1.1 N threshold -> 2.2 mm elastomer compression
+    force_threshold: float = 1.1  # tau_f, thesis 5.3.1
+    min_force: float = 0.05  # a taxel reports contact from this force on (N)
+    position_noise: float = 0.0  # std of Gaussian noise on each contact point (m)
+    dropout: float = 0.0  # probability that a contacted taxel is not reported
+    min_contacts: int = 1  # fewer surviving contacts -> the touch reports nothing
+    max_travel: float = 0.5  # guarded motion gives up after this distance (m)
+
+    def __post_init__(self):
+        for name in ("stiffness", "force_threshold", "max_travel"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: need a positive finite value, got {v}")
+        if not (0 <= self.min_force < self.force_threshold):
+            raise ValueError(f"min_force: need 0 <= min_force < force_threshold, got {self.min_force}")
+        if not (self.position_noise >= 0 and np.isfinite(self.position_noise)):
+            raise ValueError(f"position_noise: need >= 0, got {self.position_noise}")
+        if not (0 <= self.dropout < 1):
+            raise ValueError(f"dropout: need 0 <= dropout < 1, got {self.dropout}")
+        if self.min_contacts < 1:
+            raise ValueError(f"min_contacts: need >= 1, got {self.min_contacts}")
+
+
+@dataclass
+class TouchResult:
+    """Contacted taxels of one action, world frame. Empty arrays mean no (valid) contact."""
+
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    forces: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    taxel_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    body_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    T_world_pad: np.ndarray | None = None  # pad pose where the guarded motion stopped
+
+    @property
+    def num_contacts(self) -> int:
+        return len(self.points)
+
+    @staticmethod
+    def merge(results: list[TouchResult]) -> TouchResult:
+        if not results:
+            return TouchResult()
+        return TouchResult(
+            np.concatenate([r.points for r in results]), np.concatenate([r.normals for r in results]),
+            np.concatenate([r.forces for r in results]), np.concatenate([r.taxel_ids for r in results]),
+            np.concatenate([r.body_ids for r in results]), results[-1].T_world_pad)
+
+
+def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
+    """T_world_pad with origin ``start`` and z-axis ``direction``; ``roll`` (rad) turns the grid about z."""
+    start = np.asarray(start, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    if start.shape != (3,) or not np.all(np.isfinite(start)):
+        raise ValueError(f"start: need a finite (3,) point, got {start}")
+    n = np.linalg.norm(d)
+    if d.shape != (3,) or not np.isfinite(n) or n < 1e-12:
+        raise ValueError(f"direction: need a finite non-zero (3,) vector, got {direction}")
+    z = d / n
+    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(ref, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = np.cos(roll), np.sin(roll)
+    x, y = c * x + s * y, -s * x + c * y
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, start
+    return T
+
+
+class TactileSimulator:
+    """Free-floating taxel sensor acting on the fixed objects of a :class:`Scene`.
+
+    Args:
+        scene: the pybullet scene to touch.
+        sensor: a :class:`TaxelSensor` or a preset name such as ``"xela_4x4"``.
+        config: realism knobs, see :class:`TactileConfig`.
+        objects: body ids that count as touched objects (default: every object in the scene);
+            contact with anything else (the table) stops the pad but yields no tactile point.
+    """
+
+    def __init__(self, scene: Scene, sensor: TaxelSensor | str = "xela_4x4",
+                 config: TactileConfig | None = None, objects: list[int] | None = None):
+        self.scene = scene
+        self.sensor = get_sensor(sensor)
+        self.config = config or TactileConfig()
+        self.objects = objects
+        self._taxels = self.sensor.taxel_positions()
+        self._housing = self.sensor.housing_positions()
+
+    def _is_object(self, ids: np.ndarray) -> np.ndarray:
+        objs = list(self.scene.objects) if self.objects is None else self.objects
+        return np.isin(ids, objs)
+
+    def touch(self, start, direction, roll: float = 0.0, rng: np.random.Generator | None = None) -> TouchResult:
+        """Guarded touch along ``direction`` from ``start`` (world frame, metres)."""
+        return self.touch_from(pad_frame(start, direction, roll), rng)
+
+    def touch_from(self, T_world_pad: np.ndarray, rng: np.random.Generator | None = None) -> TouchResult:
+        """Guarded motion of the pad along its own z-axis from the pose ``T_world_pad``."""
+        cfg = self.config
+        R, o = T_world_pad[:3, :3], T_world_pad[:3, 3]
+        d = R[:, 2]
+        starts = np.concatenate([self._taxels, self._housing]) @ R.T + o
+        ids, frac, pts, nrm = self.scene.ray_test(starts, starts + cfg.max_travel * d)
+        hit = ids >= 0
+        if not hit.any():
+            return TouchResult(T_world_pad=T_world_pad)
+        t = np.where(hit, frac * cfg.max_travel, np.inf)
+        depth = cfg.force_threshold / cfg.stiffness
+        t_stop = min(t.min() + depth, cfg.max_travel)
+        nt = len(self._taxels)
+        force = cfg.stiffness * np.clip(t_stop - t[:nt], 0.0, None)
+        contact = hit[:nt] & (force >= cfg.min_force) & self._is_object(ids[:nt])
+        T_stop = T_world_pad.copy()
+        T_stop[:3, 3] = o + t_stop * d
+        return self._report(np.flatnonzero(contact), pts[:nt], nrm[:nt], force, ids[:nt], T_stop, rng)
+
+    def _report(self, idx, pts, nrm, force, ids, T_stop, rng) -> TouchResult:
+        cfg = self.config
+        if len(idx) and cfg.dropout > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            idx = idx[rng.uniform(size=len(idx)) >= cfg.dropout]
+        if len(idx) < cfg.min_contacts:
+            return TouchResult(T_world_pad=T_stop)
+        points = pts[idx].copy()
+        if cfg.position_noise > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            points += rng.normal(scale=cfg.position_noise, size=points.shape)
+        return TouchResult(points, nrm[idx].copy(), force[idx].copy(), idx.astype(np.int64),
+                           ids[idx].astype(np.int64), T_stop)
+
+    def pinch(self, center, axis_angle: float, width: float, approach_height: float = 0.1,
+              rng: np.random.Generator | None = None) -> TouchResult:
+        """Pinch from above: descend two facing pads to ``center`` and close them along an xy axis.
+
+        Args:
+            center: (3,) grasp centre in the world frame; the fingers end at its height.
+            axis_angle: closing axis direction in the xy-plane (rad from world x).
+            width: initial finger opening (m), wider than the object at that height.
+            approach_height: height above ``center`` from which the fingers descend.
+        """
+        c = np.asarray(center, dtype=np.float64)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"center: need a finite (3,) point, got {center}")
+        if not (width > 0 and approach_height > 0):
+            raise ValueError(f"width/approach_height: need > 0, got {width}, {approach_height}")
+        u = np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0])
+        results = []
+        for sign in (1.0, -1.0):
+            # Pad faces inward (-sign * u); its grid's x-axis stays horizontal, y vertical.
+            T = pad_frame(c + sign * u * width / 2, -sign * u)
+            T_top = T.copy()
+            T_top[:3, 3] += [0, 0, approach_height]
+            if self._descent_blocked(T_top, approach_height):
+                return TouchResult(T_world_pad=T)
+            results.append(self.touch_from(T, rng))
+        cfg = self.config
+        merged = TouchResult.merge(results)
+        return merged if merged.num_contacts >= cfg.min_contacts else TouchResult()
+
+    def _descent_blocked(self, T_top: np.ndarray, drop: float) -> bool:
+        starts = self._housing @ T_top[:3, :3].T + T_top[:3, 3]
+        ids, _, _, _ = self.scene.ray_test(starts, starts - np.array([0, 0, drop]))
+        return bool(self._is_object(ids).any())
+
+
+# --------------------------------------------------------------------------- action samplers
+def bbox_faces(lo, hi):
+    """The five faces of an axis-aligned box except the bottom: (centre, outward normal, u, v half-axes)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c, h = (lo + hi) / 2, (hi - lo) / 2
+    faces = []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            if axis == 2 and sign < 0:
+                continue  # the bottom face rests on the table (thesis 5.2.3, 7.2.4)
+            n = np.zeros(3)
+            n[axis] = sign
+            others = [a for a in range(3) if a != axis]
+            u, v = np.zeros(3), np.zeros(3)
+            u[others[0]], v[others[1]] = h[others[0]], h[others[1]]
+            faces.append((c + sign * h[axis] * n, n, u, v))
+    return faces
+
+
+def sample_touches(lo, hi, n: int, rng: np.random.Generator, standoff: float = 0.03,
+                   mode: str = "random", margin: float = 0.9) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Touch actions (start, direction, roll) on the bounding-box faces except the bottom.
+
+    ``mode="random"`` picks faces with probability proportional to area and points uniformly on them
+    (Monte-Carlo sampling, thesis 7.2.4); ``mode="grid"`` spreads ``n`` touches as regular grids over
+    the five faces. Starts lie ``standoff`` metres outside the face; directions point inward.
+    """
+    if n < 1:
+        raise ValueError(f"n: need >= 1, got {n}")
+    if mode not in ("random", "grid"):
+        raise ValueError(f"mode: expected 'random' or 'grid', got {mode!r}")
+    faces = bbox_faces(lo, hi)
+    out = []
+    if mode == "random":
+        area = np.array([np.linalg.norm(u) * np.linalg.norm(v) for _, _, u, v in faces])
+        choice = rng.choice(len(faces), size=n, p=area / area.sum())
+        ab = rng.uniform(-margin, margin, size=(n, 2))
+        for f, (a, b) in zip(choice, ab, strict=True):
+            c, nrm, u, v = faces[f]
+            out.append((c + a * u + b * v + standoff * nrm, -nrm, float(rng.uniform(0, np.pi))))
+        return out
+    per_face = max(1, int(np.ceil(n / len(faces))))
+    k = int(np.ceil(np.sqrt(per_face)))
+    g = np.linspace(-margin, margin, k) if k > 1 else np.zeros(1)
+    for c, nrm, u, v in faces:
+        for a in g:
+            for b in g:
+                out.append((c + a * u + b * v + standoff * nrm, -nrm, 0.0))
+    return out[:n] if len(out) > n else out
+
+
+def sample_pinches(lo, hi, n: int, rng: np.random.Generator, clearance: float = 0.03):
+    """Pinch actions from above: (centre, axis angle, width) with the centre inside the footprint."""
+    if n < 1:
+        raise ValueError(f"n: need >= 1, got {n}")
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c, h = (lo + hi) / 2, (hi - lo) / 2
+    width = 2 * np.linalg.norm(h[:2]) + 2 * clearance
+    out = []
+    for _ in range(n):
+        xy = c[:2] + rng.uniform(-0.3, 0.3, size=2) * h[:2]
+        z = lo[2] + rng.uniform(0.15, 0.95) * (hi[2] - lo[2])
+        out.append((np.array([xy[0], xy[1], z]), float(rng.uniform(0, np.pi)), float(width)))
+    return out
