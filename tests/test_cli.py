@@ -1,0 +1,44 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from vtlearn import __version__
+from vtlearn.cli import build_parser, main
+from vtlearn.io import write_cloud
+
+
+def test_help_lists_subcommands():
+    text = build_parser().format_help()
+    for cmd in ("info", "metrics", "convert", "bench"):
+        assert cmd in text
+
+
+def test_version_via_console_entry():
+    out = subprocess.run([sys.executable, "-m", "vtlearn.cli", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and __version__ in out.stdout
+
+
+def test_metrics_command(tmp_path, capsys):
+    a = write_cloud(tmp_path / "a.xyz", np.array([[0.0, 0, 0]]))
+    b = write_cloud(tmp_path / "b.xyz", np.array([[1.0, 0, 0], [3.0, 0, 0]]))
+    assert main(["metrics", str(a), str(b)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["chamfer"] == 3.0 and out["hausdorff"] == 3.0
+
+
+def test_convert_and_clear_errors(tmp_path, capsys):
+    a = write_cloud(tmp_path / "a.npy", np.random.default_rng(0).random((10, 3)))
+    assert main(["convert", str(a), str(tmp_path / "a.ply")]) == 0
+    assert main(["convert", str(tmp_path / "missing.ply"), str(tmp_path / "x.ply")]) == 2
+    assert "missing.ply" in capsys.readouterr().err
+
+
+def test_default_logger_falls_back_to_csv(tmp_path, monkeypatch):
+    from lightning.pytorch.loggers import CSVLogger
+
+    from vtlearn.logging_utils import default_logger
+
+    monkeypatch.setenv("WANDB_MODE", "disabled")
+    assert isinstance(default_logger(save_dir=str(tmp_path)), CSVLogger)

@@ -1,0 +1,108 @@
+import numpy as np
+import pytest
+import trimesh
+
+from vtlearn.io import (
+    atomic_write_npz,
+    read_cloud,
+    read_cloud_with_normals,
+    read_geometry,
+    read_mesh,
+    write_cloud,
+    write_mesh,
+)
+
+
+@pytest.fixture
+def cloud():
+    rng = np.random.default_rng(0)
+    pts = rng.random((50, 3))
+    nrm = rng.normal(size=(50, 3))
+    return pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz"])
+def test_cloud_round_trip(tmp_path, cloud, suffix):
+    pts, nrm = cloud
+    path = write_cloud(tmp_path / f"c{suffix}", pts, nrm)
+    back, back_n = read_cloud_with_normals(path)
+    tol = 1e-6 if suffix in (".ply", ".pcd", ".xyz", ".txt") else 0  # text/float32-free formats are exact
+    np.testing.assert_allclose(back, pts, atol=max(tol, 1e-12))
+    assert back_n is not None
+    np.testing.assert_allclose(back_n, nrm, atol=max(tol, 1e-12))
+    np.testing.assert_allclose(read_cloud(write_cloud(tmp_path / f"n{suffix}", pts)), pts, atol=max(tol, 1e-12))
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".off"])
+def test_mesh_round_trip(tmp_path, suffix):
+    box = trimesh.creation.box(extents=(0.1, 0.2, 0.3))
+    path = write_mesh(tmp_path / f"m{suffix}", box)
+    back = read_mesh(path)
+    assert back.is_watertight
+    np.testing.assert_allclose(back.volume, box.volume, rtol=1e-5)
+    np.testing.assert_allclose(back.bounds, box.bounds, atol=1e-6)
+
+
+def test_read_geometry_samples_meshes_and_passes_clouds(tmp_path, cloud):
+    path = write_mesh(tmp_path / "box.ply", trimesh.creation.box(extents=(1, 1, 1)))
+    pts = read_geometry(path, n_points=300)
+    assert pts.shape == (300, 3) and np.abs(pts).max() <= 0.5 + 1e-9
+    np.testing.assert_allclose(read_geometry(write_cloud(tmp_path / "c.npy", cloud[0])), cloud[0])
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.ply"):
+        read_cloud(tmp_path / "nope.ply")
+    with pytest.raises(FileNotFoundError, match="nope.obj"):
+        read_mesh(tmp_path / "nope.obj")
+    bad = tmp_path / "bad.xyz"
+    bad.write_text("1 2 3\n4 5\n")
+    with pytest.raises(ValueError, match="bad.xyz"):
+        read_cloud(bad)
+    nan = tmp_path / "nan.xyz"
+    nan.write_text("1 2 3\nnan 5 6\n")
+    with pytest.raises(ValueError, match="NaN"):
+        read_cloud(nan)
+    empty = tmp_path / "empty.txt"
+    empty.write_text("")
+    with pytest.raises(ValueError, match="empty.txt"):
+        read_cloud(empty)
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"\x00\x01 not a ply")
+    with pytest.raises(ValueError, match="garbage.ply"):
+        read_cloud(garbage)
+    wrong = tmp_path / "wrong.npy"
+    np.save(wrong, np.ones((4, 4)))
+    with pytest.raises(ValueError, match=r"wrong.npy.*\(4, 4\)"):
+        read_cloud(wrong)
+    other = tmp_path / "cloud.csvx"
+    other.write_text("1 2 3")
+    with pytest.raises(ValueError, match="unsupported cloud format"):
+        read_cloud(other)
+    broken_mesh = tmp_path / "broken.obj"
+    broken_mesh.write_text("v 0 0 0\nv 1 0 0\n")
+    with pytest.raises(ValueError, match="broken.obj"):
+        read_mesh(broken_mesh)
+
+
+def test_npz_never_unpickles(tmp_path):
+    path = tmp_path / "obj.npz"
+    np.savez(path, points=np.array([object()], dtype=object))
+    with pytest.raises(ValueError, match="obj.npz"):
+        read_cloud(path)
+    with pytest.raises(ValueError, match="object arrays"):
+        atomic_write_npz(tmp_path / "x.npz", a=np.array([object()], dtype=object))
+
+
+def test_atomic_write_npz_leaves_no_temp(tmp_path):
+    out = atomic_write_npz(tmp_path / "sub" / "shard.npz", points=np.ones((3, 3)))
+    assert out.exists() and [p.name for p in out.parent.iterdir()] == ["shard.npz"]
+    with np.load(out, allow_pickle=False) as d:
+        np.testing.assert_array_equal(d["points"], np.ones((3, 3)))
+
+
+def test_write_cloud_rejects_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="points"):
+        write_cloud(tmp_path / "a.ply", np.empty((0, 3)))
+    with pytest.raises(ValueError, match="unsupported"):
+        write_cloud(tmp_path / "a.las", np.ones((3, 3)))
