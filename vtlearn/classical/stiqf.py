@@ -1,0 +1,351 @@
+"""S-TIQF: Stochastic TIQF with scale estimation (thesis ch.5, eq. 5.11-5.18, Algorithm 3).
+
+Three steps on top of :mod:`vtlearn.classical.tiqf`:
+
+1. **Scale** (eq. 5.12, optional): the ratio of the axis-aligned bounding boxes of scene and model,
+   ``s = AABB(S) / AABB(O)`` per axis, and ``o' = s . o`` (eq. 5.11). The thesis takes both boxes in their own
+   axes, which assumes an unrotated scene. Here the scene box is taken in the model's axes through the
+   current rotation estimate (identity at first, which is the thesis formula) and the registration is redone
+   once with the refined scale (``scale_iters``). Because eq. 5.12 needs a rotation, the very first scale fed
+   to the annealing is the rotation-invariant isotropic ratio of RMS radii about the centroids.
+2. **Simulated-annealing initial alignment** (eq. 5.13-5.14): cost eq. 5.14 is the mean nearest-neighbour
+   distance from the scene points to the transformed model (scene -> model; with a sparse scene this is the
+   direction that is defined for every scene point). Geometric cooling ``t <- zeta t`` with ``zeta = 0.98``
+   from ``t0 = 1`` to ``t_min = 1e-4`` (456 steps), Metropolis acceptance eq. 5.13, 10 restarts. Proposals
+   are neighbourhood moves whose size shrinks with the temperature: a rotation by ``N(0, (pi sqrt(t))^2)``
+   radians about each axis and a shift of the model centroid by ``N(0, (r sqrt(t))^2)``, ``r`` the model's RMS
+   radius (the cost is divided by ``r`` too, so the temperatures of the thesis, set for [-1, 1]^3 objects,
+   apply to any size). The 10 restarts run as 10 independent chains, vectorised: every temperature step
+   scores all chains' proposals in one lookup. The nearest-neighbour distance is read from a distance field of
+   the model cloud (exact on a ``grid``^3 lattice, trilinear in between, exact distance to the box outside);
+   ``sa_cost="kdtree"`` uses the exact KD-tree query instead (slower).
+3. **Best-buddy pairs** (eq. 5.15): a scene point and its nearest model point are kept only when the scene
+   point is also the nearest scene point of that model point; with normals for both clouds, also only when
+   the normals agree within ``normal_angle_deg``. Fewer than 3 buddies falls back to all closest points.
+4. **TIQF refinement** (eq. 5.16-5.18): the best ``n_refine`` distinct chain results are refined with TIQF on
+   best-buddy pairs and the one with the lowest exact eq. 5.14 cost is returned.
+
+Conventions: Hamilton quaternions (w, x, y, z); ``T_scene_model`` maps (scaled) model points into the scene:
+``s = R (scale . o) + t``; metres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+from scipy.spatial import cKDTree
+
+from vtlearn.classical.tiqf import TIQF, _matrix_to_quat, _quat_to_matrix
+from vtlearn.validation import as_points, check_not_collinear
+
+__all__ = ["STIQF", "STIQFResult", "aabb_scale", "best_buddy_pairs", "DistanceField", "simulated_annealing"]
+
+
+def aabb_scale(scene, model, R=None) -> np.ndarray:
+    """Per-axis scale of eq. 5.12: ``|max - min|_S / |max - min|_O`` for x, y, z.
+
+    Args:
+        scene: scene cloud S.
+        model: model cloud O.
+        R: optional rotation estimate ``R_scene_model``; the scene box is then taken in the model axes.
+
+    Shapes:
+        scene: ``(N, 3)``; model: ``(M, 3)``; R: ``(3, 3)`` -> ``(3,)``.
+    """
+    scene = as_points(scene, "scene", min_points=2)
+    model = as_points(model, "model", min_points=2)
+    if R is not None:
+        scene = scene @ np.asarray(R, dtype=np.float64)  # rows R^T s
+    ext_s = scene.max(0) - scene.min(0)
+    ext_o = model.max(0) - model.min(0)
+    if (ext_o <= 0).any():
+        raise ValueError(f"model: bounding box is flat (extent {ext_o.tolist()}); scale is undefined")
+    scale = ext_s / ext_o
+    # a flat scene box along one axis carries no information there: use the mean of the other axes
+    flat = scale <= 1e-9
+    if flat.all():
+        raise ValueError("scene: bounding box has zero extent; scale is undefined")
+    scale[flat] = scale[~flat].mean()
+    return scale
+
+
+def best_buddy_pairs(scene_in_model, model, model_tree=None, scene_normals_in_model=None, model_normals=None,
+                     normal_angle_deg: float | None = None):
+    """Mutual nearest neighbours between a scene (already in the model frame) and a model (eq. 5.15).
+
+    Returns:
+        ``(scene_idx, model_idx)`` index arrays of the best-buddy pairs.
+
+    Shapes:
+        scene_in_model: ``(N, 3)``; model: ``(M, 3)``; normals: same shapes as their clouds.
+    """
+    tree = cKDTree(model) if model_tree is None else model_tree
+    _, nn_model = tree.query(scene_in_model, k=1)
+    _, nn_back = cKDTree(scene_in_model).query(model[nn_model], k=1)
+    scene_idx = np.arange(len(scene_in_model))
+    keep = nn_back == scene_idx
+    if normal_angle_deg is not None and scene_normals_in_model is not None and model_normals is not None:
+        cos = np.einsum("nd,nd->n", scene_normals_in_model, model_normals[nn_model])
+        keep &= cos >= np.cos(np.radians(normal_angle_deg))
+    return scene_idx[keep], nn_model[keep]
+
+
+class DistanceField:
+    """Unsigned distance to a point cloud on a regular lattice, trilinear lookup (S-TIQF's SA cost).
+
+    Args:
+        points: the cloud ``(M, 3)``.
+        grid: lattice nodes along the longest box side.
+        pad: padding of the lattice beyond the cloud's box, as a fraction of its longest side.
+    """
+
+    def __init__(self, points, grid: int = 32, pad: float = 0.25, tree: cKDTree | None = None):
+        points = as_points(points, "points", min_points=1)
+        lo, hi = points.min(0), points.max(0)
+        side = float((hi - lo).max())
+        side = side if side > 0 else 1.0
+        self.lo = lo - pad * side
+        hi = hi + pad * side
+        self.h = (side * (1 + 2 * pad)) / (grid - 1)
+        self.shape = np.maximum(np.ceil((hi - self.lo) / self.h).astype(int) + 1, 2)
+        self.hi = self.lo + (self.shape - 1) * self.h
+        axes = [self.lo[k] + self.h * np.arange(self.shape[k]) for k in range(3)]
+        nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        tree = cKDTree(points) if tree is None else tree
+        self.values = tree.query(nodes, k=1)[0].reshape(tuple(self.shape))
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """Distances for query points ``(..., 3)`` -> ``(...)``."""
+        q = np.asarray(q, dtype=np.float64)
+        return self.lookup(q[..., 0], q[..., 1], q[..., 2])
+
+    def lookup(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Distances for coordinates given as three arrays of equal shape ``(...)`` -> ``(...)``.
+
+        Trilinear interpolation is one ``scipy.ndimage.map_coordinates`` call (clamped at the lattice
+        border); outside the lattice the exact distance to the lattice box is added.
+        """
+        q = np.stack([np.ravel(x), np.ravel(y), np.ravel(z)])  # 3xK
+        g = (q - self.lo[:, None]) * (1.0 / self.h)
+        inside = map_coordinates(self.values, g, order=1, mode="nearest")
+        d = np.maximum(np.maximum(self.lo[:, None] - q, q - self.hi[:, None]), 0.0)
+        return (inside + np.sqrt((d * d).sum(0))).reshape(np.shape(x))
+
+
+def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation vectors ``(..., 3)`` -> ``(..., 3, 3)``."""
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    k = w / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-12)
+    x, y, z = np.moveaxis(k, -1, 0)
+    o = np.zeros_like(x)
+    K = np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2)
+    return np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
+
+
+def _random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return _quat_to_matrix(q)
+
+
+def simulated_annealing(model, scene, *, cost_fn, t0: float = 1.0, t_min: float = 1e-4, zeta: float = 0.98,
+                        restarts: int = 10, rng=None, scale_ref: float | None = None):
+    """Simulated-annealing initial alignment (eq. 5.13-5.14, Algorithm 3), ``restarts`` parallel chains.
+
+    Args:
+        model: model cloud ``(M, 3)`` (already scaled).
+        scene: scene cloud ``(N, 3)``.
+        cost_fn: maps the x, y, z coordinates ``(C, N)`` each of the scene points expressed in the model frame
+            to their nearest-neighbour distances to the model ``(C, N)`` (e.g. :meth:`DistanceField.lookup`).
+        t0, t_min, zeta: temperature schedule (thesis: 1, 1e-4, 0.98).
+        restarts: number of chains (thesis: 10 restarts).
+        rng: seed or ``np.random.Generator``.
+        scale_ref: length unit of the cost and of the proposals (default: model RMS radius).
+
+    Returns:
+        ``(T_scene_model (C, 4, 4), best_cost (C,))`` per chain, best first.
+    """
+    if not (0 < zeta < 1):
+        raise ValueError(f"zeta: cooling rate must lie in (0, 1), got {zeta}")
+    if not (t0 > t_min > 0):
+        raise ValueError(f"t_min: must satisfy 0 < t_min < t0, got t0={t0}, t_min={t_min}")
+    rng = np.random.default_rng(rng)
+    model = np.asarray(model, dtype=np.float64)
+    scene = np.asarray(scene, dtype=np.float64)
+    m_c = model.mean(0)
+    r = scale_ref if scale_ref is not None else float(np.sqrt(((model - m_c) ** 2).sum(1).mean()))
+    C = restarts
+    s_c = scene.mean(0)
+
+    scene_t = np.ascontiguousarray(scene.T)  # 3xN
+
+    def cost(R, c):
+        # T = [R, c - R m_c]; the scene in the model frame is R^T (s - c) + m_c
+        q = np.swapaxes(R, 1, 2) @ (scene_t[None] - c[:, :, None]) + m_c[None, :, None]  # Cx3xN
+        return cost_fn(q[:, 0], q[:, 1], q[:, 2]).mean(-1) / r
+
+    n_steps = int(math.ceil(math.log(t_min / t0) / math.log(zeta)))
+    temps = t0 * zeta ** np.arange(1, n_steps + 1)
+    # proposal noise does not depend on the state, so it is drawn for all steps at once
+    sig = np.sqrt(temps)[:, None, None]
+    dR = _rotvec_to_matrix(rng.normal(size=(n_steps, C, 3)) * (math.pi * sig))  # SxCx3x3
+    dc_noise = rng.normal(size=(n_steps, C, 3)) * (r * sig)
+    u = rng.random((n_steps, C))
+    R = _random_rotations(C, rng)
+    c = np.repeat(s_c[None], C, 0)
+    cur = cost(R, c)
+    best_R, best_c, best = R.copy(), c.copy(), cur.copy()
+    for k in range(n_steps):
+        R_new = dR[k] @ R
+        c_new = c + dc_noise[k]
+        new = cost(R_new, c_new)
+        dc = new - cur
+        # eq. 5.13: accept with probability 1 if dc <= 0, else exp(-dc / t)
+        accept = (dc <= 0) | (np.exp(-np.maximum(dc, 0) / temps[k]) > u[k])
+        R = np.where(accept[:, None, None], R_new, R)
+        c = np.where(accept[:, None], c_new, c)
+        cur = np.where(accept, new, cur)
+        better = cur < best
+        if better.any():
+            best_R[better], best_c[better], best[better] = R[better], c[better], cur[better]
+    order = np.argsort(best)
+    T = np.tile(np.eye(4), (C, 1, 1))
+    T[:, :3, :3] = best_R
+    T[:, :3, 3] = best_c - np.einsum("cij,j->ci", best_R, m_c)
+    return T[order], best[order] * r
+
+
+@dataclass
+class STIQFResult:
+    """Output of :meth:`STIQF.register`.
+
+    Attributes:
+        T_scene_model: ``(4, 4)`` maps *scaled* model points ``scale * o`` into the scene.
+        scale: per-axis scale ``(3,)`` (ones when not estimated).
+        iterations: TIQF outer iterations of the returned solution.
+        rmse: RMSE of the final best-buddy (or closest-point) correspondence distances (m).
+        cost: eq. 5.14 cost (mean scene-to-model NN distance, m) of the returned pose.
+        sa_cost: best annealing cost (m).
+    """
+
+    T_scene_model: np.ndarray
+    scale: np.ndarray
+    iterations: int
+    rmse: float
+    cost: float
+    sa_cost: float
+
+
+class STIQF:
+    """S-TIQF registration (Algorithm 3).
+
+    Args:
+        estimate_scale: estimate a per-axis scale (eq. 5.12).
+        t0, t_min, zeta, restarts: annealing schedule (thesis 5.2.4: 1, 1e-4, 0.98, 10).
+        sa_cost: ``"field"`` (distance-field lookup) or ``"kdtree"`` (exact).
+        grid: distance-field resolution.
+        n_refine: how many chain results TIQF refines.
+        best_buddies: use best-buddy pairs (eq. 5.15) instead of plain closest points.
+        normal_angle_deg: normal-agreement threshold for best buddies (needs normals for both clouds).
+        rho, max_iter, tol_trans, tol_rot_deg, n_escapes: passed to :class:`~vtlearn.classical.tiqf.TIQF`.
+        scale_iters: scale re-estimations in the model axes after registration.
+        seed: makes the whole run reproducible.
+    """
+
+    def __init__(self, estimate_scale: bool = False, t0: float = 1.0, t_min: float = 1e-4, zeta: float = 0.98,
+                 restarts: int = 10, sa_cost: str = "field", grid: int = 32, n_refine: int = 3,
+                 best_buddies: bool = True, normal_angle_deg: float | None = None, rho: float = 1e-2,
+                 max_iter: int = 100, tol_trans: float = 1e-4, tol_rot_deg: float = 0.1, n_escapes: int = 0,
+                 scale_iters: int = 1, seed: int | None = 0):
+        if sa_cost not in ("field", "kdtree"):
+            raise ValueError(f"sa_cost: expected 'field' or 'kdtree', got {sa_cost!r}")
+        if restarts < 1:
+            raise ValueError(f"restarts: must be >= 1, got {restarts}")
+        if n_refine < 1:
+            raise ValueError(f"n_refine: must be >= 1, got {n_refine}")
+        self.estimate_scale = estimate_scale
+        self.t0, self.t_min, self.zeta, self.restarts = t0, t_min, zeta, restarts
+        self.sa_cost, self.grid, self.n_refine = sa_cost, grid, n_refine
+        self.best_buddies = best_buddies
+        self.normal_angle_deg = normal_angle_deg
+        self.scale_iters = scale_iters
+        self.seed = seed
+        self.tiqf = TIQF(rho=rho, max_iter=max_iter, tol_trans=tol_trans, tol_rot_deg=tol_rot_deg,
+                         n_escapes=n_escapes, seed=seed)
+
+    def __repr__(self) -> str:
+        return (f"STIQF(estimate_scale={self.estimate_scale}, zeta={self.zeta}, t0={self.t0}, "
+                f"t_min={self.t_min}, restarts={self.restarts}, sa_cost={self.sa_cost!r})")
+
+    def _correspondence_fn(self, model, tree, model_normals, scene, scene_normals):
+        if not self.best_buddies:
+            return None
+
+        def corr(scene_in_model, R, t):
+            sn = None if scene_normals is None else scene_normals @ R  # rows R^T n
+            si, mi = best_buddy_pairs(scene_in_model, model, tree, sn, model_normals, self.normal_angle_deg)
+            if len(si) < 3:
+                _, mi = tree.query(scene_in_model, k=1)
+                si = np.arange(len(scene_in_model))
+            return scene[si], model[mi]
+
+        return corr
+
+    def _register_scaled(self, model, scene, rng, model_normals, scene_normals):
+        tree = cKDTree(model)
+        if self.sa_cost == "field":
+            field = DistanceField(model, grid=self.grid, tree=tree)
+            cost_fn = field.lookup
+        else:
+            def cost_fn(x, y, z):
+                return tree.query(np.stack([x, y, z], -1).reshape(-1, 3), k=1)[0].reshape(x.shape)
+        T_sa, c_sa = simulated_annealing(model, scene, cost_fn=cost_fn, t0=self.t0, t_min=self.t_min,
+                                         zeta=self.zeta, restarts=self.restarts, rng=rng)
+        corr = self._correspondence_fn(model, tree, model_normals, scene, scene_normals)
+        best = None
+        for k in range(min(self.n_refine, len(T_sa))):
+            res = self.tiqf.register(model, scene, T_init=T_sa[k], model_tree=tree, correspondences=corr)
+            R, t = res.T_scene_model[:3, :3], res.T_scene_model[:3, 3]
+            cost = float(tree.query((scene - t) @ R, k=1)[0].mean())
+            if best is None or cost < best[1]:
+                best = (res, cost)
+        return best[0], best[1], float(c_sa[0])
+
+    def register(self, model, scene, model_normals=None, scene_normals=None) -> STIQFResult:
+        """Estimate scale, rotation and translation with ``scene ~ R (scale . model) + t``.
+
+        Shapes:
+            model: ``(M, 3)``; scene: ``(N, 3)``, N >= 3, not collinear; normals: like their clouds.
+        """
+        model = as_points(model, "model", min_points=3)
+        scene = as_points(scene, "scene", min_points=3)
+        check_not_collinear(scene, "scene")
+        if model_normals is not None:
+            model_normals = as_points(model_normals, "model_normals", min_points=len(model))
+        if scene_normals is not None:
+            scene_normals = as_points(scene_normals, "scene_normals", min_points=len(scene))
+        rng = np.random.default_rng(self.seed)
+        scale = np.ones(3)
+        if self.estimate_scale:
+            r_s = np.sqrt(((scene - scene.mean(0)) ** 2).sum(1).mean())
+            r_o = np.sqrt(((model - model.mean(0)) ** 2).sum(1).mean())
+            if r_o <= 0:
+                raise ValueError("model: all points coincide; scale is undefined")
+            scale = np.full(3, r_s / r_o)
+        res, cost, sa_cost = self._register_scaled(model * scale, scene, rng, model_normals, scene_normals)
+        if self.estimate_scale:
+            for _ in range(self.scale_iters):
+                R = res.T_scene_model[:3, :3]
+                scale = aabb_scale(scene, model, R)
+                res, cost, sa_cost = self._register_scaled(model * scale, scene, rng, model_normals,
+                                                           scene_normals)
+        return STIQFResult(T_scene_model=res.T_scene_model, scale=scale, iterations=res.iterations,
+                           rmse=res.rmse, cost=cost, sa_cost=sa_cost)
+
+
+def quat_of(T: np.ndarray) -> np.ndarray:
+    """Rotation quaternion (w, x, y, z) of a ``(4, 4)`` transform (convenience for reports)."""
+    return _matrix_to_quat(np.asarray(T)[:3, :3])
