@@ -1,0 +1,489 @@
+"""Probabilistic occupancy grid, batched 3-D DDA ray traversal and expected information gain.
+
+Thesis 5.2.3 (eq. 5.6-5.9), 7.2.4 (eq. 7.9-7.12) and 8.2.3 (eq. 8.2-8.5) all use the same machinery:
+
+- The space around the object is a dense voxel grid. Each cell is an independent Bernoulli variable
+  stored as log-odds ``L(g) = log p(g) / (1 - p(g))``; every cell starts at ``p = 0.5`` (``L = 0``).
+- A measurement ray updates the cell where it ends as a hit and the cells before it as misses,
+  ``L(g|z) = L(g) + l(z)`` with ``l(hit) = logit(p_hit)`` and ``l(miss) = logit(p_miss)``,
+  ``p_hit = 0.7`` and ``p_miss = 0.4`` (eq. 5.7 / 7.10 / 8.3, OctoMap sensor model, Hornung et al. 2013).
+  As in OctoMap the log-odds are clamped to ``[logit(clamp_min), logit(clamp_max)]`` so that the map
+  stays updatable; one scan updates each cell at most once, and a hit wins over a miss.
+- The uncertainty of the grid is the Shannon entropy (eq. 5.6 = eq. 7.9, in nats)
+  ``H(G) = -sum_g p log p + (1 - p) log(1 - p)``. Eq. 8.2 of the thesis prints the same sum without the
+  leading minus and with ``(1 - log p)``; that is a typesetting slip, and eq. 5.6 is what is computed.
+- The expected information gain of an action (eq. 5.8 / 7.11 / 8.4) is ``H(G) - H(G | a, z_hat)``:
+  the prior entropy minus the entropy after a *hypothetical* update with the measurement the action is
+  expected to produce. The expected measurement ``z_hat`` is a ray-cast against the current belief: a ray
+  stops at the first cell whose occupancy probability exceeds ``occupied_threshold`` (a predicted hit),
+  and runs to its maximum range through every other cell, unknown ones included (predicted misses).
+  Because cells are independent, the gain is a sum over the distinct cells an action would update, so
+  the gains of many candidate actions are computed at once without touching the grid.
+
+Rays are traversed with the voxel walk of Amanatides and Woo (1987), vectorised over a batch of rays:
+each iteration advances every live ray by one cell along the axis whose next boundary is nearest.
+
+The grid is axis-aligned in the frame its rays are given in (call it the grid frame; for an object
+with an oriented bounding box, express rays in the box frame). Units are metres.
+
+Shapes:
+    log_odds: ``(nx, ny, nz)`` float64; flat cell index ``i = (ix * ny + iy) * nz + iz``.
+    origins, directions: ``(R, 3)``; max_range / ranges: ``(R,)`` or a scalar; hit: ``(R,)`` bool.
+    action_index: ``(R,)`` int, the candidate action each ray belongs to (a PyG-style ``batch``
+    vector); expected_information_gain -> ``(A,)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vtlearn.validation import as_points
+
+__all__ = [
+    "OccupancyGrid",
+    "RayTraversal",
+    "binary_entropy",
+    "logit",
+]
+
+# OctoMap's default clamping thresholds (Hornung et al. 2013): log-odds stay within [-2, 3.5].
+DEFAULT_CLAMP_MIN = 0.1192
+DEFAULT_CLAMP_MAX = 0.971
+
+
+def logit(p):
+    """Log-odds ``log p / (1 - p)`` of a probability in (0, 1)."""
+    p = np.asarray(p, dtype=np.float64)
+    return np.log(p) - np.log1p(-p)
+
+
+def binary_entropy(p):
+    """Per-cell Shannon entropy in nats, ``-p log p - (1 - p) log(1 - p)`` (the summand of eq. 5.6)."""
+    p = np.asarray(p, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = -(p * np.log(p) + (1.0 - p) * np.log1p(-p))
+    return np.where((p <= 0.0) | (p >= 1.0), 0.0, h)
+
+
+def _entropy_from_log_odds(L: np.ndarray) -> np.ndarray:
+    # With a = |L| and e = exp(-a): p = 1 / (1 + e) for the likelier outcome, and
+    # -p log p - (1 - p) log(1 - p) = log(1 + e) + a e / (1 + e); exact far from p = 0.5 too.
+    a = np.abs(L)
+    e = np.exp(-a)
+    return np.log1p(e) + a * e / (1.0 + e)
+
+
+@dataclass
+class RayTraversal:
+    """The cells a batch of rays passes through, in walk order within each ray.
+
+    Attributes:
+        ray_index: ``(E,)`` int64, the ray of each visited cell.
+        cell_index: ``(E,)`` int64, flat cell index of each visited cell.
+        is_stop: ``(E,)`` bool, True for the cell where a ray was stopped by ``stop_mask``.
+        stop_cell: ``(R,)`` int64, the stopping cell of each ray, or -1 where none stopped it.
+        stop_range: ``(R,)`` float64, for stopped rays the distance along the ray to the middle of the
+            segment inside the stopping cell (a point strictly inside it); ``inf`` for the others.
+    """
+
+    ray_index: np.ndarray
+    cell_index: np.ndarray
+    is_stop: np.ndarray
+    stop_cell: np.ndarray
+    stop_range: np.ndarray
+
+
+class OccupancyGrid:
+    """Dense voxel occupancy grid in log-odds (thesis eq. 5.6-5.9, 7.9-7.12, 8.2-8.5).
+
+    Args:
+        origin: ``(3,)`` grid-frame position of the grid's minimum corner, metres.
+        resolution: edge length of a cubic cell, metres (``G_res`` / ``g_res`` / ``og_res`` in the thesis).
+        shape: number of cells ``(nx, ny, nz)``.
+        p_hit, p_miss: sensor model of eq. 5.7 (0.7 and 0.4 in the thesis).
+        clamp_min, clamp_max: probability bounds the log-odds are clamped to after each update.
+        occupied_threshold: a cell with ``p > occupied_threshold`` stops a predicted ray.
+
+    Shapes:
+        log_odds: ``(nx, ny, nz)``.
+    """
+
+    def __init__(
+        self,
+        origin,
+        resolution: float,
+        shape,
+        *,
+        p_hit: float = 0.7,
+        p_miss: float = 0.4,
+        clamp_min: float = DEFAULT_CLAMP_MIN,
+        clamp_max: float = DEFAULT_CLAMP_MAX,
+        occupied_threshold: float = 0.5,
+    ):
+        origin = np.asarray(origin, dtype=np.float64)
+        if origin.shape != (3,) or not np.isfinite(origin).all():
+            raise ValueError(f"origin: expected a finite (3,) position, got {origin.tolist()}")
+        if not (np.isfinite(resolution) and resolution > 0):
+            raise ValueError(f"resolution: need a positive finite cell size in metres, got {resolution}")
+        shape_arr = np.asarray(shape)
+        if shape_arr.shape != (3,) or not np.issubdtype(shape_arr.dtype, np.integer) or (shape_arr < 1).any():
+            raise ValueError(f"shape: expected three positive integers (nx, ny, nz), got {shape}")
+        if not 0.5 < p_hit < 1.0:
+            raise ValueError(f"p_hit: must lie in (0.5, 1), got {p_hit}")
+        if not 0.0 < p_miss < 0.5:
+            raise ValueError(f"p_miss: must lie in (0, 0.5), got {p_miss}")
+        if not 0.0 < clamp_min < 0.5 < clamp_max < 1.0:
+            raise ValueError(f"clamp_min, clamp_max: need 0 < clamp_min < 0.5 < clamp_max < 1, got {clamp_min}, {clamp_max}")
+        if not clamp_min <= occupied_threshold < clamp_max:
+            raise ValueError(f"occupied_threshold: must lie in [clamp_min, clamp_max), got {occupied_threshold}")
+        self.origin = origin
+        self.resolution = float(resolution)
+        self.shape = tuple(int(s) for s in shape_arr)
+        self.p_hit, self.p_miss = float(p_hit), float(p_miss)
+        self.l_hit, self.l_miss = float(logit(p_hit)), float(logit(p_miss))
+        self.l_min, self.l_max = float(logit(clamp_min)), float(logit(clamp_max))
+        self.l_occupied = float(logit(occupied_threshold))
+        self.log_odds = np.zeros(self.shape, dtype=np.float64)
+        self._stamp: np.ndarray | None = None
+        # Size of the scratch buffer of expected_information_gain, in (action, cell) slots.
+        self.max_buffer_cells = 1 << 24
+
+    @classmethod
+    def from_bounds(cls, lower, upper, cells_per_axis: int = 64, **kwargs) -> OccupancyGrid:
+        """A cubic-cell grid covering the box ``[lower, upper]``; its longest side gets ``cells_per_axis`` cells."""
+        lower = np.asarray(lower, dtype=np.float64)
+        upper = np.asarray(upper, dtype=np.float64)
+        if lower.shape != (3,) or upper.shape != (3,) or not (np.isfinite(lower).all() and np.isfinite(upper).all()):
+            raise ValueError(f"lower, upper: expected finite (3,) corners, got {lower.tolist()}, {upper.tolist()}")
+        if (upper <= lower).any():
+            raise ValueError(f"upper: must exceed lower on every axis, got lower={lower.tolist()} upper={upper.tolist()}")
+        if int(cells_per_axis) < 1:
+            raise ValueError(f"cells_per_axis: need >= 1, got {cells_per_axis}")
+        res = float((upper - lower).max()) / int(cells_per_axis)
+        shape = np.maximum(np.ceil((upper - lower) / res - 1e-9).astype(np.int64), 1)
+        return cls(lower, res, shape, **kwargs)
+
+    # ------------------------------------------------------------------ basic queries
+    @property
+    def n_cells(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def upper(self) -> np.ndarray:
+        """``(3,)`` maximum corner of the grid."""
+        return self.origin + self.resolution * np.asarray(self.shape, dtype=np.float64)
+
+    def copy(self) -> OccupancyGrid:
+        other = OccupancyGrid.__new__(OccupancyGrid)
+        other.__dict__.update(self.__dict__)
+        other.log_odds = self.log_odds.copy()
+        other._stamp = None
+        return other
+
+    def probabilities(self) -> np.ndarray:
+        """``(nx, ny, nz)`` occupancy probabilities ``p(g)``."""
+        return 0.5 * (1.0 + np.tanh(0.5 * self.log_odds))
+
+    def cell_entropy(self) -> np.ndarray:
+        """``(nx, ny, nz)`` per-cell entropy in nats (summands of eq. 5.6 / 7.9)."""
+        return _entropy_from_log_odds(self.log_odds)
+
+    def entropy(self) -> float:
+        """Shannon entropy of the whole grid in nats, eq. 5.6 / 7.9. An all-unknown grid has ``n ln 2``."""
+        return float(self.cell_entropy().sum())
+
+    def occupied_mask(self) -> np.ndarray:
+        """``(nx, ny, nz)`` bool, cells believed occupied (``p > occupied_threshold``)."""
+        return self.log_odds > self.l_occupied
+
+    def known_fraction(self, margin: float = 0.1) -> float:
+        """Fraction of cells whose probability is at least ``margin`` away from 0.5."""
+        return float((np.abs(self.probabilities() - 0.5) >= margin).mean())
+
+    def point_to_cell(self, points) -> np.ndarray:
+        """``(N, 3)`` integer cell coordinates of grid-frame points (may lie outside ``[0, shape)``)."""
+        pts = as_points(points, "points")
+        return np.floor((pts - self.origin) / self.resolution).astype(np.int64)
+
+    def cell_centers(self, cells=None) -> np.ndarray:
+        """Grid-frame centres of ``(N, 3)`` integer cells, or of all cells in flat order when None."""
+        if cells is None:
+            cells = np.stack(np.unravel_index(np.arange(self.n_cells), self.shape), axis=1)
+        cells = np.asarray(cells)
+        return self.origin + (cells + 0.5) * self.resolution
+
+    def flat_index(self, cells) -> np.ndarray:
+        """Flat index of ``(N, 3)`` integer cells."""
+        cells = np.asarray(cells, dtype=np.int64)
+        return np.ravel_multi_index(cells.T, self.shape)
+
+    # ------------------------------------------------------------------ ray traversal
+    def _check_rays(self, origins, directions, max_range):
+        o = as_points(origins, "origins")
+        d = as_points(directions, "directions")
+        if d.shape[0] != o.shape[0]:
+            raise ValueError(f"directions: expected {o.shape[0]} rays to match origins, got {d.shape[0]}")
+        norm = np.linalg.norm(d, axis=1)
+        if (norm < 1e-12).any():
+            raise ValueError(f"directions: {int((norm < 1e-12).sum())} direction vectors have zero length")
+        d = d / norm[:, None]
+        r = np.broadcast_to(np.asarray(max_range, dtype=np.float64), (o.shape[0],)).copy() if np.ndim(
+            max_range
+        ) == 0 else np.asarray(max_range, dtype=np.float64)
+        if r.shape != (o.shape[0],):
+            raise ValueError(f"max_range: expected a scalar or shape ({o.shape[0]},), got {tuple(r.shape)}")
+        if not np.isfinite(r).all() or (r < 0).any():
+            raise ValueError("max_range: must be finite and non-negative")
+        return o, d, r
+
+    def traverse(self, origins, directions, max_range, stop_mask=None) -> RayTraversal:
+        """Walk rays through the grid with the vectorised Amanatides-Woo DDA.
+
+        A ray visits every cell it enters at a distance ``t < max_range`` from its origin, in order. With
+        ``stop_mask`` (an ``(nx, ny, nz)`` bool array) a ray also ends at the first cell where the mask is
+        True, and that cell is flagged in ``is_stop``.
+
+        Shapes:
+            origins, directions: ``(R, 3)`` (directions need not be unit); max_range: scalar or ``(R,)``.
+        """
+        o, d, t_max = self._check_rays(origins, directions, max_range)
+        stop_flat = None
+        if stop_mask is not None:
+            stop_mask = np.asarray(stop_mask, dtype=bool)
+            if stop_mask.shape != self.shape:
+                raise ValueError(f"stop_mask: expected shape {self.shape}, got {tuple(stop_mask.shape)}")
+            stop_flat = stop_mask.ravel()
+        return self._dda(o, d, t_max, stop_flat)
+
+    def _dda(self, o: np.ndarray, d: np.ndarray, t_max: np.ndarray, stop_flat: np.ndarray | None) -> RayTraversal:
+        n_rays = o.shape[0]
+        lo, hi, res = self.origin, self.upper, self.resolution
+        shape = np.asarray(self.shape, dtype=np.int64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv_d = 1.0 / d
+            # Slab test; an axis-parallel ray is inside a slab for all t or for none.
+            t1 = (lo - o) * inv_d
+            t2 = (hi - o) * inv_d
+        inside = (o >= lo) & (o <= hi)
+        parallel = d == 0.0
+        t_near = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+        t_far = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+        t_enter = np.maximum(t_near.max(axis=1), 0.0)
+        t_exit = np.minimum(t_far.min(axis=1), t_max)
+        live = t_enter < t_exit
+
+        stop_cell = np.full(n_rays, -1, dtype=np.int64)
+        stop_range = np.full(n_rays, np.inf)
+        ray = np.nonzero(live)[0]
+        if ray.size == 0:
+            empty = np.zeros(0, dtype=np.int64)
+            return RayTraversal(empty, empty.copy(), np.zeros(0, dtype=bool), stop_cell, stop_range)
+
+        o, d, inv_d = o[ray], d[ray], inv_d[ray]
+        t_in, t_end = t_enter[ray], t_exit[ray]
+        n = ray.size
+        cell0 = np.floor((o + d * t_in[:, None] - lo) / res).astype(np.int64)
+        np.clip(cell0, 0, shape - 1, out=cell0)
+        step = np.sign(d).astype(np.int64)
+        moving = step != 0
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            # Time of the first boundary crossing along each axis, and the time between crossings.
+            t_first = np.where(moving, (lo + (cell0 + (step > 0)) * res - o) * inv_d, np.inf)
+            t_delta = np.where(moving, res * np.abs(inv_d), np.inf)
+            # Crossings k = 0, 1, ... happen at t_first + k * t_delta; count those before t_end, but no
+            # more than the cells left in the grid along that axis.
+            room = np.where(step > 0, shape - 1 - cell0, np.where(step < 0, cell0, 0))
+            est = np.where(moving, np.ceil((t_end[:, None] - t_first) / t_delta), 0.0)
+        n_cross = np.clip(np.nan_to_num(est, nan=0.0, posinf=0.0, neginf=0.0), 0, room).astype(np.int64)
+        n_cross = self._fix_count(n_cross, t_first, t_delta, t_end[:, None], room, inclusive=False)
+
+        # Amanatides-Woo visits cells in the order of the crossing times; merged over the three axes
+        # that order is closed-form: the rank of a crossing is 1 + the crossings before it on all axes
+        # (ties go to the lower axis first, as argmin would pick it). No sort and no per-step loop.
+        m = 1 + n_cross.sum(axis=1)
+        offset = np.cumsum(m) - m
+        total = int(m.sum())
+        strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
+        flat0 = cell0 @ strides
+        cell_index = np.empty(total, dtype=np.int64)
+        t_start = np.empty(total, dtype=np.float64)
+        cell_index[offset] = flat0
+        t_start[offset] = t_in
+        for a in range(3):
+            cnt_a = n_cross[:, a]
+            n_ev = int(cnt_a.sum())
+            if n_ev == 0:
+                continue
+            ev_ray = np.repeat(np.arange(n), cnt_a)
+            ev_k = np.arange(n_ev) - np.repeat(np.cumsum(cnt_a) - cnt_a, cnt_a)
+            t_ev = t_first[ev_ray, a] + ev_k * t_delta[ev_ray, a]
+            rank = 1 + ev_k
+            flat = flat0[ev_ray] + (ev_k + 1) * step[ev_ray, a] * strides[a]
+            for b in range(3):
+                if b == a:
+                    continue
+                nb = n_cross[ev_ray, b]
+                if not nb.any():
+                    continue
+                tf, td = t_first[ev_ray, b], t_delta[ev_ray, b]
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                    est = np.ceil((t_ev - tf) / td)
+                cnt = np.clip(np.nan_to_num(est, nan=0.0, posinf=0.0, neginf=0.0), 0, nb).astype(np.int64)
+                cnt = self._fix_count(cnt, tf, td, t_ev, nb, inclusive=b < a)
+                rank += cnt
+                flat += cnt * step[ev_ray, b] * strides[b]
+            pos = offset[ev_ray] + rank
+            cell_index[pos] = flat
+            t_start[pos] = t_ev
+        ray_local = np.repeat(np.arange(n), m)
+
+        if stop_flat is None:
+            return RayTraversal(ray[ray_local], cell_index, np.zeros(total, dtype=bool), stop_cell, stop_range)
+        occ = stop_flat[cell_index]
+        before = np.cumsum(occ) - occ
+        keep = before == np.repeat(before[offset], m)  # no stopping cell earlier in the same ray
+        is_stop = occ & keep
+        pos = np.nonzero(is_stop)[0]
+        r_loc = ray_local[pos]
+        last = offset[r_loc] + m[r_loc] - 1
+        t_out = np.where(pos < last, t_start[np.minimum(pos + 1, total - 1)], t_end[r_loc])
+        stop_cell[ray[r_loc]] = cell_index[pos]
+        stop_range[ray[r_loc]] = 0.5 * (t_start[pos] + t_out)
+        return RayTraversal(ray[ray_local[keep]], cell_index[keep], is_stop[keep], stop_cell, stop_range)
+
+    @staticmethod
+    def _fix_count(cnt, t_first, t_delta, t_limit, cap, inclusive: bool):
+        """Correct a ceil-division count of crossings ``t_first + k t_delta < t_limit`` (``<=`` when
+        ``inclusive``) by at most one in each direction, comparing the same floats the walk uses."""
+
+        def before(k):
+            with np.errstate(invalid="ignore", over="ignore"):
+                t = t_first + k * t_delta
+            return (t <= t_limit) if inclusive else (t < t_limit)
+
+        down = (cnt > 0) & ~before(np.maximum(cnt - 1, 0))
+        cnt = cnt - down
+        up = (cnt < cap) & before(cnt)
+        return cnt + up
+
+    # ------------------------------------------------------------------ measurement updates
+    def insert_rays(self, origins, directions, ranges, hit) -> None:
+        """Integrate one scan of measured rays (eq. 5.7): the end cell of a hit ray is updated as a hit,
+        every cell before it as a miss; a ray without a return (``hit`` False) misses every cell up to
+        ``ranges``. Each cell is updated at most once per call, and hit wins over miss.
+
+        Shapes:
+            origins, directions: ``(R, 3)``; ranges: scalar or ``(R,)``; hit: ``(R,)`` bool.
+        """
+        o, d, r = self._check_rays(origins, directions, ranges)
+        hit = np.asarray(hit, dtype=bool)
+        if hit.shape != (o.shape[0],):
+            raise ValueError(f"hit: expected a ({o.shape[0]},) bool array, got shape {tuple(hit.shape)}")
+        trav = self._dda(o, d, r, None)
+        end_cells = np.floor((o + d * r[:, None] - self.origin) / self.resolution).astype(np.int64)
+        in_grid = hit & ((end_cells >= 0) & (end_cells < np.asarray(self.shape))).all(axis=1)
+        end_flat = np.full(o.shape[0], -1, dtype=np.int64)
+        if in_grid.any():
+            end_flat[in_grid] = self.flat_index(end_cells[in_grid])
+        free = trav.cell_index[trav.cell_index != end_flat[trav.ray_index]]
+        self._apply(np.unique(free), np.unique(end_flat[in_grid]))
+
+    def insert_points(self, origins, endpoints) -> None:
+        """Integrate hit rays from sensor ``origins`` to measured surface points ``endpoints`` (both ``(R, 3)``)."""
+        o = as_points(origins, "origins")
+        e = as_points(endpoints, "endpoints")
+        if e.shape != o.shape:
+            raise ValueError(f"endpoints: expected shape {o.shape} to match origins, got {e.shape}")
+        delta = e - o
+        r = np.linalg.norm(delta, axis=1)
+        if (r < 1e-12).any():
+            raise ValueError("endpoints: some endpoints coincide with their origins")
+        self.insert_rays(o, delta / r[:, None], r, np.ones(o.shape[0], dtype=bool))
+
+    def _apply(self, miss_cells: np.ndarray, hit_cells: np.ndarray) -> None:
+        L = self.log_odds.reshape(-1)
+        miss_cells = np.setdiff1d(miss_cells, hit_cells, assume_unique=True)
+        L[miss_cells] = np.clip(L[miss_cells] + self.l_miss, self.l_min, self.l_max)
+        L[hit_cells] = np.clip(L[hit_cells] + self.l_hit, self.l_min, self.l_max)
+
+    # ------------------------------------------------------------------ prediction and information gain
+    def expected_measurement(self, origins, directions, max_range) -> tuple[np.ndarray, np.ndarray]:
+        """Ray-cast against the current belief: the measurement each ray is expected to return.
+
+        Returns:
+            ranges: ``(R,)`` distance to a point inside the first cell believed occupied, else ``max_range``.
+            hit: ``(R,)`` bool, whether a believed-occupied cell was met before ``max_range``.
+        """
+        o, d, r = self._check_rays(origins, directions, max_range)
+        trav = self._dda(o, d, r, self.occupied_mask().ravel())
+        hit = trav.stop_cell >= 0
+        return np.where(hit, trav.stop_range, r), hit
+
+    def _delta_entropy_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        L = self.log_odds.reshape(-1)
+        h0 = _entropy_from_log_odds(L)
+        dh_miss = h0 - _entropy_from_log_odds(np.clip(L + self.l_miss, self.l_min, self.l_max))
+        dh_hit = h0 - _entropy_from_log_odds(np.clip(L + self.l_hit, self.l_min, self.l_max))
+        return dh_miss, dh_hit
+
+    def expected_information_gain(
+        self, origins, directions, max_range, action_index=None, n_actions: int | None = None
+    ) -> np.ndarray:
+        """Expected information gain ``H(G) - H(G | a, z_hat)`` of many candidate actions at once (eq. 5.8).
+
+        Each action is the set of rays that share its ``action_index``. Its expected measurement is the
+        ray-cast of :meth:`expected_measurement`; the hypothetical update follows :meth:`insert_rays`
+        (each cell once per action, hit over miss), and the grid itself is left unchanged.
+
+        Args:
+            origins, directions, max_range: the rays of all candidate actions, grid frame.
+            action_index: ``(R,)`` int in ``[0, n_actions)``; None means one ray per action.
+            n_actions: number of actions ``A``; defaults to ``action_index.max() + 1``.
+
+        Shapes:
+            origins, directions: ``(R, 3)``; max_range: scalar or ``(R,)``; -> ``(A,)`` nats.
+        """
+        o, d, r = self._check_rays(origins, directions, max_range)
+        if action_index is None:
+            action_index = np.arange(o.shape[0])
+        action_index = np.asarray(action_index)
+        if action_index.shape != (o.shape[0],) or not np.issubdtype(action_index.dtype, np.integer):
+            raise ValueError(f"action_index: expected a ({o.shape[0]},) integer array, got {action_index.dtype} {action_index.shape}")
+        if (action_index < 0).any():
+            raise ValueError("action_index: must be non-negative")
+        n_act = int(action_index.max()) + 1 if n_actions is None else int(n_actions)
+        if n_act < int(action_index.max()) + 1:
+            raise ValueError(f"n_actions: {n_act} is smaller than action_index.max() + 1 = {int(action_index.max()) + 1}")
+
+        trav = self._dda(o, d, r, self.occupied_mask().ravel())
+        dh_miss, dh_hit = self._delta_entropy_tables()
+        act = action_index[trav.ray_index].astype(np.int64)
+        cells, is_hit = trav.cell_index, trav.is_stop
+        rep = self._first_per_action_cell(act, cells, is_hit, n_act)
+        gain = np.where(is_hit[rep], dh_hit[cells[rep]], dh_miss[cells[rep]])
+        return np.bincount(act[rep], weights=gain, minlength=n_act)
+
+    def _first_per_action_cell(self, act, cells, is_hit, n_act) -> np.ndarray:
+        """Indices of one entry per distinct (action, cell) pair, a hit entry wherever the pair has one.
+
+        A scratch buffer indexed by ``(action, cell)`` is written with entry ids, misses first and hits
+        second; afterwards exactly one entry per pair reads back its own id. Only written slots are read,
+        so the buffer never needs clearing; actions are processed in chunks to bound its size.
+        """
+        n_cells = self.n_cells
+        chunk = max(1, min(n_act, self.max_buffer_cells // n_cells))
+        if self._stamp is None or self._stamp.size < chunk * n_cells:
+            self._stamp = np.empty(chunk * n_cells, dtype=np.int64)
+        buf = self._stamp
+        entry = np.arange(act.size, dtype=np.int64)
+        keep = np.zeros(act.size, dtype=bool)
+        for a0 in range(0, n_act, chunk):
+            sel = entry if chunk >= n_act else entry[(act >= a0) & (act < a0 + chunk)]
+            key = (act[sel] - a0) * n_cells + cells[sel]
+            h = is_hit[sel]
+            buf[key[~h]] = sel[~h]
+            buf[key[h]] = sel[h]
+            keep[sel[buf[key] == sel]] = True
+        return np.nonzero(keep)[0]
