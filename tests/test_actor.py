@@ -1,0 +1,234 @@
+"""ACTOR (thesis ch.8, Sec. 8.2.2): components, loss, padding invariance, Lightning smoke + checkpoints."""
+
+import os
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import CSVLogger
+
+from vtlearn.models.actor import ACTOR, actor_loss, bn_momentum_at, load_actor, reconstruct
+from vtlearn.models.actor_synthetic import PrimitiveDataModule
+from vtlearn.models.components.actor_attention import SelfAttentionUnit
+from vtlearn.models.components.actor_decoder import ActorDecoder
+from vtlearn.models.components.actor_encoder import ActorEncoder
+from vtlearn.models.components.actor_pointnet import MaskedBatchNorm1d, PointNetFeatures
+
+torch.set_num_threads(1)
+
+TINY = dict(
+    num_points=64,
+    encoder_channels=(8, 8, 16, 32),
+    fc_channels=32,
+    deconv_channels=(16, 16, 8, 8),
+    deconv_strides=(2, 2, 2, 2, 4),
+    emd_points=32,
+)
+
+
+def _pad(cloud: torch.Tensor, n: int, fill: float) -> torch.Tensor:
+    out = torch.full((n, 3), fill, dtype=cloud.dtype)
+    out[: len(cloud)] = cloud
+    return out
+
+
+# ------------------------------------------------------------------ components
+def test_pointnet_features_shape_and_repr():
+    net = PointNetFeatures()
+    out = net(torch.randn(2, 50, 3))
+    assert out.shape == (2, 1024, 50)
+    assert repr(net) == "PointNetFeatures(channels=(64, 64, 128, 1024))"
+    with pytest.raises(ValueError, match="points"):
+        net(torch.randn(2, 50, 2))
+
+
+def test_attention_unit_shape_weights_and_mask():
+    unit = SelfAttentionUnit(32)
+    x = torch.randn(3, 32, 10)
+    mask = torch.arange(10)[None] < torch.tensor([10, 4, 7])[:, None]
+    assert unit(x, mask).shape == (3, 32, 10)
+    w = unit.attention_weights(x, mask)
+    assert w.shape == (3, 10, 10)
+    torch.testing.assert_close(w.sum(dim=1), torch.ones(3, 10))  # softmax over the summed index
+    assert torch.all(w[1, 4:, :] == 0)  # padded points carry no weight
+    assert repr(unit) == "SelfAttentionUnit(channels=32, reduction=8)"
+    with pytest.raises(ValueError, match="x"):
+        unit(torch.randn(3, 31, 10))
+
+
+def test_attention_unit_matches_naive_formula():
+    torch.manual_seed(0)
+    unit = SelfAttentionUnit(16, reduction=4).double()
+    x = torch.randn(1, 16, 6, dtype=torch.float64)
+    g, h, k = unit.mlp_g(x)[0], unit.mlp_h(x)[0], unit.mlp_k(x)[0]  # C' x N, C' x N, C x N
+    s = g.T @ h  # S_ji = g_j . h_i
+    w = torch.exp(s) / torch.exp(s).sum(dim=0, keepdim=True)
+    expected = x[0] + torch.stack([sum(w[j, i] * k[:, j] for j in range(6)) for i in range(6)], dim=1)
+    torch.testing.assert_close(unit(x)[0], expected)
+
+
+def test_encoder_and_decoder_shapes():
+    enc = ActorEncoder()
+    z = enc(torch.randn(3, 40, 3), torch.tensor([40, 20, 33]))
+    assert z.shape == (3, 1024)
+    assert ActorEncoder(attention=False).attention is None
+    dec = ActorDecoder()
+    assert dec(z).shape == (3, 2048, 3)
+    assert dec.num_points == 2048
+    with pytest.raises(ValueError, match="lengths"):
+        enc(torch.randn(2, 10, 3), torch.tensor([11, 3]))
+    with pytest.raises(ValueError, match="strides"):
+        ActorDecoder(deconv_channels=(4,), strides=(2,))
+
+
+def test_masked_batchnorm_matches_batchnorm_on_valid_points():
+    torch.manual_seed(0)
+    mbn, bn = MaskedBatchNorm1d(4), torch.nn.BatchNorm1d(4)
+    x = torch.randn(2, 4, 9)
+    mask = torch.arange(9)[None] < torch.tensor([9, 5])[:, None]
+    y = mbn(x, mask)
+    valid = torch.cat([x[0], x[1, :, :5]], dim=1)[None]  # 1 x 4 x 14
+    ref = bn(valid)[0]
+    torch.testing.assert_close(torch.cat([y[0], y[1, :, :5]], dim=1), ref)
+    torch.testing.assert_close(mbn.running_mean, bn.running_mean)
+    torch.testing.assert_close(mbn.running_var, bn.running_var)
+
+
+@pytest.mark.parametrize("train_mode", [False, True])
+@pytest.mark.parametrize("attention", [True, False])
+def test_padding_invariance(train_mode, attention):
+    """The same clouds padded differently (size and fill value) reconstruct identically."""
+    torch.manual_seed(0)
+    model = ACTOR(attention=attention, **TINY).double().train(train_mode)  # float64: only summation order differs
+    a, b = torch.randn(25, 3, dtype=torch.float64), torch.randn(60, 3, dtype=torch.float64)
+    lengths = torch.tensor([25, 60])
+    batch1 = torch.stack([_pad(a, 60, 0.0), b])
+    batch2 = torch.stack([_pad(a, 200, 7.5), _pad(b, 200, -3.0)])
+    with torch.no_grad():
+        out1, out2 = model(batch1, lengths), model(batch2, lengths)
+    torch.testing.assert_close(out1, out2, atol=1e-10, rtol=1e-10)
+    if not train_mode:  # in eval mode a cloud's output does not depend on its batch-mates either
+        with torch.no_grad():
+            alone = model(a[None])
+        torch.testing.assert_close(alone[0], out1[0], atol=1e-10, rtol=1e-10)
+
+
+# ------------------------------------------------------------------ loss (eq. 8.1)
+def _naive_chamfer(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    fwd = sum(min(torch.linalg.norm(p - q) for q in y) for p in x) / len(x)
+    bwd = sum(min(torch.linalg.norm(q - p) for p in x) for q in y) / len(y)
+    return fwd + bwd
+
+
+def test_actor_loss_matches_naive_reference():
+    torch.manual_seed(1)
+    pred, target = torch.randn(2, 7, 3, dtype=torch.float64), torch.randn(2, 5, 3, dtype=torch.float64)
+    naive = 100.0 * (_naive_chamfer(pred[0], target[0]) + _naive_chamfer(pred[1], target[1])) / 2
+    torch.testing.assert_close(actor_loss(pred, target, alpha=100.0), naive)
+
+
+def test_actor_loss_hand_computed():
+    pred = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
+    target = torch.tensor([[[0.0, 0.0, 0.0]]])
+    # pred->target: (0 + 1) / 2; target->pred: 0; alpha 100 -> 50
+    torch.testing.assert_close(actor_loss(pred, target, alpha=100.0), torch.tensor(50.0))
+
+
+def test_actor_loss_gradcheck():
+    torch.manual_seed(2)
+    pred = torch.randn(2, 6, 3, dtype=torch.float64, requires_grad=True)
+    target = torch.randn(2, 5, 3, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda p: actor_loss(p, target, alpha=3.0), (pred,))
+
+
+def test_bn_momentum_schedule():
+    assert bn_momentum_at(0) == 0.5
+    assert bn_momentum_at(199_999) == 0.5
+    assert bn_momentum_at(200_000) == 0.25
+    assert bn_momentum_at(10**9) == pytest.approx(0.01)  # TF decay capped at 0.99
+    model = ACTOR(**TINY)
+    model.on_train_batch_start({"sparse": torch.zeros(8, 5, 3)}, 0)
+    assert all(m.momentum == 0.5 for m in model.modules() if isinstance(m, torch.nn.BatchNorm1d))
+
+
+def test_invalid_hparams():
+    with pytest.raises(ValueError, match="deconv_strides"):
+        ACTOR(num_points=100)
+    with pytest.raises(ValueError, match="input_scale"):
+        ACTOR(input_scale=0.0, **TINY)
+
+
+# ------------------------------------------------------------------ Lightning
+def _dm(num_dense: int = 64) -> PrimitiveDataModule:
+    return PrimitiveDataModule(batch_size=4, size=8, num_dense=num_dense, min_points=20, max_points=60)
+
+
+@pytest.mark.parametrize("attention", [True, False])
+def test_fast_dev_run(attention):
+    model = ACTOR(attention=attention, **TINY)
+    trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", enable_progress_bar=False,
+                        enable_model_summary=False)
+    trainer.fit(model, datamodule=_dm())
+    trainer.test(model, datamodule=_dm())
+    preds = trainer.predict(model, datamodule=_dm())
+    assert preds[0].shape == (4, 64, 3)
+
+
+def test_train_logs_metrics_figure_and_checkpoint_round_trip(tmp_path):
+    torch.manual_seed(0)
+    model = ACTOR(**TINY)
+    best_cb = ModelCheckpoint(dirpath=tmp_path / "ckpt", monitor="val/cd_mm", mode="min", filename="best")
+    # Lightning refreshes last.ckpt only when its callback saves, so "last" has its own unmonitored callback.
+    last_cb = ModelCheckpoint(dirpath=tmp_path / "ckpt", save_last=True, filename="latest")
+    logger = CSVLogger(tmp_path, name="actor")
+    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=logger, callbacks=[best_cb, last_cb],
+                        enable_progress_bar=False, enable_model_summary=False, log_every_n_steps=1)
+    trainer.fit(model, datamodule=_dm())
+    metrics = trainer.callback_metrics
+    for key in ("val/loss", "val/cd_mm", "val/hd_mm", "val/emd_mm", "train/loss"):
+        assert key in metrics and torch.isfinite(metrics[key])
+    # CD (symmetric sum of means) is at most twice HD, and EMD >= the one-sided mean
+    assert metrics["val/cd_mm"] <= 2 * metrics["val/hd_mm"] + 1e-3
+    figs = list((tmp_path / "actor").rglob("val_reconstruction_step*.png"))
+    assert len(figs) == 2
+    last = tmp_path / "ckpt" / "last.ckpt"
+    assert (tmp_path / "ckpt" / "best.ckpt").is_file()
+    raw = torch.load(last, map_location="cpu", weights_only=True)
+    assert "state_dict" in raw
+    loaded = load_actor(last)
+    x = torch.randn(2, 30, 3) * 0.05
+    model.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(x), model(x))
+    out = reconstruct(loaded, x[0].numpy())
+    assert out.shape == (64, 3) and np.isfinite(out).all()
+    np.testing.assert_allclose(out, model(x[:1]).detach().numpy()[0], atol=1e-5)
+
+
+def test_load_actor_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="ckpt"):
+        load_actor(tmp_path / "missing.ckpt")
+    bad = tmp_path / "corrupt.ckpt"
+    bad.write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(ValueError, match="not a readable PyTorch checkpoint"):
+        load_actor(bad)
+    plain = tmp_path / "plain.pt"
+    torch.save({"weights": torch.zeros(3)}, plain)
+    with pytest.raises(ValueError, match="not a Lightning checkpoint"):
+        load_actor(plain)
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save({"state_dict": {"net.weight": torch.zeros(2)}, "hyper_parameters": {"lr": 0.1}}, foreign)
+    with pytest.raises(ValueError, match="not an ACTOR checkpoint"):
+        load_actor(foreign)
+
+
+def test_reconstruct_validates_input():
+    model = ACTOR(**TINY)
+    with pytest.raises(ValueError, match="points"):
+        reconstruct(model, np.full((10, 3), np.nan))
+    with pytest.raises(ValueError, match="points"):
+        reconstruct(model, np.zeros((10, 2)))

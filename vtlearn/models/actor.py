@@ -1,0 +1,315 @@
+"""ACTOR: category-level shape reconstruction from sparse touches (thesis ch.8, Sec. 8.2.2).
+
+Murali, "Visuo-tactile perception and learning for robots", ch.8 (Murali et al., IROS 2023). An
+auto-encoder trained self-supervised on synthetic shapes: a PointNet encoder with a self-attention
+unit (Fig. 8.2(a), Fig. 8.3) maps a sparse cloud of 20-1024 points to a 1024-d global vector, and an
+upsampling decoder (FC 1024 + five transposed convolutions) emits a dense cloud of 2048 points.
+
+Loss (eq. 8.1): ``L_rec = alpha * L_CD(P_in, P_out)`` with alpha = 100, where ``L_CD`` is the
+symmetric mean nearest-neighbour L2 distance. Adam, learning rate 1e-4, momentum 0.9 (Sec. 8.3.1).
+Batch norm follows the PointNet/TensorFlow schedule of Sec. 8.3.1: decay 0.5 rising to 0.99, halving
+``1 - decay`` every 2e5 training samples; PyTorch's ``momentum`` is ``1 - decay``.
+
+Validation and test log Chamfer (eq. 8.1), Hausdorff (eq. 8.6) and EMD (eq. 8.7) in millimetres.
+
+Input normalisation (an implementation choice, documented): each sparse cloud is centred on the mean
+of its valid points and divided by ``input_scale`` before the encoder; the dense output is mapped back,
+so the module works in the data's own frame and units.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from torch import Tensor
+from torchmetrics import MeanMetric, MinMetric
+
+from vtlearn.geometry.metrics import chamfer_distance, earth_movers_distance, hausdorff_distance
+from vtlearn.models.components.actor_decoder import ActorDecoder
+from vtlearn.models.components.actor_encoder import ActorEncoder
+from vtlearn.models.components.actor_pointnet import lengths_to_mask
+from vtlearn.validation import as_points
+
+__all__ = ["ACTOR", "actor_loss", "load_actor", "reconstruct", "read_lightning_checkpoint", "bn_momentum_at"]
+
+
+def actor_loss(pred: Tensor, target: Tensor, alpha: float = 100.0, target_lengths: Tensor | None = None) -> Tensor:
+    """Reconstruction loss ``L_rec = alpha * L_CD(P_in, P_out)`` (thesis eq. 8.1), mean over the batch.
+
+    Shapes:
+        pred: (B, M, 3); target: (B, N, 3) (padded, with ``target_lengths`` (B,)); returns a scalar.
+    """
+    return alpha * chamfer_distance(pred, target.to(pred.dtype), y_lengths=target_lengths, reduction="mean")
+
+
+def bn_momentum_at(samples_seen: int, init: float = 0.5, rate: float = 0.5, step: int = 200_000,
+                   decay_max: float = 0.99) -> float:
+    """PyTorch batch-norm momentum of the thesis schedule (Sec. 8.3.1, staircase as in PointNet).
+
+    TensorFlow decay = 1 - momentum starts at ``1 - init`` = 0.5 and rises to ``decay_max`` = 0.99:
+    ``momentum = max(1 - decay_max, init * rate ** floor(samples_seen / step))``.
+    """
+    return max(1.0 - decay_max, init * rate ** math.floor(samples_seen / step))
+
+
+def _masked_centre(points: Tensor, lengths: Tensor) -> Tensor:
+    """Mean of the valid points. Shapes: (B, N, 3), (B,) -> (B, 1, 3)."""
+    mask = lengths_to_mask(lengths, points.shape[1]).to(points.dtype)[:, :, None]
+    return (points * mask).sum(dim=1, keepdim=True) / lengths.to(points.dtype)[:, None, None]
+
+
+class ACTOR(L.LightningModule):
+    """ACTOR reconstruction auto-encoder (thesis Sec. 8.2.2, eq. 8.1).
+
+    Args:
+        num_points: points of the dense output (thesis 2048); the decoder strides must multiply to it.
+        attention: use the self-attention unit (False: the ablation of Table 8.2).
+        alpha: loss weight of eq. 8.1 (thesis 100).
+        lr: Adam learning rate (thesis 1e-4).
+        weight_decay: Adam weight decay (thesis: none).
+        encoder_channels: PointNet conv channels (thesis 64, 64, 128, 1024).
+        fc_channels: decoder FC size (thesis 1024).
+        deconv_channels: channels of the first four transposed convolutions.
+        deconv_strides: kernel = stride of the five transposed convolutions.
+        bn_momentum_init, bn_decay_rate, bn_decay_step, bn_decay_max: batch-norm schedule (Sec. 8.3.1);
+            ``bn_decay_step`` counts training samples.
+        input_scale: sparse clouds are centred and divided by this before the encoder.
+        mm_per_unit: millimetres per data unit for the logged metrics (1000 for metres). A batch may
+            carry ``"scale_m"`` (B,) metres per unit, which then takes precedence per sample.
+        emd_points: EMD (exact assignment, O(n^3)) is computed on this many random points of each
+            cloud during validation/test; 0 uses every point.
+        log_figures: send an input / reconstruction / ground-truth figure each validation epoch.
+
+    Shapes:
+        forward: sparse (B, N, 3) padded, lengths (B,) int64 or None -> dense (B, num_points, 3).
+        batches: dict with "sparse" (B, N, 3), "lengths" (B,), "dense" (B, M, 3); optional "label".
+    """
+
+    def __init__(
+        self,
+        num_points: int = 2048,
+        attention: bool = True,
+        alpha: float = 100.0,
+        lr: float = 1e-4,
+        weight_decay: float = 0.0,
+        encoder_channels: tuple[int, ...] = (64, 64, 128, 1024),
+        fc_channels: int = 1024,
+        deconv_channels: tuple[int, ...] = (512, 256, 256, 128),
+        deconv_strides: tuple[int, ...] = (4, 4, 4, 4, 8),
+        bn_momentum_init: float = 0.5,
+        bn_decay_rate: float = 0.5,
+        bn_decay_step: int = 200_000,
+        bn_decay_max: float = 0.99,
+        input_scale: float = 1.0,
+        mm_per_unit: float = 1000.0,
+        emd_points: int = 512,
+        log_figures: bool = True,
+    ) -> None:
+        super().__init__()
+        if math.prod(deconv_strides) != num_points:
+            raise ValueError(f"deconv_strides: product {math.prod(deconv_strides)} != num_points {num_points}")
+        if input_scale <= 0:
+            raise ValueError(f"input_scale: must be positive, got {input_scale}")
+        self.save_hyperparameters()
+        self.encoder = ActorEncoder(tuple(encoder_channels), attention=attention)
+        self.decoder = ActorDecoder(self.encoder.out_channels, fc_channels, tuple(deconv_channels),
+                                    tuple(deconv_strides))
+        self.train_loss = MeanMetric()
+        self.val_loss = MeanMetric()
+        self.test_loss = MeanMetric()
+        self.val_cd = MeanMetric()
+        self.val_hd = MeanMetric()
+        self.val_emd = MeanMetric()
+        self.test_cd = MeanMetric()
+        self.test_hd = MeanMetric()
+        self.test_emd = MeanMetric()
+        self.val_cd_best = MinMetric()
+        self._figure_batch: dict[str, Tensor] | None = None
+
+    # ---------------------------------------------------------------- forward
+    def encode(self, sparse: Tensor, lengths: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Global feature vector and the centre used to normalise. Shapes: (B, 1024), (B, 1, 3)."""
+        if sparse.dim() != 3 or sparse.shape[-1] != 3:
+            raise ValueError(f"sparse: expected (B, N, 3), got {tuple(sparse.shape)}")
+        if lengths is None:
+            lengths = torch.full((sparse.shape[0],), sparse.shape[1], dtype=torch.long, device=sparse.device)
+        centre = _masked_centre(sparse, lengths)
+        x = (sparse - centre) / self.hparams.input_scale
+        return self.encoder(x, lengths), centre
+
+    def forward(self, sparse: Tensor, lengths: Tensor | None = None) -> Tensor:
+        z, centre = self.encode(sparse, lengths)
+        return self.decoder(z) * self.hparams.input_scale + centre
+
+    # ---------------------------------------------------------------- steps
+    def model_step(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """The one shared step: reconstruction and ``alpha * L_CD`` (eq. 8.1)."""
+        pred = self(batch["sparse"], batch.get("lengths"))
+        loss = actor_loss(pred, batch["dense"], self.hparams.alpha)
+        return loss, pred
+
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        samples = self.global_step * int(batch["sparse"].shape[0])
+        momentum = bn_momentum_at(samples, self.hparams.bn_momentum_init, self.hparams.bn_decay_rate,
+                                  self.hparams.bn_decay_step, self.hparams.bn_decay_max)
+        for m in self.modules():
+            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+                m.momentum = momentum
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        loss, _ = self.model_step(batch)
+        self.train_loss(loss)
+        self.log("train/loss", self.train_loss, on_step=False, on_epoch=True, prog_bar=True,
+                 batch_size=batch["sparse"].shape[0])
+        return loss
+
+    def _distances_mm(self, pred: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+        """Per-sample CD, HD, EMD in millimetres (eq. 8.1, 8.6, 8.7). Shapes: 3 x (B,)."""
+        dense = batch["dense"].to(pred.dtype)
+        cd = chamfer_distance(pred, dense, reduction="none")
+        hd = hausdorff_distance(pred, dense, reduction="none")
+        emd = []
+        gen = torch.Generator().manual_seed(0)
+        n_emd = int(self.hparams.emd_points)
+        for b in range(pred.shape[0]):
+            p, d = pred[b].detach().cpu().double(), dense[b].detach().cpu().double()
+            if 0 < n_emd < min(len(p), len(d)):
+                p = p[torch.randperm(len(p), generator=gen)[:n_emd]]
+                d = d[torch.randperm(len(d), generator=gen)[:n_emd]]
+            emd.append(float(earth_movers_distance(p, d)))
+        emd_t = torch.tensor(emd, dtype=pred.dtype, device=pred.device)
+        scale = torch.full_like(cd, float(self.hparams.mm_per_unit))
+        if "scale_m" in batch:
+            scale = batch["scale_m"].to(pred.dtype) * 1000.0
+        return cd * scale, hd * scale, emd_t * scale
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        loss, pred = self.model_step(batch)
+        cd, hd, emd = self._distances_mm(pred, batch)
+        bs = batch["sparse"].shape[0]
+        self.val_loss(loss)
+        self.val_cd(cd.mean())
+        self.val_hd(hd.mean())
+        self.val_emd(emd.mean())
+        self.log("val/loss", self.val_loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
+        self.log("val/cd_mm", self.val_cd, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
+        self.log("val/hd_mm", self.val_hd, on_step=False, on_epoch=True, batch_size=bs)
+        self.log("val/emd_mm", self.val_emd, on_step=False, on_epoch=True, batch_size=bs)
+        if batch_idx == 0:
+            n = int(batch["lengths"][0]) if "lengths" in batch else batch["sparse"].shape[1]
+            self._figure_batch = {
+                "sparse": batch["sparse"][0, :n].detach().cpu(),
+                "pred": pred[0].detach().cpu(),
+                "dense": batch["dense"][0].detach().cpu(),
+            }
+
+    def on_validation_epoch_start(self) -> None:
+        self._figure_batch = None
+
+    def on_validation_epoch_end(self) -> None:
+        cd = self.val_cd.compute()
+        self.val_cd_best(cd)
+        self.log("val/cd_mm_best", self.val_cd_best.compute(), sync_dist=True, prog_bar=True)
+        if (self.hparams.log_figures and self._figure_batch is not None and not self.trainer.sanity_checking
+                and self.logger is not None):
+            from vtlearn.models.actor_figures import log_figure, reconstruction_figure
+
+            fb = self._figure_batch
+            fig = reconstruction_figure([[fb["sparse"].numpy(), fb["pred"].numpy(), fb["dense"].numpy()]])
+            log_figure(self.logger, "val/reconstruction", fig, self.global_step)
+
+    def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        loss, pred = self.model_step(batch)
+        cd, hd, emd = self._distances_mm(pred, batch)
+        bs = batch["sparse"].shape[0]
+        self.test_loss(loss)
+        self.test_cd(cd.mean())
+        self.test_hd(hd.mean())
+        self.test_emd(emd.mean())
+        self.log("test/loss", self.test_loss, on_step=False, on_epoch=True, batch_size=bs)
+        self.log("test/cd_mm", self.test_cd, on_step=False, on_epoch=True, batch_size=bs)
+        self.log("test/hd_mm", self.test_hd, on_step=False, on_epoch=True, batch_size=bs)
+        self.log("test/emd_mm", self.test_emd, on_step=False, on_epoch=True, batch_size=bs)
+
+    def predict_step(self, batch: dict[str, Tensor], batch_idx: int, dataloader_idx: int = 0) -> Tensor:
+        return self(batch["sparse"], batch.get("lengths"))
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999),
+                                weight_decay=self.hparams.weight_decay)
+
+
+# -------------------------------------------------------------------- checkpoint inference API
+def read_lightning_checkpoint(ckpt: str | Path) -> dict[str, Any]:
+    """``torch.load(weights_only=True)`` with clear errors for missing, corrupted or non-Lightning files."""
+    path = Path(ckpt)
+    if not path.is_file():
+        raise FileNotFoundError(f"ckpt: no such file: {path}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # corrupted, truncated, or pickles that weights_only refuses
+        raise ValueError(f"ckpt: {path} is not a readable PyTorch checkpoint ({type(exc).__name__}: "
+                         f"{str(exc).splitlines()[0] if str(exc) else ''})") from exc
+    if not isinstance(data, dict) or "state_dict" not in data or "hyper_parameters" not in data:
+        raise ValueError(f"ckpt: {path} is not a Lightning checkpoint (needs 'state_dict' and 'hyper_parameters')")
+    return data
+
+
+def _plain_hparams(hparams: dict[str, Any], cls) -> dict[str, Any]:
+    import inspect
+
+    names = set(inspect.signature(cls.__init__).parameters) - {"self"}
+    out = {}
+    for k, v in hparams.items():
+        if k in names:
+            out[k] = tuple(v) if isinstance(v, list) else v
+    return out
+
+
+def load_actor(ckpt: str | Path, map_location: str | torch.device = "cpu") -> ACTOR:
+    """Load an :class:`ACTOR` from a Lightning checkpoint with ``weights_only=True``, in eval mode.
+
+    Raises:
+        FileNotFoundError: missing file.
+        ValueError: corrupted file, or a checkpoint of another model (the message says which).
+    """
+    data = read_lightning_checkpoint(ckpt)
+    state = data["state_dict"]
+    if not any(k.startswith("encoder.features.") for k in state) or not any(k.startswith("decoder.") for k in state):
+        raise ValueError(f"ckpt: {ckpt} is not an ACTOR checkpoint (no encoder.features.* / decoder.* weights)")
+    try:
+        model = ACTOR(**_plain_hparams(dict(data["hyper_parameters"]), ACTOR))
+        model.load_state_dict(state, strict=True)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise ValueError(f"ckpt: {ckpt} does not match the ACTOR architecture: {str(exc).splitlines()[0]}") from exc
+    return model.to(map_location).eval()
+
+
+@torch.no_grad()
+def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
+    """Dense reconstruction of one sparse cloud or a padded batch, as numpy.
+
+    Args:
+        model: an :class:`ACTOR` (put in eval mode here).
+        points: one cloud (N, 3) (numpy, torch or list), or a padded batch (B, N, 3) with ``lengths``.
+        lengths: (B,) valid points per cloud, batch input only.
+
+    Shapes:
+        (N, 3) -> (num_points, 3); (B, N, 3) -> (B, num_points, 3).
+    """
+    model.eval()
+    device = next(model.parameters()).device
+    if isinstance(points, Tensor) and points.dim() == 3 or isinstance(points, np.ndarray) and points.ndim == 3:
+        x = torch.as_tensor(np.asarray(points) if isinstance(points, np.ndarray) else points, dtype=torch.float32)
+        if not torch.isfinite(x).all():
+            raise ValueError("points: contains NaN or inf")
+        lt = None if lengths is None else torch.as_tensor(lengths, dtype=torch.long).to(device)
+        return model(x.to(device), lt).cpu().numpy()
+    pts = as_points(points, "points", min_points=3)
+    x = torch.as_tensor(pts, dtype=torch.float32, device=device)[None]
+    return model(x).cpu().numpy()[0]
