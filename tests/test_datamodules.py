@@ -1,0 +1,133 @@
+"""Datamodules over tiny generated datasets: batch contract, splits, active-learning pool."""
+
+import numpy as np
+import pytest
+import torch
+
+from vtlearn.datamodules import ActivePoolDataModule, CrossModalDataModule, ReconstructionDataModule
+from vtlearn.datamodules.shards import load_split, random_voxel_subsample
+from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+
+@pytest.fixture(scope="module")
+def recon_dir(tmp_path_factory):
+    return make_tiny_dataset("reconstruction", tmp_path_factory.mktemp("recon"))
+
+
+@pytest.fixture(scope="module")
+def cross_dir(tmp_path_factory):
+    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
+
+
+def test_reconstruction_batch_contract(recon_dir):
+    dm = ReconstructionDataModule(str(recon_dir), batch_size=2, min_points=40, max_points=120)
+    dm.setup("fit")
+    assert dm.num_classes == 3 and dm.class_names == ["mug", "bottle", "box"]
+    for loader in (dm.train_dataloader(), dm.val_dataloader(), dm.test_dataloader()):
+        b = next(iter(loader))
+        assert set(b) == {"sparse", "lengths", "dense", "label"}
+        B = len(b["label"])
+        assert b["sparse"].dtype == torch.float32 and b["sparse"].shape[0] == B and b["sparse"].shape[2] == 3
+        assert b["dense"].shape == (B, 2048, 3) and b["dense"].dtype == torch.float32
+        assert b["lengths"].dtype == torch.int64 and b["label"].dtype == torch.int64
+        assert ((b["lengths"] >= 40) & (b["lengths"] <= 120)).all()
+        assert b["sparse"].shape[1] == b["lengths"].max()
+        for i in range(B):  # padding is zeros beyond each length
+            assert torch.all(b["sparse"][i, b["lengths"][i]:] == 0)
+
+
+def test_reconstruction_sparse_lies_near_dense_and_rotation_is_about_z(recon_dir):
+    dm = ReconstructionDataModule(str(recon_dir), batch_size=3)
+    b = next(iter(dm.test_dataloader()))
+    for i in range(len(b["label"])):
+        s, d = b["sparse"][i, : b["lengths"][i]], b["dense"][i]
+        # voxel centroids of a surface sample stay within a voxel of the dense points
+        assert torch.cdist(s, d).min(1).values.max() < 0.1
+    raw = load_split(recon_dir, "test")["dense"][0]
+    # a z-rotation keeps heights and radial distances from the z-axis
+    np.testing.assert_allclose(np.sort(b["dense"][0, :, 2].numpy()), np.sort(raw[:, 2]), atol=1e-5)
+    np.testing.assert_allclose(np.sort(np.linalg.norm(b["dense"][0, :, :2].numpy(), axis=1)),
+                               np.sort(np.linalg.norm(raw[:, :2], axis=1)), atol=1e-5)
+
+
+def test_eval_batches_are_deterministic_train_batches_are_not(recon_dir):
+    dm = ReconstructionDataModule(str(recon_dir), batch_size=3)
+    a, b = next(iter(dm.test_dataloader())), next(iter(dm.test_dataloader()))
+    assert torch.equal(a["sparse"], b["sparse"])
+    torch.manual_seed(0)
+    t1 = next(iter(dm.train_dataloader()))
+    torch.manual_seed(1)
+    t2 = next(iter(dm.train_dataloader()))
+    assert not torch.equal(t1["dense"], t2["dense"])
+
+
+def test_tactile_test_loader_feeds_stored_tactile_clouds(recon_dir):
+    dm = ReconstructionDataModule(str(recon_dir), batch_size=3)
+    b = next(iter(dm.tactile_test_dataloader()))
+    assert (b["lengths"] > 0).all()
+    # tactile points are in the canonical frame of the instance: inside the (rotated) unit cube
+    assert b["sparse"].abs().max() < 0.75
+
+
+def test_random_voxel_subsample_range_and_validation():
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(2048, 3))
+    for _ in range(20):
+        out = random_voxel_subsample(pts, 40, 120, rng)
+        assert 40 <= len(out) <= 120
+    with pytest.raises(ValueError, match="n_min"):
+        random_voxel_subsample(pts, 50, 10, rng)
+
+
+def test_crossmodal_batches(cross_dir):
+    dm = CrossModalDataModule(str(cross_dir), batch_size=2)
+    dm.setup("fit")
+    assert dm.num_classes == 3
+    batch = next(iter(dm.train_dataloader()))[0]
+    assert set(batch) == {"source", "target"}
+    src, tgt = batch["source"], batch["target"]
+    assert src["points"].shape == (2, 1024, 3) and (src["lengths"] == 1024).all() and src["label"].dtype == torch.int64
+    assert set(tgt) == {"points", "lengths"}  # target labels never reach training
+    assert ((tgt["lengths"] >= 30) & (tgt["lengths"] <= 120)).all()
+    for loader in (dm.val_dataloader(), dm.test_dataloader(), dm.source_test_dataloader()):
+        b = next(iter(loader))
+        assert set(b) == {"points", "lengths", "label"}
+        assert torch.allclose(b["points"].sum(1) / b["lengths"][:, None], torch.zeros(3), atol=1e-5)  # centred
+
+
+def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
+    with pytest.raises(ValueError, match="data_dir"):
+        CrossModalDataModule(str(recon_dir))
+    with pytest.raises(ValueError, match="normalize"):
+        CrossModalDataModule(str(recon_dir), normalize="bogus")
+
+
+def test_splits_are_by_instance(cross_dir):
+    inst = {s: set(load_split(cross_dir, s)["instance"].tolist()) for s in ("train", "val", "test")}
+    assert inst["train"] and inst["val"] and inst["test"]
+    assert not (inst["train"] & inst["val"]) and not (inst["train"] & inst["test"]) and not (inst["val"] & inst["test"])
+    d = load_split(cross_dir, "train")
+    assert set(d["tactile_instance"].tolist()) <= inst["train"] and set(d["visual_instance"].tolist()) <= inst["train"]
+
+
+def test_active_pool_query(cross_dir):
+    dm = ActivePoolDataModule(str(cross_dir), initial_labels=2, seed=0, batch_size=64)
+    n = dm.pool_size
+    assert len(dm.labelled_indices) == 2 and len(dm.unlabelled_indices) == n - 2
+    b = next(iter(dm.unlabelled_dataloader()))
+    assert set(b) == {"points", "lengths", "index"}
+    assert sorted(b["index"].tolist()) == dm.unlabelled_indices.tolist()
+    truth = load_split(cross_dir, "train")["tactile_label"]
+    pick = b["index"][:2]
+    labels = dm.query(pick)
+    assert labels.tolist() == truth[pick.numpy()].tolist()
+    assert len(dm.labelled_indices) == 4 and not set(pick.tolist()) & set(dm.unlabelled_indices.tolist())
+    tb = next(iter(dm.train_dataloader()))
+    assert len(tb["label"]) == 4 and set(tb) == {"points", "lengths", "label"}
+    with pytest.raises(ValueError, match="indices"):
+        dm.query(pick)  # already labelled
+    with pytest.raises(ValueError, match="indices"):
+        dm.query([n + 5])
+    assert set(next(iter(dm.test_dataloader()))) == {"points", "lengths", "label"}
+    with pytest.raises(ValueError, match="initial_labels"):
+        ActivePoolDataModule(str(cross_dir), initial_labels=n + 1)

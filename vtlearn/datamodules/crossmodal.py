@@ -1,0 +1,150 @@
+"""CrossModalDataModule: visual source + unlabelled tactile target for domain adaptation (thesis ch.7).
+
+xAVTNet (ch.7, 7.2.2-7.2.3) trains a classifier on labelled visual clouds (source domain) while
+aligning features with unlabelled tactile clouds (target domain) through VTLoss; tactile labels are
+used only for evaluation. Training batches combine one source and one target batch with
+``CombinedLoader(mode="max_size_cycle")``: the shorter loader cycles.
+
+Clouds are in the instance's canonical frame (``units="canonical"``) or in metres
+(``units="metres"``), then normalised per cloud (``normalize``: ``none``, ``center`` or
+``unit_sphere``) and, in training, rotated by a random angle about z (objects stand upright on the
+table, their yaw is unknown).
+
+Shapes (batch dicts):
+    train: {"source": {"points" (B, 1024, 3), "lengths" (B,), "label" (B,)},
+            "target": {"points" (B, Nmax, 3), "lengths" (B,)}}
+    val/test (tactile) and source_test (visual): {"points" (B, Nmax, 3), "lengths" (B,), "label" (B,)}
+"""
+
+from __future__ import annotations
+
+import lightning.pytorch as pl
+import numpy as np
+from lightning.pytorch.utilities import CombinedLoader
+from torch.utils.data import DataLoader, Dataset
+
+from vtlearn.datamodules.shards import (
+    collate_clouds,
+    load_manifest,
+    load_split,
+    normalize_cloud,
+    rotation_z,
+    split_clouds,
+    worker_rng,
+)
+
+
+class CloudDataset(Dataset):
+    """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}."""
+
+    def __init__(self, clouds: list[np.ndarray], labels: np.ndarray | None, train: bool, normalize: str = "center",
+                 rotate_z: bool = True, seed: int = 0, indices: np.ndarray | None = None,
+                 scales: np.ndarray | None = None, with_label: bool = True, with_index: bool = False):
+        if len(clouds) == 0:
+            raise ValueError("clouds: empty dataset")
+        normalize_cloud(np.zeros((1, 3)), normalize)  # validates the mode early
+        self.clouds, self.labels = clouds, labels
+        self.indices = np.arange(len(clouds)) if indices is None else np.asarray(indices)
+        self.train, self.normalize, self.rotate_z, self.seed = train, normalize, rotate_z, seed
+        self.scales, self.with_label, self.with_index = scales, with_label, with_index
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, i: int) -> dict:
+        j = int(self.indices[i])
+        pts = self.clouds[j].astype(np.float64)
+        if self.scales is not None:
+            pts = pts * float(self.scales[j])
+        if self.rotate_z and self.train:
+            pts = pts @ rotation_z(worker_rng(True, self.seed, j).uniform(0, 2 * np.pi)).T
+        item = {"points": normalize_cloud(pts, self.normalize).astype(np.float32)}
+        if self.with_label:
+            item["label"] = int(self.labels[j])
+        if self.with_index:
+            item["index"] = j
+        return item
+
+
+def modality_clouds(d: dict, modality: str, metres: bool) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:
+    """(clouds, labels, per-cloud metres scale or None) of one modality from a loaded split."""
+    if modality == "visual":
+        if "visual" not in d:
+            raise ValueError("modality: this dataset has no visual clouds (generate it with `gen-data crossmodal`)")
+        clouds, labels, inst = list(d["visual"]), d["visual_label"], d["visual_instance"]
+    elif modality == "tactile":
+        clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
+        labels, inst = d["tactile_label"], d["tactile_instance"]
+    else:
+        raise ValueError(f"modality: expected 'visual' or 'tactile', got {modality!r}")
+    scales = None
+    if metres:
+        lookup = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
+        scales = np.array([lookup[int(k)] for k in inst])
+    return clouds, labels, scales
+
+
+class CrossModalDataModule(pl.LightningDataModule):
+    """Visual (labelled source) and tactile (unlabelled target) clouds from `vtlearn gen-data crossmodal`.
+
+    Args:
+        data_dir: dataset directory holding manifest.json.
+        batch_size: clouds per source batch and per target batch.
+        normalize: per-cloud normalisation, ``none`` | ``center`` | ``unit_sphere``.
+        units: ``canonical`` (unit cube per instance) or ``metres``.
+        rotate_z: random yaw augmentation in training.
+        num_workers, seed, verify: see :class:`ReconstructionDataModule`.
+    """
+
+    def __init__(self, data_dir: str, batch_size: int = 32, normalize: str = "center", units: str = "canonical",
+                 rotate_z: bool = True, num_workers: int = 0, seed: int = 0, verify: bool = True):
+        super().__init__()
+        if batch_size < 1:
+            raise ValueError(f"batch_size: need >= 1, got {batch_size}")
+        if units not in ("canonical", "metres"):
+            raise ValueError(f"units: expected 'canonical' or 'metres', got {units!r}")
+        normalize_cloud(np.zeros((1, 3)), normalize)
+        self.data_dir, self.batch_size, self.normalize, self.units = data_dir, batch_size, normalize, units
+        self.rotate_z, self.num_workers, self.seed, self.verify = rotate_z, num_workers, seed, verify
+        manifest = load_manifest(data_dir)
+        if manifest.get("kind") != "crossmodal":
+            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need 'crossmodal'")
+        self.class_names: list[str] = list(manifest["class_names"])
+        self.num_classes: int = len(self.class_names)
+        self._splits: dict[str, dict] = {}
+
+    def _split(self, split: str) -> dict:
+        if split not in self._splits:
+            self._splits[split] = load_split(self.data_dir, split, self.verify)
+        return self._splits[split]
+
+    def setup(self, stage: str | None = None) -> None:
+        for split in ("train", "val", "test"):
+            self._split(split)
+
+    def dataset(self, split: str, modality: str, with_label: bool = True) -> CloudDataset:
+        clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")
+        return CloudDataset(clouds, labels, train=split == "train", normalize=self.normalize,
+                            rotate_z=self.rotate_z, seed=self.seed, scales=scales, with_label=with_label)
+
+    def _loader(self, ds: Dataset, shuffle: bool) -> DataLoader:
+        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
+                          collate_fn=collate_clouds, persistent_workers=self.num_workers > 0)
+
+    def train_dataloader(self) -> CombinedLoader:
+        source = self._loader(self.dataset("train", "visual"), shuffle=True)
+        target = self._loader(self.dataset("train", "tactile", with_label=False), shuffle=True)
+        return CombinedLoader({"source": source, "target": target}, mode="max_size_cycle")
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.dataset("val", "tactile"), shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader(self.dataset("test", "tactile"), shuffle=False)
+
+    def source_test_dataloader(self) -> DataLoader:
+        """Labelled visual clouds of the test instances."""
+        return self._loader(self.dataset("test", "visual"), shuffle=False)
+
+    def source_val_dataloader(self) -> DataLoader:
+        return self._loader(self.dataset("val", "visual"), shuffle=False)

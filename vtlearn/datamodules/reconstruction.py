@@ -1,0 +1,130 @@
+"""ReconstructionDataModule: sparse-to-dense shape completion data for ACTOR (thesis ch.8, 8.2.1, 8.3.1).
+
+Training input is a sparse cloud drawn on the fly from an instance's dense 2048-point cloud by random
+voxel-grid subsampling to ``[min_points, max_points]`` points (ch.8: 40-120; ch.5 style: 60-1024),
+rotated together with its target by a random angle about z. The target is the dense cloud. The
+``tactile_test_dataloader`` instead feeds the simulated tactile clouds stored with each test
+instance, for evaluating reconstruction from real-like touches.
+
+Shapes (batch dict):
+    sparse (B, Nmax, 3) float32, zero-padded; lengths (B,) int64; dense (B, 2048, 3) float32;
+    label (B,) int64
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import lightning.pytorch as pl
+import numpy as np
+from torch.utils.data import DataLoader, Dataset
+
+from vtlearn.datamodules.shards import (
+    collate_clouds,
+    load_manifest,
+    load_split,
+    random_voxel_subsample,
+    rotation_z,
+    split_clouds,
+    worker_rng,
+)
+
+
+class ReconstructionDataset(Dataset):
+    """Per instance: a random voxel-subsampled sparse cloud and the dense target (canonical frame)."""
+
+    def __init__(self, dense: np.ndarray, labels: np.ndarray, min_points: int, max_points: int,
+                 train: bool, seed: int = 0, rotate_z: bool = True, sparse: list[np.ndarray] | None = None):
+        if dense.ndim != 3 or dense.shape[-1] != 3 or len(dense) == 0:
+            raise ValueError(f"dense: need a non-empty (N, P, 3) array, got shape {dense.shape}")
+        self.dense, self.labels = dense.astype(np.float32), labels.astype(np.int64)
+        self.min_points, self.max_points = int(min_points), int(max_points)
+        self.train, self.seed, self.rotate_z = train, seed, rotate_z
+        self.sparse = sparse
+
+    def __len__(self) -> int:
+        return len(self.dense)
+
+    def __getitem__(self, i: int) -> dict:
+        rng = worker_rng(self.train, self.seed, i)
+        dense = self.dense[i].astype(np.float64)
+        if self.sparse is not None:
+            sparse = self.sparse[i].astype(np.float64)
+        else:
+            sparse = random_voxel_subsample(dense, self.min_points, self.max_points, rng)
+        if self.rotate_z:
+            R = rotation_z(rng.uniform(0, 2 * np.pi))
+            dense, sparse = dense @ R.T, sparse @ R.T
+        return {"sparse": sparse.astype(np.float32), "dense": dense.astype(np.float32), "label": int(self.labels[i])}
+
+
+class ReconstructionDataModule(pl.LightningDataModule):
+    """Lightning data for ACTOR from a `vtlearn gen-data reconstruction` (or crossmodal) directory.
+
+    Args:
+        data_dir: dataset directory holding manifest.json.
+        batch_size: clouds per batch.
+        min_points, max_points: range of the sparse input size (ch.8: 40-120).
+        rotate_z: random rotation about z (training always; evaluation with a fixed angle per sample).
+        num_workers: DataLoader worker processes.
+        seed: fixes the evaluation subsampling and rotations.
+        verify: check shard sha256 sums against the manifest when loading.
+    """
+
+    def __init__(self, data_dir: str, batch_size: int = 32, min_points: int = 40, max_points: int = 120,
+                 rotate_z: bool = True, num_workers: int = 0, seed: int = 0, verify: bool = True):
+        super().__init__()
+        if batch_size < 1:
+            raise ValueError(f"batch_size: need >= 1, got {batch_size}")
+        if not 1 <= min_points <= max_points:
+            raise ValueError(f"min_points/max_points: need 1 <= min <= max, got {min_points}, {max_points}")
+        self.data_dir, self.batch_size = data_dir, batch_size
+        self.min_points, self.max_points = min_points, max_points
+        self.rotate_z, self.num_workers, self.seed, self.verify = rotate_z, num_workers, seed, verify
+        manifest = load_manifest(data_dir)
+        self.class_names: list[str] = list(manifest["class_names"])
+        self.num_classes: int = len(self.class_names)
+        self._splits: dict[str, dict] = {}
+
+    def _split(self, split: str) -> dict:
+        if split not in self._splits:
+            self._splits[split] = load_split(self.data_dir, split, self.verify)
+        return self._splits[split]
+
+    def setup(self, stage: str | None = None) -> None:
+        for split in ("train", "val", "test"):
+            self._split(split)
+
+    def _dataset(self, split: str, tactile: bool = False) -> ReconstructionDataset:
+        d = self._split(split)
+        if "dense" not in d:
+            raise ValueError(f"data_dir: split {split!r} of {self.data_dir} is empty")
+        sparse = None
+        if tactile:
+            sparse = split_clouds(d["tactile_points"], d["tactile_offsets"])
+            # one tactile cloud per instance: crossmodal datasets store several, keep the first
+            first = {}
+            for j, inst in enumerate(d["tactile_instance"]):
+                first.setdefault(int(inst), j)
+            sparse = [sparse[first[int(inst)]] for inst in d["instance"]]
+        return ReconstructionDataset(d["dense"], d["label"], self.min_points, self.max_points,
+                                     train=split == "train", seed=self.seed, rotate_z=self.rotate_z,
+                                     sparse=sparse)
+
+    def _loader(self, ds, shuffle: bool) -> DataLoader:
+        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
+                          collate_fn=partial(collate_clouds, cloud_keys=("sparse",)),
+                          persistent_workers=self.num_workers > 0)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self._dataset("train"), shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self._dataset("val"), shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader(self._dataset("test"), shuffle=False)
+
+    def tactile_test_dataloader(self) -> DataLoader:
+        """Test instances with their simulated tactile cloud as the sparse input (not voxel-subsampled)."""
+        return self._loader(self._dataset("test", tactile=True), shuffle=False)

@@ -1,0 +1,397 @@
+"""Sharded, atomic, resumable dataset writer for `vtlearn gen-data` (thesis ch.7 7.3.1, ch.8 8.3.1 data).
+
+Two dataset kinds:
+
+* ``reconstruction`` (ACTOR, ch.8): per instance a dense cloud of 2048 surface points (the training
+  target) plus a tactile cloud from simulated touches and pinches (evaluation input).
+* ``crossmodal`` (xAVTNet, ch.7): per instance ``views`` partial visual clouds of 1024 points from the
+  simulated RGB-D camera, labelled by category, and ``tactile_clouds`` tactile clouds of 30-120 points
+  whose labels are kept for evaluation only.
+
+All clouds are in the instance's canonical frame (z-up, centred, unit cube; metres = x * scale_m).
+
+Layout of ``out_dir``::
+
+    config.json                      the generation config (a rerun must use the same one)
+    <split>-<k:05d>.npz              a shard: whole instances of one split (allow_pickle=False)
+    <split>-<k:05d>.npz.json         sidecar written after the shard: its sha256 and counts
+    manifest.json                    written last: class names, splits, every shard with sha256
+
+Splits are by instance: an instance, and every sample drawn from it, lives in exactly one split.
+Every shard is a pure function of ``(config, split, shard index)``: its own seed sequence, no clock, a
+deterministic zip layout, so a rerun reproduces it byte for byte. Files are written to a temporary
+name and renamed, so a kill never leaves a corrupt shard. A rerun keeps shards whose sidecar matches
+their sha256 and regenerates the rest.
+
+Variable-size clouds are stored flat with offsets: ``tactile_points (T, 3)`` and
+``tactile_offsets (n + 1,)``; cloud i is ``tactile_points[offsets[i]:offsets[i+1]]``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import zipfile
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vtlearn.sim_data.shapes import CATEGORIES, generate_shape, instance_seed
+
+log = logging.getLogger(__name__)
+
+FORMAT = "vtlearn-sim/1"
+SPLITS = ("train", "val", "test")
+KINDS = ("reconstruction", "crossmodal")
+
+
+@dataclass
+class GenConfig:
+    """Everything that determines a dataset's bytes (saved as config.json)."""
+
+    kind: str = "reconstruction"
+    categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
+    per_category: int = 10
+    seed: int = 0
+    split_fractions: list[float] = field(default_factory=lambda: [0.7, 0.15, 0.15])
+    shard_size: int = 16
+    sections: int = 48
+    dense_points: int = 2048
+    sensor: str = "xela_4x4"
+    touches: int = 40  # reconstruction: touches per instance for its tactile cloud
+    pinches: int = 10  # reconstruction: pinches per instance
+    position_noise: float = 0.0  # tactile noise (m); 0 = exact contact points
+    dropout: float = 0.0
+    views: int = 4  # crossmodal: visual clouds per instance
+    visual_points: int = 1024
+    image_width: int = 320
+    image_height: int = 240
+    depth_noise: bool = True
+    tactile_clouds: int = 4  # crossmodal: tactile clouds per instance
+    tactile_min_points: int = 30
+    tactile_max_points: int = 120
+    mesh_source: str = "procedural"  # or a directory of meshes, one subfolder per category
+
+    def validate(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if self.mesh_source == "procedural":
+            bad = [c for c in self.categories if c not in CATEGORIES]
+            if bad or not self.categories:
+                raise ValueError(f"categories: unknown {bad} or empty; expected some of {CATEGORIES}")
+        if self.per_category < 1:
+            raise ValueError(f"per_category: need >= 1, got {self.per_category}")
+        f = np.asarray(self.split_fractions, dtype=float)
+        if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
+            raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
+        if self.shard_size < 1:
+            raise ValueError(f"shard_size: need >= 1, got {self.shard_size}")
+        if not 1 <= self.tactile_min_points <= self.tactile_max_points:
+            raise ValueError("tactile_min_points/tactile_max_points: need 1 <= min <= max, "
+                             f"got {self.tactile_min_points}, {self.tactile_max_points}")
+
+
+# --------------------------------------------------------------------------- planning
+def _split_counts(n: int, fractions) -> list[int]:
+    """Instances per split for one category; every split with a positive fraction gets at least one
+    instance when ``n`` allows, taken from the largest split."""
+    counts = [int(np.floor(n * f)) for f in fractions]
+    while sum(counts) < n:
+        counts[int(np.argmax(fractions))] += 1
+    for i, f in enumerate(fractions):
+        if f > 0 and counts[i] == 0:
+            j = int(np.argmax(counts))
+            if counts[j] > 1:
+                counts[j] -= 1
+                counts[i] = 1
+    return counts
+
+
+def plan_instances(cfg: GenConfig, mesh_items: list[dict] | None = None) -> dict[str, list[dict]]:
+    """Assign every instance to one split (by instance, deterministic per seed)."""
+    rng = np.random.default_rng([cfg.seed, 7919])
+    plan: dict[str, list[dict]] = {s: [] for s in SPLITS}
+    for label, cat in enumerate(cfg.categories):
+        if mesh_items is None:
+            items = [{"category": cat, "label": label, "index": i, "seed": instance_seed(cfg.seed, cat, i)}
+                     for i in range(cfg.per_category)]
+        else:
+            items = [dict(m, label=label, index=i) for i, m in enumerate(
+                [m for m in mesh_items if m["category"] == cat][: cfg.per_category])]
+        order = rng.permutation(len(items))
+        counts = _split_counts(len(items), cfg.split_fractions)
+        start = 0
+        for split, c in zip(SPLITS, counts, strict=True):
+            plan[split] += [items[j] for j in sorted(order[start:start + c])]
+            start += c
+    for i, items in enumerate(plan.values()):
+        for j, it in enumerate(items):
+            it["instance"] = i * 1_000_000 + j
+    return plan
+
+
+def plan_shards(cfg: GenConfig, plan: dict[str, list[dict]]) -> list[dict]:
+    jobs = []
+    for split in SPLITS:
+        items = plan[split]
+        for k in range(0, len(items), cfg.shard_size):
+            jobs.append({"name": f"{split}-{k // cfg.shard_size:05d}.npz", "split": split,
+                         "shard": k // cfg.shard_size, "items": items[k:k + cfg.shard_size]})
+    return jobs
+
+
+# --------------------------------------------------------------------------- deterministic I/O
+def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
+    """Write an uncompressed .npz with fixed zip timestamps via a temporary file; returns its sha256.
+
+    ``np.savez`` stamps the current time into the zip, so equal data would give different bytes.
+    """
+    path = Path(path)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as zf:
+        for key in sorted(arrays):
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(arrays[key]), allow_pickle=False)
+    digest = sha256_file(tmp)
+    os.replace(tmp, path)
+    return digest
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    path = Path(path)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _shard_done(out: Path, name: str) -> dict | None:
+    shard, side = out / name, out / (name + ".json")
+    if not (shard.exists() and side.exists()):
+        return None
+    try:
+        meta = json.loads(side.read_text())
+    except (json.JSONDecodeError, OSError):
+        return None
+    return meta if meta.get("sha256") == sha256_file(shard) else None
+
+
+# --------------------------------------------------------------------------- one shard
+def _load_mesh(item: dict, cfg: GenConfig):
+    if "file" in item:
+        from vtlearn.io import read_mesh
+        from vtlearn.sim_data.shapes import normalize_mesh
+
+        mesh, _ = normalize_mesh(read_mesh(item["file"]))
+        return mesh, float(item.get("scale_m", 0.2)), bool(item.get("transparent", False))
+    mesh, rec = generate_shape(item["category"], item["seed"], cfg.sections)
+    return mesh, rec.scale_m, rec.transparent
+
+
+def _place(scene, mesh, scale, transparent):
+    """Put the object on the table (bottom at z = 0); returns body id and T_world_object."""
+    T = np.eye(4)
+    T[2, 3] = -mesh.bounds[0, 2] * scale
+    body = scene.add_mesh(mesh, scale, T, transparent=transparent)
+    return body, T
+
+
+def _to_canonical(points_world: np.ndarray, T_world_object: np.ndarray, scale: float) -> np.ndarray:
+    from vtlearn.geometry import se3_inverse, transform_points
+
+    if len(points_world) == 0:
+        return np.zeros((0, 3))
+    return transform_points(se3_inverse(T_world_object), points_world) / scale
+
+
+def _tactile_cloud(sim, lo, hi, rng, touches: int, pinches: int, target: int | None = None, max_actions=400):
+    """Touch (and pinch) until ``target`` points are collected (or the fixed budget is spent)."""
+    from vtlearn.sim_data.tactile import sample_pinches, sample_touches
+
+    pts = []
+    total = 0
+    n_actions = 0
+    while True:
+        acts = [("t", a) for a in sample_touches(lo, hi, touches, rng)]
+        if pinches:
+            acts += [("p", a) for a in sample_pinches(lo, hi, pinches, rng)]
+        order = rng.permutation(len(acts))
+        for i in order:
+            kind, a = acts[i]
+            res = sim.touch(*a, rng=rng) if kind == "t" else sim.pinch(*a, rng=rng)
+            n_actions += 1
+            if res.num_contacts:
+                pts.append(res.points)
+                total += res.num_contacts
+            if target is not None and total >= target:
+                return np.concatenate(pts)
+        if target is None or n_actions >= max_actions:
+            return np.concatenate(pts) if pts else np.zeros((0, 3))
+
+
+def generate_shard(cfg: GenConfig, job: dict) -> dict[str, np.ndarray]:
+    """All arrays of one shard; a pure function of (cfg, job)."""
+    from vtlearn.geometry import random_subsample, sample_surface
+    from vtlearn.sim_data.camera import DepthNoise, RGBDCamera, sample_hemisphere_views
+    from vtlearn.sim_data.scene import Scene
+    from vtlearn.sim_data.tactile import TactileConfig, TactileSimulator
+
+    rng = np.random.default_rng([cfg.seed, SPLITS.index(job["split"]), job["shard"], 104729])
+    tcfg = TactileConfig(position_noise=cfg.position_noise, dropout=cfg.dropout)
+    cam = None
+    if cfg.kind == "crossmodal":
+        cam = RGBDCamera(cfg.image_width, cfg.image_height,
+                         noise=DepthNoise() if cfg.depth_noise else DepthNoise.off())
+    out: dict[str, list] = {k: [] for k in ("dense", "label", "instance", "scale_m", "transparent",
+                                            "tactile", "tactile_label", "tactile_instance",
+                                            "visual", "visual_label", "visual_instance")}
+    with Scene() as scene:
+        for item in job["items"]:
+            mesh, scale, transparent = _load_mesh(item, cfg)
+            body, T = _place(scene, mesh, scale, transparent)
+            sim = TactileSimulator(scene, cfg.sensor, tcfg, objects=[body])
+            lo, hi = scene.objects[body].mesh_m.bounds + T[:3, 3]
+            out["label"].append(item["label"])
+            out["instance"].append(item["instance"])
+            out["scale_m"].append(scale)
+            out["transparent"].append(transparent)
+            dense, _ = sample_surface(mesh, cfg.dense_points, rng)
+            out["dense"].append(dense)
+            if cfg.kind == "reconstruction":
+                cloud = _tactile_cloud(sim, lo, hi, rng, cfg.touches, cfg.pinches)
+                out["tactile"].append(_to_canonical(cloud, T, scale))
+                out["tactile_label"].append(item["label"])
+                out["tactile_instance"].append(item["instance"])
+            else:
+                centre = (lo + hi) / 2
+                radius = 3.0 * float(np.max(hi - lo)) + 0.3
+                views = sample_hemisphere_views(centre, radius, 4 * cfg.views, rng)
+                got = 0
+                for V in views:
+                    frame = cam.render(scene, V, rng)
+                    pts = cam.point_cloud(frame, body, rng)
+                    if len(pts) < 16:
+                        continue  # a view where the object is (nearly) invisible or lost to transparency
+                    pts = random_subsample(pts, cfg.visual_points, rng)
+                    out["visual"].append(_to_canonical(pts, T, scale))
+                    out["visual_label"].append(item["label"])
+                    out["visual_instance"].append(item["instance"])
+                    got += 1
+                    if got == cfg.views:
+                        break
+                for _ in range(cfg.tactile_clouds):
+                    n = int(rng.integers(cfg.tactile_min_points, cfg.tactile_max_points + 1))
+                    cloud = _tactile_cloud(sim, lo, hi, rng, 20, 5, target=n)
+                    if len(cloud) < cfg.tactile_min_points:
+                        continue
+                    cloud = cloud[rng.permutation(len(cloud))[:n]]
+                    out["tactile"].append(_to_canonical(cloud, T, scale))
+                    out["tactile_label"].append(item["label"])
+                    out["tactile_instance"].append(item["instance"])
+            scene.remove(body)
+    arrays = {
+        "dense": np.asarray(out["dense"], dtype=np.float32).reshape(-1, cfg.dense_points, 3),
+        "label": np.asarray(out["label"], dtype=np.int64),
+        "instance": np.asarray(out["instance"], dtype=np.int64),
+        "scale_m": np.asarray(out["scale_m"], dtype=np.float32),
+        "transparent": np.asarray(out["transparent"], dtype=bool),
+    }
+    tac = out["tactile"]
+    arrays["tactile_points"] = (np.concatenate(tac) if tac else np.zeros((0, 3))).astype(np.float32)
+    arrays["tactile_offsets"] = np.concatenate([[0], np.cumsum([len(c) for c in tac])]).astype(np.int64)
+    arrays["tactile_label"] = np.asarray(out["tactile_label"], dtype=np.int64)
+    arrays["tactile_instance"] = np.asarray(out["tactile_instance"], dtype=np.int64)
+    if cfg.kind == "crossmodal":
+        arrays["visual"] = np.asarray(out["visual"], dtype=np.float32).reshape(-1, cfg.visual_points, 3)
+        arrays["visual_label"] = np.asarray(out["visual_label"], dtype=np.int64)
+        arrays["visual_instance"] = np.asarray(out["visual_instance"], dtype=np.int64)
+    return arrays
+
+
+def _run_job(cfg_dict: dict, job: dict, out_dir: str) -> dict:
+    cfg = GenConfig(**cfg_dict)
+    arrays = generate_shard(cfg, job)
+    out = Path(out_dir)
+    digest = write_npz_atomic(out / job["name"], arrays)
+    meta = {"file": job["name"], "split": job["split"], "sha256": digest,
+            "instances": int(len(arrays["label"])), "tactile_clouds": int(len(arrays["tactile_label"])),
+            "visual_clouds": int(len(arrays.get("visual_label", ())))}
+    write_json_atomic(out / (job["name"] + ".json"), meta)
+    return meta
+
+
+# --------------------------------------------------------------------------- driver
+def generate_dataset(cfg: GenConfig, out_dir: str | Path, workers: int = 1, progress: bool = True,
+                     max_shards: int | None = None) -> dict:
+    """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests)."""
+    from tqdm import tqdm
+
+    cfg.validate()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_dict = asdict(cfg)
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        old = json.loads(cfg_path.read_text())
+        if old != json.loads(json.dumps(cfg_dict)):
+            raise ValueError(f"out_dir: {out} holds a dataset made with another config; use a new directory")
+    else:
+        write_json_atomic(cfg_path, cfg_dict)
+    for stale in out.glob("*.tmp*"):
+        stale.unlink()  # leftovers of a killed run; their shards are redone below
+    mesh_items = None
+    if cfg.mesh_source != "procedural":
+        from vtlearn.sim_data.loaders import scan_mesh_folder
+
+        mesh_items = [m for m in scan_mesh_folder(cfg.mesh_source) if m["category"] in cfg.categories]
+    jobs = plan_shards(cfg, plan_instances(cfg, mesh_items))
+    done = {j["name"]: _shard_done(out, j["name"]) for j in jobs}
+    todo = [j for j in jobs if done[j["name"]] is None]
+    if max_shards is not None:
+        todo = todo[:max_shards]
+    log.info("gen-data %s: %d shards, %d already done", cfg.kind, len(jobs), len(jobs) - len(todo))
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=f"gen-data {cfg.kind}", disable=not progress)
+    if workers <= 1:
+        for j in todo:
+            done[j["name"]] = _run_job(cfg_dict, j, str(out))
+            bar.update()
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+            futs = [ex.submit(_run_job, cfg_dict, j, str(out)) for j in todo]
+            for f in as_completed(futs):
+                meta = f.result()
+                done[meta["file"]] = meta
+                bar.update()
+    bar.close()
+    if any(v is None for v in done.values()):
+        return {}
+    shards = [done[j["name"]] for j in jobs]
+    manifest = {
+        "format": FORMAT,
+        "kind": cfg.kind,
+        "class_names": list(cfg.categories),
+        "num_classes": len(cfg.categories),
+        "config": cfg_dict,
+        "splits": {s: {"instances": sum(m["instances"] for m in shards if m["split"] == s),
+                       "tactile_clouds": sum(m["tactile_clouds"] for m in shards if m["split"] == s),
+                       "visual_clouds": sum(m["visual_clouds"] for m in shards if m["split"] == s),
+                       "shards": [m["file"] for m in shards if m["split"] == s]} for s in SPLITS},
+        "shards": shards,
+    }
+    write_json_atomic(out / "manifest.json", manifest)
+    return manifest
