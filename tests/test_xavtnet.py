@@ -1,0 +1,239 @@
+"""Tests for the xAVTNet LightningModule and its PointNet components (thesis ch.7)."""
+
+import os
+
+import lightning as L
+import pytest
+import torch
+from lightning.pytorch.utilities import CombinedLoader
+from torch.utils.data import DataLoader, Dataset
+
+from vtlearn.models.components.pointnet_tnet import (
+    MaskedPointMLP,
+    TNet,
+    feature_transform_regularizer,
+    lengths_to_mask,
+    masked_max_pool,
+)
+from vtlearn.models.xavtnet import XAVTNet, normalize_padded, subsample_padded
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+TINY = dict(num_classes=3, global_dim=32, fc_dims=[16, 8])
+
+
+class _Clouds(Dataset):
+    """Tiny labelled clouds of varying size: class c is a blob around (c, 0, 0)."""
+
+    def __init__(self, n, n_min, n_max, seed, scale=1.0):
+        g = torch.Generator().manual_seed(seed)
+        self.items = []
+        for i in range(n):
+            m = int(torch.randint(n_min, n_max + 1, (1,), generator=g))
+            c = i % 3
+            pts = torch.randn(m, 3, generator=g) * 0.1 * scale + torch.tensor([float(c), 0.0, 0.0])
+            self.items.append((pts, c))
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        return self.items[i]
+
+
+def _collate(items, with_label=True):
+    n = max(p.shape[0] for p, _ in items)
+    pts = torch.zeros(len(items), n, 3)
+    for i, (p, _) in enumerate(items):
+        pts[i, : p.shape[0]] = p
+    out = {"points": pts, "lengths": torch.tensor([p.shape[0] for p, _ in items])}
+    if with_label:
+        out["label"] = torch.tensor([c for _, c in items])
+    return out
+
+
+class TinyCrossModalDM(L.LightningDataModule):
+    """Same batch structure as vtlearn.datamodules.CrossModalDataModule, on 3 toy classes."""
+
+    num_classes = 3
+
+    def train_dataloader(self):
+        src = DataLoader(_Clouds(12, 40, 40, 0), batch_size=4, collate_fn=_collate, drop_last=True)
+        tgt = DataLoader(
+            _Clouds(8, 5, 12, 1, scale=2.0), batch_size=4, drop_last=True,
+            collate_fn=lambda b: _collate(b, with_label=False),
+        )
+        return CombinedLoader({"source": src, "target": tgt}, mode="max_size_cycle")
+
+    def val_dataloader(self):
+        return DataLoader(_Clouds(6, 5, 12, 2), batch_size=3, collate_fn=_collate)
+
+    test_dataloader = val_dataloader
+
+
+def test_masked_max_pool_and_mlp_ignore_padding():
+    torch.manual_seed(0)
+    x = torch.randn(3, 6, 4)
+    lengths = torch.tensor([6, 2, 4])
+    mask = lengths_to_mask(lengths, 6)
+    pooled = masked_max_pool(x, mask)
+    for b in range(3):
+        assert torch.equal(pooled[b], x[b, : lengths[b]].amax(0))
+    mlp = MaskedPointMLP((4, 5)).train()
+    y = mlp(x, mask)
+    assert y.shape == (3, 6, 5) and torch.all(y[~mask] == 0)
+    x_garbage = x.clone()
+    x_garbage[~mask] = 1e3
+    assert torch.allclose(mlp(x_garbage, mask), y)
+
+
+@pytest.mark.parametrize("train_mode", [True, False])
+def test_xavtnet_padding_does_not_change_outputs(train_mode):
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, dropout=0.0).train(train_mode)
+    if not train_mode:
+        model.train()
+        model(torch.randn(8, 10, 3))  # move running stats off their init
+        model.eval()
+    points = torch.randn(4, 9, 3)
+    lengths = torch.tensor([9, 3, 5, 1])
+    padded = torch.cat([points, 50 * torch.randn(4, 7, 3)], dim=1)
+    mask = lengths_to_mask(lengths, 9)
+    points = points * mask[..., None]
+    out_a = model(points, lengths)
+    out_b = model(padded, lengths)
+    assert torch.allclose(out_a.logits, out_b.logits, atol=1e-5)
+    for name in ("fc1", "fc2"):
+        assert torch.allclose(out_a.features[name], out_b.features[name], atol=1e-5)
+
+
+def test_xavtnet_shapes_and_input_checks():
+    model = XAVTNet(**TINY).eval()
+    out = model(torch.randn(2, 7, 3), torch.tensor([7, 4]))
+    assert out.logits.shape == (2, 3)
+    assert out.features["fc1"].shape == (2, 16) and out.features["fc2"].shape == (2, 8)
+    assert out.trans_input.shape == (2, 3, 3) and out.trans_feat.shape == (2, 64, 64)
+    with pytest.raises(ValueError, match="points"):
+        model(torch.randn(2, 7))
+    with pytest.raises(ValueError, match="lengths"):
+        model(torch.randn(2, 7, 3), torch.tensor([0, 3]))
+    with pytest.raises(ValueError, match="points"):
+        model(torch.full((2, 7, 3), float("nan")))
+    with pytest.raises(ValueError, match="da_method"):
+        XAVTNet(da_method="mmd")
+    with pytest.raises(ValueError, match="da_layers"):
+        XAVTNet(da_layers=["fc3"])
+
+
+def test_untrained_tnet_is_identity_and_regulariser():
+    tnet = TNet(3, 16).eval()
+    x = torch.randn(2, 5, 3)
+    trans = tnet(x, torch.ones(2, 5, dtype=torch.bool))
+    assert torch.allclose(trans, torch.eye(3).expand(2, 3, 3))
+    q, _ = torch.linalg.qr(torch.randn(4, 64, 64, dtype=torch.float64))
+    assert feature_transform_regularizer(q).item() == pytest.approx(0.0, abs=1e-20 + 1e-10)
+    # hand case: A = 2I (k = 2): I - 4I = -3I, squared Frobenius = 9 * 2
+    assert feature_transform_regularizer(2 * torch.eye(2)[None]).item() == pytest.approx(18.0)
+    a = torch.randn(2, 3, 3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(feature_transform_regularizer, (a,))
+    with pytest.raises(ValueError, match="trans"):
+        feature_transform_regularizer(torch.randn(2, 3, 4))
+
+
+def test_subsample_and_normalize_padded():
+    points = torch.arange(2 * 10 * 3, dtype=torch.float32).view(2, 10, 3)
+    lengths = torch.tensor([10, 4])
+    sub, sub_len = subsample_padded(points, lengths, 5, random=False)
+    assert sub.shape == (2, 5, 3) and sub_len.tolist() == [5, 4]
+    assert torch.equal(sub[0], points[0, ::2])  # strided: every second point of a 10-point cloud
+    assert set(map(tuple, sub[1, :4].tolist())) == set(map(tuple, points[1, :4].tolist()))
+    assert torch.all(sub[1, 4] == 0)
+    rnd, _ = subsample_padded(points, lengths, 5, random=True)
+    assert set(map(tuple, rnd[1, :4].tolist())) == set(map(tuple, points[1, :4].tolist()))
+    norm = normalize_padded(points, lengths)
+    assert torch.allclose(norm[1, :4].mean(0), torch.zeros(3), atol=1e-6)
+    assert norm[0].norm(dim=-1).max().item() == pytest.approx(1.0)
+    assert torch.all(norm[1, 4:] == 0)
+
+
+@pytest.mark.parametrize(
+    "kwargs,logged,absent",
+    [
+        (dict(da_method="none"), {"train/ce"}, {"train/mmd", "train/coral"}),
+        (dict(use_coral=False), {"train/mmd_fc1", "train/mmd_fc2"}, {"train/coral"}),
+        (dict(use_mmd=False), {"train/coral_fc1", "train/coral_fc2"}, {"train/mmd"}),
+        (dict(da_layers=["fc1"]), {"train/mmd_fc1", "train/coral_fc1"}, {"train/mmd_fc2"}),
+        (dict(da_layers=["fc2"]), {"train/mmd_fc2", "train/coral_fc2"}, {"train/mmd_fc1"}),
+        (dict(), {"train/mmd", "train/coral", "train/ce"}, set()),
+        (dict(da_method="dann"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
+    ],
+)
+def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, **kwargs)
+    trainer = L.Trainer(
+        fast_dev_run=1, accelerator="cpu", logger=False, enable_checkpointing=False,
+        enable_progress_bar=False, enable_model_summary=False, default_root_dir=tmp_path,
+    )
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    keys = set(trainer.logged_metrics) | set(trainer.callback_metrics)
+    assert logged <= keys, keys
+    assert not (absent & keys), keys
+    assert torch.isfinite(trainer.callback_metrics["train/loss"])
+    trainer.test(model, datamodule=TinyCrossModalDM(), verbose=False)
+    assert model.last_test_confusion.shape == (3, 3)
+    assert int(model.last_test_confusion.sum()) == 3  # fast_dev_run=1: one test batch of 3
+
+
+def test_single_stream_labelled_batch_trains(tmp_path):
+    model = XAVTNet(**TINY)
+    loader = DataLoader(_Clouds(8, 5, 20, 3), batch_size=4, collate_fn=_collate)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, train_dataloaders=loader, val_dataloaders=loader)
+    assert "val/acc" in trainer.callback_metrics
+
+
+def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
+    """After the same number of steps, VTLoss training leaves a smaller fc1 MK-MMD than no-DA.
+
+    Measured in training mode (batch statistics), which is what the loss term sees.
+    """
+    from vtlearn.losses import mk_mmd
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    results = {}
+    for method in ("none", "vtloss"):
+        torch.manual_seed(0)
+        model = XAVTNet(**TINY, da_method=method, dropout=0.0).train()
+        model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+        opt = model.configure_optimizers()
+        for _ in range(10):
+            loss = model.training_step(batch, 0)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            fs = model(batch["source"]["points"], batch["source"]["lengths"]).features["fc1"]
+            ft = model(batch["target"]["points"], batch["target"]["lengths"]).features["fc1"]
+        results[method] = mk_mmd(fs, ft).item()
+    assert results["vtloss"] < results["none"], results
+
+
+def test_checkpoint_round_trip_weights_only(tmp_path):
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, da_method="dann", da_layers=["fc1"], max_points=30)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    path = tmp_path / "xavtnet.ckpt"
+    trainer.save_checkpoint(path)
+    ckpt = torch.load(path, weights_only=True, map_location="cpu")
+    assert ckpt["hyper_parameters"]["da_method"] == "dann"
+    restored = XAVTNet(**ckpt["hyper_parameters"])
+    restored.load_state_dict(ckpt["state_dict"])
+    model.eval()
+    restored.eval()
+    x = torch.randn(2, 12, 3)
+    assert torch.equal(model(x).logits, restored(x).logits)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True).eval()
+    assert torch.equal(again(x).logits, model(x).logits)

@@ -1,0 +1,1 @@
+"""Model packages; import submodules directly (e.g. vtlearn.models.xavtnet)."""

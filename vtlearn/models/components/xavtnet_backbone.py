@@ -1,0 +1,129 @@
+"""xAVTNet network: PointNet encoder + fc1/fc2/fc3 head, thesis ch.7, section 7.2.2 and 7.3.1
+("Network Implementation"), plus the DANN domain discriminator used by the DANN baseline.
+
+Encoder (Qi et al. 2017): input T-net (3×3) → per-point MLP 64 → feature T-net (64×64) → per-point MLP
+(128, global_dim) → masked max-pool to the global feature (1024 in the thesis).
+Head: fc1 (512, BN, ReLU) → fc2 (256, BN, ReLU) → dropout 0.4 → fc3 (k). The activations after fc1 and
+fc2 (post-ReLU, before dropout) are the features that VTLoss adapts (Fig. 7.2b).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask, masked_max_pool
+
+__all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
+
+
+def check_cloud_batch(points: torch.Tensor, lengths: torch.Tensor | None, name: str = "points"):
+    """Validate a padded batch and return ``(points, lengths)`` with lengths filled in.
+
+    Shapes:
+        points (B, N, 3) float, lengths (B,) int in [1, N] or None (all N) -> same
+    """
+    if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[-1] != 3:
+        shape = tuple(points.shape) if isinstance(points, torch.Tensor) else type(points).__name__
+        raise ValueError(f"{name} must have shape (B, N, 3), got {shape}")
+    if points.shape[0] == 0 or points.shape[1] == 0:
+        raise ValueError(f"{name} is empty, got shape {tuple(points.shape)}")
+    if lengths is None:
+        lengths = torch.full((points.shape[0],), points.shape[1], dtype=torch.long, device=points.device)
+    if lengths.shape != points.shape[:1]:
+        raise ValueError(f"lengths must have shape ({points.shape[0]},), got {tuple(lengths.shape)}")
+    if (lengths < 1).any() or (lengths > points.shape[1]).any():
+        raise ValueError(f"lengths must lie in [1, {points.shape[1]}], got {lengths.tolist()}")
+    mask = lengths_to_mask(lengths, points.shape[1])
+    if not torch.isfinite(points[mask]).all():
+        raise ValueError(f"{name} contains NaN or inf in its valid points")
+    return points, lengths
+
+
+class PointNetEncoder(nn.Module):
+    """PointNet global-feature extractor for padded clouds.
+
+    Args:
+        global_dim: size of the max-pooled global feature (thesis: 1024).
+        input_transform: use the 3×3 input T-net.
+        feature_transform: use the 64×64 feature T-net.
+
+    Shapes:
+        points (B, N, 3), lengths (B,) -> (global (B, global_dim), trans_input (B, 3, 3) or None,
+        trans_feat (B, 64, 64) or None)
+    """
+
+    def __init__(self, global_dim: int = 1024, input_transform: bool = True, feature_transform: bool = True):
+        super().__init__()
+        self.input_tnet = TNet(3, global_dim) if input_transform else None
+        self.mlp1 = MaskedPointMLP((3, 64))
+        self.feature_tnet = TNet(64, global_dim) if feature_transform else None
+        self.mlp2 = MaskedPointMLP((64, 128, global_dim))
+
+    def forward(self, points: torch.Tensor, lengths: torch.Tensor):
+        mask = lengths_to_mask(lengths, points.shape[1])
+        x = points.masked_fill(~mask[..., None], 0.0)
+        trans_input = trans_feat = None
+        if self.input_tnet is not None:
+            trans_input = self.input_tnet(x, mask)
+            x = x @ trans_input  # B x N x 3, row-vector convention of PointNet
+        h = self.mlp1(x, mask)  # B x N x 64
+        if self.feature_tnet is not None:
+            trans_feat = self.feature_tnet(h, mask)
+            h = (h @ trans_feat).masked_fill(~mask[..., None], 0.0)
+        h = self.mlp2(h, mask)  # B x N x global_dim
+        return masked_max_pool(h, mask), trans_input, trans_feat
+
+
+@dataclass
+class XAVTNetOutput:
+    """Forward result: class logits, the adapted features and the T-net matrices."""
+
+    logits: torch.Tensor  # B x k
+    features: dict[str, torch.Tensor]  # "fc1": B x 512, "fc2": B x 256
+    trans_input: torch.Tensor | None
+    trans_feat: torch.Tensor | None
+
+
+class XAVTNetHead(nn.Module):
+    """fc1 → fc2 → dropout → fc3 (thesis 7.3.1).
+
+    Shapes:
+        global (B, in_dim) -> (logits (B, k), {"fc1": (B, fc_dims[0]), "fc2": (B, fc_dims[1])})
+    """
+
+    def __init__(self, in_dim: int, num_classes: int, fc_dims: Sequence[int] = (512, 256), dropout: float = 0.4):
+        super().__init__()
+        if len(fc_dims) != 2:
+            raise ValueError(f"fc_dims must give the sizes of fc1 and fc2, got {fc_dims}")
+        if not 0.0 <= dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {dropout}")
+        self.fc1 = nn.Sequential(nn.Linear(in_dim, fc_dims[0]), nn.BatchNorm1d(fc_dims[0]), nn.ReLU())
+        self.fc2 = nn.Sequential(nn.Linear(fc_dims[0], fc_dims[1]), nn.BatchNorm1d(fc_dims[1]), nn.ReLU())
+        self.dropout = nn.Dropout(dropout)
+        self.fc3 = nn.Linear(fc_dims[1], num_classes)
+
+    def forward(self, g: torch.Tensor):
+        f1 = self.fc1(g)
+        f2 = self.fc2(f1)
+        return self.fc3(self.dropout(f2)), {"fc1": f1, "fc2": f2}
+
+
+class DomainDiscriminator(nn.Module):
+    """DANN domain classifier (Ganin et al. 2016): Linear-ReLU-Linear-ReLU-Linear(1).
+
+    Shapes:
+        features (B, in_dim) -> logits (B,) (source = 1, target = 0)
+    """
+
+    def __init__(self, in_dim: int, hidden: int = 256):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1)
+        )
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.net(features).squeeze(-1)

@@ -1,0 +1,278 @@
+"""xAVTNet: visuo-tactile cross-modal object recognition with VTLoss, thesis ch.7.
+
+A PointNet classifier (section 7.2.2, 7.3.1) trained on labelled dense visual clouds (source domain)
+and adapted, without tactile labels, to sparse tactile clouds (target domain) by VTLoss (eq. 7.8):
+
+    L = α·CE(source) + β·Σ_{l∈{fc1,fc2}} MK-MMD²_l + λ·Σ_l CORAL_l  (+ w_ft·‖I − A Aᵀ‖²_F)
+
+The last term is PointNet's feature-transform regulariser on the source stream. Training is
+two-stream (Fig. 7.2b): each step takes a labelled source batch and an unlabelled target batch
+(``{"source": {...}, "target": {...}}`` from :class:`vtlearn.datamodules.CrossModalDataModule`); both go
+through the *same* weights, one forward each. A plain labelled batch (``{"points", "lengths",
+"label"}``, e.g. from the active-learning pool) trains with cross-entropy only.
+
+``da_method`` selects the domain adaptation:
+
+* ``"none"``: no-DA (xAVTNet-noDA of Table 7.4); the target stream is not used at all.
+* ``"vtloss"``: eq. 7.8; ``use_mmd``, ``use_coral`` and ``da_layers`` give the rows of Table 7.2.
+* ``"dann"``: DANN (Ganin et al. 2016), beyond the thesis: a domain discriminator on fc2 behind a
+  gradient reversal layer whose λ follows Ganin's ramp over training; loss ``α·CE + dann_weight·L_dom``.
+
+Shapes:
+    forward: points (B, N, 3) zero-padded, lengths (B,) int64 -> :class:`XAVTNetOutput`
+    (logits (B, k), features {"fc1": (B, 512), "fc2": (B, 256)}).
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torchmetrics import MeanMetric
+from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
+
+from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
+from vtlearn.losses.vtloss import VTLoss
+from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
+from vtlearn.models.components.xavtnet_backbone import (
+    DomainDiscriminator,
+    PointNetEncoder,
+    XAVTNetHead,
+    XAVTNetOutput,
+    check_cloud_batch,
+)
+
+__all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
+
+DA_METHODS = ("none", "vtloss", "dann")
+
+
+def subsample_padded(points: torch.Tensor, lengths: torch.Tensor, max_points: int, random: bool):
+    """Keep at most ``max_points`` valid points per cloud (random subset, or evenly strided if not random).
+
+    Shapes:
+        points (B, N, 3), lengths (B,) -> (B, min(N, max_points), 3), (B,)
+    """
+    b, n, _ = points.shape
+    if n <= max_points:
+        return points, lengths
+    mask = lengths_to_mask(lengths, n)
+    if random:
+        keys = torch.rand(b, n, device=points.device)
+    else:
+        # Evenly strided ranks over each cloud's valid points: deterministic for evaluation.
+        idx = torch.arange(n, device=points.device, dtype=points.dtype)[None].expand(b, n)
+        stride = (lengths.to(points.dtype) / max_points).clamp_min(1.0)[:, None]
+        keys = torch.remainder(idx, stride) + idx / n  # multiples of the stride come first
+    keys = keys.masked_fill(~mask, float("inf"))
+    order = keys.argsort(dim=1)[:, :max_points]
+    new_lengths = lengths.clamp(max=max_points)
+    out = torch.gather(points, 1, order[..., None].expand(-1, -1, 3))
+    return out.masked_fill(~lengths_to_mask(new_lengths, max_points)[..., None], 0.0), new_lengths
+
+
+def normalize_padded(points: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    """Centre each cloud on its centroid and scale it into the unit ball (padding stays 0).
+
+    Shapes:
+        points (B, N, 3), lengths (B,) -> (B, N, 3)
+    """
+    mask = lengths_to_mask(lengths, points.shape[1])[..., None]
+    centroid = (points * mask).sum(1, keepdim=True) / lengths[:, None, None].to(points.dtype)
+    centred = (points - centroid) * mask
+    radius = centred.norm(dim=-1).amax(dim=1).clamp_min(1e-9)[:, None, None]
+    return centred / radius
+
+
+class XAVTNet(L.LightningModule):
+    """xAVTNet LightningModule (thesis ch.7).
+
+    Args:
+        num_classes: k (thesis: 12).
+        global_dim: PointNet global feature size (thesis: 1024).
+        fc_dims: sizes of fc1 and fc2 (thesis: 512, 256).
+        dropout: dropout on fc2 (thesis: 0.4); MC-dropout uses it at test time.
+        input_transform, feature_transform: the 3×3 and 64×64 T-nets.
+        feature_transform_weight: weight of the orthogonality regulariser (PointNet: 0.001).
+        da_method: "none", "vtloss" or "dann" (see module docstring).
+        use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows).
+        alpha, beta, lam: VTLoss weights α, β, λ (thesis: 10, 10, 10).
+        mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
+        dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
+        lr, weight_decay: Adam (thesis: lr 1e-3).
+        max_points: if set, clouds with more points are subsampled to this many (random in training,
+            strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
+        normalize_clouds: centre each cloud and scale it into the unit ball before the network.
+    """
+
+    def __init__(
+        self,
+        num_classes: int = 12,
+        global_dim: int = 1024,
+        fc_dims: list[int] = [512, 256],  # noqa: B006 - plain list so save_hyperparameters stays simple
+        dropout: float = 0.4,
+        input_transform: bool = True,
+        feature_transform: bool = True,
+        feature_transform_weight: float = 0.001,
+        da_method: str = "vtloss",
+        use_mmd: bool = True,
+        use_coral: bool = True,
+        da_layers: list[str] = ["fc1", "fc2"],  # noqa: B006
+        alpha: float = 10.0,
+        beta: float = 10.0,
+        lam: float = 10.0,
+        mmd_num_kernels: int = 5,
+        mmd_kernel_mul: float = 2.0,
+        mmd_unbiased: bool = False,
+        dann_weight: float = 1.0,
+        dann_gamma: float = 10.0,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        max_points: int | None = None,
+        normalize_clouds: bool = False,
+    ) -> None:
+        super().__init__()
+        if num_classes < 2:
+            raise ValueError(f"num_classes must be >= 2, got {num_classes}")
+        if da_method not in DA_METHODS:
+            raise ValueError(f"da_method must be one of {DA_METHODS}, got {da_method!r}")
+        if lr <= 0:
+            raise ValueError(f"lr must be > 0, got {lr}")
+        if max_points is not None and max_points < 1:
+            raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
+        unknown = set(da_layers) - {"fc1", "fc2"}
+        if unknown:
+            raise ValueError(f"da_layers may only contain 'fc1' and 'fc2', got {sorted(unknown)}")
+        fc_dims, da_layers = list(fc_dims), list(da_layers)
+        self.save_hyperparameters()
+        self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform)
+        self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
+        vt = da_method == "vtloss"
+        self.vtloss = VTLoss(
+            alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
+            mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
+        )
+        self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
+        self.train_loss = MeanMetric()
+        self.train_acc = MulticlassAccuracy(num_classes, average="micro")
+        self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
+        self.val_acc = MulticlassAccuracy(num_classes, average="micro")
+        self.test_acc = MulticlassAccuracy(num_classes, average="micro")
+        self.test_confusion = MulticlassConfusionMatrix(num_classes)
+        self.last_test_confusion: torch.Tensor | None = None
+
+    # ---- network ---------------------------------------------------------------------------------
+    def _prepare(self, points: torch.Tensor, lengths: torch.Tensor | None):
+        points, lengths = check_cloud_batch(points, lengths)
+        if self.hparams.max_points is not None:
+            points, lengths = subsample_padded(points, lengths, self.hparams.max_points, self.training)
+        if self.hparams.normalize_clouds:
+            points = normalize_padded(points, lengths)
+        return points, lengths
+
+    def forward(self, points: torch.Tensor, lengths: torch.Tensor | None = None) -> XAVTNetOutput:
+        points, lengths = self._prepare(points, lengths)
+        g, trans_input, trans_feat = self.encoder(points, lengths)
+        logits, feats = self.head(g)
+        return XAVTNetOutput(logits, feats, trans_input, trans_feat)
+
+    def _regulariser(self, out: XAVTNetOutput) -> torch.Tensor:
+        if out.trans_feat is None or self.hparams.feature_transform_weight == 0:
+            return out.logits.new_zeros(())
+        return self.hparams.feature_transform_weight * feature_transform_regularizer(out.trans_feat)
+
+    # ---- shared step (lightning-hydra-template habit) -------------------------------------------
+    def model_step(self, batch: dict):
+        """Cross-entropy on a labelled batch ``{"points", "lengths", "label"}``; returns (loss, preds, y)."""
+        out = self(batch["points"], batch.get("lengths"))
+        y = batch["label"]
+        loss = F.cross_entropy(out.logits, y)
+        return loss, out.logits.argmax(-1), y
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        if "source" not in batch:
+            out = self(batch["points"], batch.get("lengths"))
+            y = batch["label"]
+            ce = F.cross_entropy(out.logits, y)  # no target stream without a "target" batch: α·CE only
+            loss = self.hparams.alpha * ce + self._regulariser(out)
+            self._log_train(loss, out.logits, y, {"ce": ce.detach()})
+            return loss
+        src, tgt = batch["source"], batch["target"]
+        out_s = self(src["points"], src.get("lengths"))
+        y = src["label"]
+        parts: dict[str, torch.Tensor] = {}
+        # CORAL and batch norm need >= 2 target clouds; a lone leftover target cloud is skipped.
+        use_target = tgt is not None and tgt["points"].shape[0] >= 2
+        if self.hparams.da_method == "vtloss" and self.vtloss.adapts and use_target:
+            out_t = self(tgt["points"], tgt.get("lengths"))
+            loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features)
+        elif self.hparams.da_method == "dann" and use_target:
+            out_t = self(tgt["points"], tgt.get("lengths"))
+            ce = F.cross_entropy(out_s.logits, y)
+            lambd = dann_lambda(self._progress(), self.hparams.dann_gamma)
+            dom = domain_adversarial_loss(
+                self.discriminator(grad_reverse(out_s.features["fc2"], lambd)),
+                self.discriminator(grad_reverse(out_t.features["fc2"], lambd)),
+            )
+            loss = self.hparams.alpha * ce + self.hparams.dann_weight * dom
+            parts = {"ce": ce.detach(), "domain": dom.detach(), "grl_lambda": torch.tensor(lambd)}
+        else:
+            ce = F.cross_entropy(out_s.logits, y)
+            loss, parts = self.hparams.alpha * ce, {"ce": ce.detach()}
+        loss = loss + self._regulariser(out_s)
+        self._log_train(loss, out_s.logits, y, parts)
+        return loss
+
+    def _progress(self) -> float:
+        total = self.trainer.estimated_stepping_batches if self._trainer is not None else 0
+        if not total or total == float("inf"):
+            return 1.0
+        return float(min(1.0, self.global_step / total))
+
+    def _log_train(self, loss, logits, y, parts) -> None:
+        self.train_loss(loss.detach())
+        self.train_acc(logits.detach().argmax(-1), y)
+        bs = y.shape[0]
+        self.log("train/loss", self.train_loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
+        self.log("train/acc", self.train_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
+        for name, value in parts.items():
+            self.log(f"train/{name}", value, on_step=False, on_epoch=True, batch_size=bs)
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        loss, preds, y = self.model_step(batch)
+        self.val_loss(loss)
+        self.val_acc(preds, y)
+        self.log("val/loss", self.val_loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
+        self.log("val/acc", self.val_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        loss, preds, y = self.model_step(batch)
+        self.test_loss(loss)
+        self.test_acc(preds, y)
+        self.test_confusion.update(preds, y)
+        self.log("test/loss", self.test_loss, on_step=False, on_epoch=True, batch_size=y.shape[0])
+        self.log("test/acc", self.test_acc, on_step=False, on_epoch=True, batch_size=y.shape[0])
+
+    def on_test_epoch_start(self) -> None:
+        self.test_confusion.reset()
+
+    def on_test_epoch_end(self) -> None:
+        # Rows: true class, columns: predicted class (counts), as in thesis Table 7.3 before row-normalising.
+        self.last_test_confusion = self.test_confusion.compute().cpu()
+
+    def predict_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        return self(batch["points"], batch.get("lengths")).logits.softmax(-1)
+
+    @torch.no_grad()
+    def extract_features(self, points: torch.Tensor, lengths: torch.Tensor | None = None) -> dict:
+        """fc1/fc2 features and logits in eval mode (for t-SNE, Fig. 7.4). Restores the training flag."""
+        was_training = self.training
+        self.eval()
+        try:
+            out = self(points, lengths)
+        finally:
+            self.train(was_training)
+        return {**out.features, "logits": out.logits}
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
