@@ -1,0 +1,96 @@
+"""RGB-D camera: intrinsics, back-projection accuracy, noise bound, transparency failure, eq. 5.3-5.5 views."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from vtlearn.sim_data.camera import (
+    DepthNoise,
+    RGBDCamera,
+    backproject,
+    intrinsics_from_fov,
+    sample_hemisphere_views,
+    viewpoint_rotation,
+)
+from vtlearn.sim_data.scene import Scene
+from vtlearn.sim_data.shapes import generate_shape
+
+
+def _scene(transparent=False, category="bottle"):
+    mesh, rec = generate_shape(category, 1, sections=32)
+    scene = Scene()
+    T = np.eye(4)
+    T[2, 3] = -mesh.bounds[0, 2] * rec.scale_m
+    body = scene.add_mesh(mesh, rec.scale_m, T, transparent=transparent)
+    mesh_w = scene.objects[body].mesh_m.copy()
+    mesh_w.apply_transform(T)
+    return scene, body, mesh_w
+
+
+def _dist(mesh_w, pts):
+    from scipy.spatial import cKDTree
+
+    ref, _ = trimesh.sample.sample_surface(mesh_w, 300_000, seed=0)
+    return cKDTree(ref).query(pts)[0]
+
+
+def test_backproject_hand_case():
+    K = intrinsics_from_fov(4, 2, 90.0)  # f = 1, centre (2, 1)
+    assert np.allclose(K, [[1, 0, 2], [0, 1, 1], [0, 0, 1]])
+    depth = np.zeros((2, 4))
+    depth[0, 3] = 2.0  # pixel centre (3.5, 0.5) -> ray (1.5, -0.5, 1)
+    T = np.eye(4)
+    T[:3, 3] = [1, 2, 3]
+    np.testing.assert_allclose(backproject(depth, K, T), [[1 + 3.0, 2 - 1.0, 3 + 2.0]])
+    with pytest.raises(ValueError, match="depth"):
+        backproject(np.zeros(3), K, T)
+
+
+def test_viewpoint_rotation_eq_5_3_to_5_5():
+    rng = np.random.default_rng(0)
+    o = np.array([0.1, -0.2, 0.05])
+    views = sample_hemisphere_views(o, 0.7, 20, rng)
+    for T in views:
+        R = T[:3, :3]
+        assert np.allclose(R.T @ R, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(R), 1)
+        assert np.isclose(np.linalg.norm(T[:3, 3] - o), 0.7) and T[2, 3] >= o[2]
+        axis = (o - T[:3, 3]) / 0.7
+        np.testing.assert_allclose(R[:, 2], axis, atol=1e-9)  # optical axis through the centroid
+    np.testing.assert_allclose(viewpoint_rotation([0, 0, 1], [0, 0, 0])[:, 2], [0, 0, -1])
+
+
+def test_clean_depth_backprojects_onto_surface():
+    scene, body, mesh_w = _scene()
+    cam = RGBDCamera(160, 120, noise=DepthNoise.off())
+    T = sample_hemisphere_views(mesh_w.centroid, 0.5, 1, np.random.default_rng(3))[0]
+    frame = cam.render(scene, T)
+    assert frame.rgb.shape == (120, 160, 3) and frame.depth.shape == (120, 160) and frame.seg.dtype == np.int32
+    assert (frame.seg == body).sum() > 200 and (frame.seg == scene.table_id).any()
+    pts = cam.point_cloud(frame, body)
+    assert np.median(_dist(mesh_w, pts)) < 1e-3
+
+
+def test_kinect_noise_is_bounded():
+    scene, body, mesh_w = _scene()
+    cam = RGBDCamera(160, 120)
+    T = sample_hemisphere_views(mesh_w.centroid, 0.6, 1, np.random.default_rng(3))[0]
+    pts = cam.point_cloud(cam.render(scene, T, np.random.default_rng(0)), body, np.random.default_rng(1))
+    d = _dist(mesh_w, pts)
+    assert 0.3e-3 < np.median(d) < 5e-3
+
+
+def test_transparent_object_loses_at_least_half_its_points():
+    """Acceptance: a transparent object yields >= 50 % fewer valid camera points than opaque."""
+    views = None
+    counts = {}
+    for transparent in (False, True):
+        scene, body, mesh_w = _scene(transparent)
+        views = sample_hemisphere_views(mesh_w.centroid, 0.6, 3, np.random.default_rng(5))
+        cam = RGBDCamera(160, 120)
+        rng = np.random.default_rng(0)
+        counts[transparent] = sum(len(cam.point_cloud(cam.render(scene, V, rng), body)) for V in views)
+        if transparent:  # the surviving points are wrongly deep, not on the glass
+            pts = cam.point_cloud(cam.render(scene, views[0], rng), body)
+            assert np.median(_dist(mesh_w, pts)) > 0.01
+    assert counts[True] <= 0.5 * counts[False]
+    assert counts[False] > 500
