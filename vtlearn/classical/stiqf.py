@@ -5,8 +5,8 @@ Three steps on top of :mod:`vtlearn.classical.tiqf`:
 1. **Scale** (eq. 5.12, optional): the ratio of the axis-aligned bounding boxes of scene and model,
    ``s = AABB(S) / AABB(O)`` per axis, and ``o' = s . o`` (eq. 5.11). The thesis takes both boxes in their own
    axes, which assumes an unrotated scene. Here the scene box is taken in the model's axes through the
-   current rotation estimate (identity at first, which is the thesis formula) and the registration is redone
-   once with the refined scale (``scale_iters``). Because eq. 5.12 needs a rotation, the very first scale fed
+   current rotation estimate and the whole registration is redone with the refined scale (``scale_iters``
+   times). Because eq. 5.12 needs a rotation, the very first scale fed
    to the annealing is the rotation-invariant isotropic ratio of RMS radii about the centroids.
 2. **Simulated-annealing initial alignment** (eq. 5.13-5.14): cost eq. 5.14 is the mean nearest-neighbour
    distance from the scene points to the transformed model (scene -> model; with a sparse scene this is the
@@ -298,7 +298,7 @@ class STIQF:
                  restarts: int = 10, sa_cost: str = "field", grid: int = 32, n_refine: int = 3,
                  best_buddies: bool = True, normal_angle_deg: float | None = None, rho: float = 1e-2,
                  max_iter: int = 100, tol_trans: float = 1e-4, tol_rot_deg: float = 0.1, n_escapes: int = 0,
-                 scale_iters: int = 1, tangent: bool = True, seed: int | None = 0):
+                 scale_iters: int = 2, tangent: bool = True, seed: int | None = 0):
         if sa_cost not in ("field", "kdtree"):
             raise ValueError(f"sa_cost: expected 'field' or 'kdtree', got {sa_cost!r}")
         if restarts < 1:
@@ -382,9 +382,9 @@ class STIQF:
             scale = np.full(3, r_s / r_o)
         res, cost, sa_cost = self._register_scaled(model * scale, scene, rng, model_normals, scene_normals)
         if self.estimate_scale:
+            # eq. 5.12 in the model axes of the current rotation, then the whole S-TIQF again with that scale
             for _ in range(self.scale_iters):
-                R = res.T_scene_model[:3, :3]
-                scale = aabb_scale(scene, model, R)
+                scale = aabb_scale(scene, model, res.T_scene_model[:3, :3])
                 res, cost, sa_cost = self._register_scaled(model * scale, scene, rng, model_normals,
                                                            scene_normals)
         return STIQFResult(T_scene_model=res.T_scene_model, scale=scale, iterations=res.iterations,
