@@ -48,3 +48,19 @@ def test_invalid_input():
         gpis_reconstruct(points, normals, resolution=2)
     with pytest.raises(ValueError, match="points"):
         fit_gpis(np.zeros((10, 3)), normals[:10])
+
+
+def test_ball_pivot_mesh_on_sphere():
+    from vtlearn.models.meshing import ball_pivot_mesh
+
+    points, normals = _sphere(800, 0.05, seed=2)
+    mesh = ball_pivot_mesh(points)
+    assert len(mesh.faces) > 800
+    radii = np.linalg.norm(mesh.vertices - CENTRE, axis=1)
+    np.testing.assert_allclose(radii, 0.05, rtol=1e-6)
+    # most of the sphere's area is covered (4 pi r^2; a random sample leaves a few holes)
+    assert mesh.area > 0.8 * 4 * np.pi * 0.05**2
+    with pytest.raises(ValueError, match="normals"):
+        ball_pivot_mesh(points, normals[:3])
+    with pytest.raises(ValueError, match="radii"):
+        ball_pivot_mesh(points, radii=[-1.0])
