@@ -1,0 +1,204 @@
+"""Tests for MC-dropout active learning (thesis eq. 7.3-7.4, Algorithm 5 visual-learning loop)."""
+
+import math
+import os
+
+import lightning as L
+import pytest
+import torch
+from torch import nn
+from torch.utils.data import DataLoader
+
+from vtlearn.active.learning_loop import ActiveLearningLoop, labels_to_reach
+from vtlearn.active.mc_dropout import (
+    acquisition_scores,
+    bald_score,
+    mc_dropout_mode,
+    mc_dropout_probs,
+    predictive_entropy,
+    random_query,
+    score_pool,
+    select_top_k,
+)
+from vtlearn.models.xavtnet import XAVTNet
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+TINY = dict(num_classes=3, global_dim=32, fc_dims=[16, 8], feature_transform=False)
+
+
+def _collate(items):
+    n = max(p.shape[0] for p, _, _ in items)
+    pts = torch.zeros(len(items), n, 3)
+    for i, (p, _, _) in enumerate(items):
+        pts[i, : p.shape[0]] = p
+    return {
+        "points": pts,
+        "lengths": torch.tensor([p.shape[0] for p, _, _ in items]),
+        "label": torch.tensor([c for _, c, _ in items]),
+        "index": torch.tensor([i for _, _, i in items]),
+    }
+
+
+class TinyPoolDM:
+    """The ActivePoolDataModule interface on 3 toy classes (blobs around (c, 0, 0))."""
+
+    def __init__(self, n_pool=24, initial_labels=6, seed=0):
+        g = torch.Generator().manual_seed(seed)
+        self.items = []
+        for i in range(n_pool + 9):
+            m = int(torch.randint(6, 15, (1,), generator=g))
+            c = i % 3
+            self.items.append((torch.randn(m, 3, generator=g) * 0.2 + torch.tensor([float(c), 0, 0]), c, i))
+        self.test_items = self.items[n_pool:]
+        self.pool = self.items[:n_pool]
+        perm = torch.randperm(n_pool, generator=g).tolist()
+        self.labelled_indices = sorted(perm[:initial_labels])
+        self.unlabelled_indices = sorted(perm[initial_labels:])
+
+    def train_dataloader(self):
+        return DataLoader([self.pool[i] for i in self.labelled_indices], batch_size=4, shuffle=True,
+                          collate_fn=_collate, drop_last=len(self.labelled_indices) % 4 == 1)
+
+    def unlabelled_dataloader(self):
+        def strip(items):
+            batch = _collate(items)
+            del batch["label"]
+            return batch
+
+        return DataLoader([self.pool[i] for i in self.unlabelled_indices], batch_size=5, collate_fn=strip)
+
+    def test_dataloader(self):
+        return DataLoader(self.test_items, batch_size=5, collate_fn=_collate)
+
+    def query(self, indices):
+        indices = [int(i) for i in indices]
+        assert all(i in self.unlabelled_indices for i in indices)
+        self.unlabelled_indices = [i for i in self.unlabelled_indices if i not in indices]
+        self.labelled_indices = sorted(self.labelled_indices + indices)
+        return torch.tensor([self.pool[i][1] for i in indices])
+
+
+def test_mc_dropout_passes_differ_with_dropout_and_match_without():
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, dropout=0.5)
+    model.train()
+    model(torch.randn(6, 10, 3))  # non-trivial BN running stats
+    points = torch.randn(4, 10, 3)
+    on = mc_dropout_probs(model, points, num_passes=5, dropout=True)
+    off = mc_dropout_probs(model, points, num_passes=5, dropout=False)
+    assert on.shape == (5, 4, 3)
+    assert not torch.allclose(on[0], on[1])
+    assert torch.allclose(off[0], off[1]) and torch.allclose(off[0], off[4])
+    assert torch.allclose(on.sum(-1), torch.ones(5, 4))
+    assert model.training  # flags restored
+
+
+def test_mc_dropout_mode_keeps_batch_norm_in_eval():
+    model = XAVTNet(**TINY, dropout=0.5).train()
+    bn = model.head.fc1[1]
+    stats = bn.running_mean.clone()
+    with mc_dropout_mode(model):
+        assert not bn.training and model.head.dropout.training
+        model(torch.randn(3, 8, 3))
+    assert torch.equal(bn.running_mean, stats)  # eval-mode BN does not update running stats
+    with pytest.raises(ValueError, match="dropout"):
+        with mc_dropout_mode(nn.Linear(2, 2)):
+            pass
+
+
+def test_entropy_and_bald_hand_cases_and_naive_reference():
+    uniform = torch.full((1, 4), 0.25)
+    onehot = torch.tensor([[0.0, 1.0, 0.0]])
+    assert predictive_entropy(uniform).item() == pytest.approx(math.log(4))
+    assert predictive_entropy(onehot).item() == pytest.approx(0.0)
+    # Two confident passes that disagree: H[mean] = log 2, mean H = 0 -> BALD = log 2.
+    disagree = torch.tensor([[[1.0, 0.0]], [[0.0, 1.0]]])
+    assert bald_score(disagree).item() == pytest.approx(math.log(2))
+    # Two identical uncertain passes: high entropy, zero mutual information.
+    agree = torch.full((2, 1, 2), 0.5)
+    assert bald_score(agree).item() == pytest.approx(0.0, abs=1e-7)
+    assert acquisition_scores(agree, "entropy").item() == pytest.approx(math.log(2))
+    probs = torch.softmax(torch.randn(3, 5, 4, dtype=torch.float64), -1)
+    mean = probs.mean(0)
+    naive = [-sum(float(p) * math.log(float(p)) for p in mean[b]) for b in range(5)]
+    assert predictive_entropy(mean).tolist() == pytest.approx(naive)
+    with pytest.raises(ValueError, match="strategy"):
+        acquisition_scores(probs, "margin")
+    with pytest.raises(ValueError, match="mean_probs"):
+        predictive_entropy(torch.ones(4))
+
+
+def test_select_top_k_and_random_query():
+    scores = torch.tensor([0.1, 0.9, 0.5, 0.9])
+    assert select_top_k(scores, 3).tolist() == [1, 3, 2]
+    with pytest.raises(ValueError, match="k"):
+        select_top_k(scores, 5)
+    pool = torch.tensor([10, 11, 12, 13, 14])
+    picked = random_query(pool, 3, torch.Generator().manual_seed(0))
+    assert len(set(picked.tolist())) == 3 and set(picked.tolist()) <= set(pool.tolist())
+
+
+class _Stub(nn.Module):
+    """Logits read from the first point; the dropout only makes the module MC-dropout capable."""
+
+    def __init__(self):
+        super().__init__()
+        self.drop = nn.Dropout(0.5)
+        self.w = nn.Parameter(torch.zeros(()))
+
+    def forward(self, points, lengths=None):
+        return points[:, 0, :2] + 0 * self.drop(torch.ones(points.shape[0], 2)) + self.w
+
+
+def test_score_pool_ranks_the_most_uncertain_first():
+    points = torch.tensor([[[5.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]], [[0.0, 3.0, 0.0]], [[1.0, 0.0, 0.0]]])
+    batches = [{"points": points[:2], "index": torch.tensor([7, 8])},
+               {"points": points[2:], "index": torch.tensor([9, 10])}]
+    idx, scores = score_pool(_Stub(), batches, "entropy", num_passes=2)
+    assert idx.tolist() == [7, 8, 9, 10]
+    assert idx[select_top_k(scores, 2)].tolist() == [8, 10]  # equal logits, then the closest pair
+
+
+def test_labels_to_reach_hand_case():
+    n = [10, 20, 30, 40]
+    acc = [0.5, 0.85, 0.9, 0.97]
+    got = labels_to_reach(n, acc, full_accuracy=0.95)
+    # rel. errors: 0.47, 0.105, 0.053, -0.02
+    assert got == {0.10: 30, 0.05: 40, 0.03: 40, 0.02: 40}
+    got = labels_to_reach(n, acc, 0.95, thresholds=(0.2, 0.06))
+    assert got == {0.2: 20, 0.06: 30}
+    assert labels_to_reach([5], [0.1], 1.0) == {0.10: None, 0.05: None, 0.03: None, 0.02: None}
+    with pytest.raises(ValueError, match="full_accuracy"):
+        labels_to_reach(n, acc, 0.0)
+
+
+@pytest.mark.parametrize("strategy,warm", [("entropy", False), ("bald", True), ("random", False)])
+def test_active_learning_loop_queries_kappa_per_round(strategy, warm):
+    dm = TinyPoolDM()
+    before = set(dm.unlabelled_indices)
+    made = []
+
+    def factory(seed):
+        made.append(seed)
+        return XAVTNet(**TINY)
+
+    loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=4, rounds=2, mc_passes=3,
+                              max_epochs=1, warm_start=warm, seed=5, show_progress=False)
+    history = loop.run()
+    assert [h.n_labels for h in history] == [6, 10, 14]
+    assert all(0.0 <= h.accuracy <= 1.0 for h in history)
+    queried = history[0].queried + history[1].queried
+    assert len(set(queried)) == 8 and set(queried) <= before
+    assert history[2].queried == []
+    assert made == ([5] if warm else [5, 6, 7])
+    with pytest.raises(ValueError, match="strategy"):
+        ActiveLearningLoop(dm, factory, strategy="margin")
+
+
+def test_active_learning_loop_fast_dev_run_module():
+    dm = TinyPoolDM()
+    model = XAVTNet(**TINY)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    trainer.fit(model, train_dataloaders=dm.train_dataloader(), val_dataloaders=dm.test_dataloader())
+    assert "val/acc" in trainer.callback_metrics

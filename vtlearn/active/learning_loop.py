@@ -1,0 +1,176 @@
+"""Deep active visual object learning with a simulated oracle, thesis ch.7, section 7.2.2 and the
+visual-learning part of Algorithm 5 (eq. 7.3-7.4 for the query).
+
+Loop (Algorithm 5, "active visual learning"):
+
+1. start from ``n₀`` randomly labelled clouds (``ActivePoolDataModule(initial_labels=n₀, seed=...)``);
+2. train the classifier on the labelled set with a Lightning ``Trainer``;
+3. score the unlabelled pool (MC-dropout entropy, BALD, or random) and query the top κ;
+   the oracle is simulated: ``datamodule.query(indices)`` reveals the dataset's labels;
+4. retrain and repeat until the budget of rounds is spent.
+
+Retraining (step 4) is **from scratch by default**: each round builds a fresh model from
+``model_factory`` with a round-specific seed, as in Gal et al. (2017), so the accuracy at ``n`` labels
+does not depend on the order the labels arrived in and strategies are compared fairly. With
+``warm_start=True`` the previous round's weights are kept and fine-tuned (a fresh optimiser each
+round); it is cheaper but the curve then mixes label count with total training time.
+
+Evaluation after each round is ``trainer.test`` on ``datamodule.test_dataloader()``. The Table 7.1
+analogue (:func:`labels_to_reach`) gives, per strategy, the number of labels at which the relative
+error ``(acc_full − acc) / acc_full`` against a model trained on the whole pool first falls to 10 %,
+5 %, 3 % and 2 %.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+
+import lightning as L
+import torch
+from tqdm.auto import tqdm
+
+from vtlearn.active.mc_dropout import STRATEGIES, score_pool, select_top_k
+
+__all__ = ["RoundResult", "ActiveLearningLoop", "train_and_test", "labels_to_reach"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RoundResult:
+    round: int
+    n_labels: int
+    accuracy: float
+    queried: list[int] = field(default_factory=list)
+
+
+def _trainer(max_epochs: int, **overrides) -> L.Trainer:
+    kwargs = dict(
+        max_epochs=max_epochs, accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
+        enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
+    )
+    kwargs.update(overrides)
+    return L.Trainer(**kwargs)
+
+
+def train_and_test(
+    model: L.LightningModule, train_loader, test_loader, max_epochs: int, **trainer_kwargs
+) -> float:
+    """Fit ``model`` on ``train_loader`` (no validation) and return ``test/acc`` on ``test_loader``."""
+    trainer = _trainer(max_epochs, limit_val_batches=0, **trainer_kwargs)
+    trainer.fit(model, train_dataloaders=train_loader)
+    metrics = trainer.test(model, dataloaders=test_loader, verbose=False)
+    return float(metrics[0]["test/acc"])
+
+
+class ActiveLearningLoop:
+    """Pool-based active learning driver around Lightning.
+
+    Args:
+        datamodule: an ``ActivePoolDataModule`` (``train_dataloader`` over the labelled set,
+            ``unlabelled_dataloader`` yielding ``{"points", "lengths", "index"}``, ``query(indices)``,
+            ``labelled_indices``, ``unlabelled_indices``, ``test_dataloader``). It is mutated.
+        model_factory: ``seed -> LightningModule`` with dropout layers (e.g. an ``XAVTNet``).
+        strategy: "entropy" (thesis), "bald" or "random".
+        kappa: κ, clouds queried per round.
+        rounds: number of query rounds (the loop trains ``rounds + 1`` times).
+        mc_passes: T of eq. 7.3.
+        max_epochs: epochs per (re)training.
+        warm_start: keep the weights between rounds instead of retraining from scratch.
+        seed: base seed; round r trains with ``seed + r``.
+        trainer_kwargs: extra ``Trainer`` arguments (e.g. ``limit_train_batches``).
+    """
+
+    def __init__(
+        self,
+        datamodule,
+        model_factory: Callable[[int], L.LightningModule],
+        strategy: str = "entropy",
+        kappa: int = 10,
+        rounds: int = 5,
+        mc_passes: int = 20,
+        max_epochs: int = 10,
+        warm_start: bool = False,
+        seed: int = 0,
+        trainer_kwargs: dict | None = None,
+        show_progress: bool = True,
+    ) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+        if kappa < 1:
+            raise ValueError(f"kappa must be >= 1, got {kappa}")
+        if rounds < 0:
+            raise ValueError(f"rounds must be >= 0, got {rounds}")
+        if mc_passes < 1:
+            raise ValueError(f"mc_passes must be >= 1, got {mc_passes}")
+        if max_epochs < 1:
+            raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
+        self.dm = datamodule
+        self.model_factory = model_factory
+        self.strategy, self.kappa, self.rounds = strategy, int(kappa), int(rounds)
+        self.mc_passes, self.max_epochs = int(mc_passes), int(max_epochs)
+        self.warm_start, self.seed = bool(warm_start), int(seed)
+        self.trainer_kwargs = dict(trainer_kwargs or {})
+        self.show_progress = show_progress
+        self.history: list[RoundResult] = []
+        self.model: L.LightningModule | None = None
+
+    def _query(self, round_idx: int) -> list[int]:
+        unlabelled = list(self.dm.unlabelled_indices)
+        k = min(self.kappa, len(unlabelled))
+        gen = torch.Generator().manual_seed(self.seed * 7919 + round_idx)
+        idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), self.strategy,
+                                 self.mc_passes, generator=gen)
+        chosen = idx[select_top_k(scores, k)].tolist()
+        self.dm.query(chosen)
+        return [int(i) for i in chosen]
+
+    def run(self) -> list[RoundResult]:
+        bar = tqdm(range(self.rounds + 1), desc=f"active learning [{self.strategy}]",
+                   disable=not self.show_progress)
+        for r in bar:
+            L.seed_everything(self.seed + r, verbose=False)
+            if self.model is None or not self.warm_start:
+                self.model = self.model_factory(self.seed + r)
+            acc = train_and_test(self.model, self.dm.train_dataloader(), self.dm.test_dataloader(),
+                                 self.max_epochs, **self.trainer_kwargs)
+            result = RoundResult(r, len(self.dm.labelled_indices), acc)
+            self.history.append(result)
+            bar.set_postfix(labels=result.n_labels, acc=f"{acc:.3f}")
+            if r < self.rounds and len(self.dm.unlabelled_indices) > 0:
+                result.queried = self._query(r)
+            elif r < self.rounds:
+                log.info("pool exhausted after %d rounds", r)
+                break
+        return self.history
+
+    def history_dicts(self) -> list[dict]:
+        return [asdict(h) for h in self.history]
+
+
+def labels_to_reach(
+    n_labels: Sequence[int],
+    accuracy: Sequence[float],
+    full_accuracy: float,
+    thresholds: Sequence[float] = (0.10, 0.05, 0.03, 0.02),
+) -> dict[float, int | None]:
+    """Table 7.1 analogue: the first label count whose relative error ``(full − acc)/full`` ≤ each
+    threshold, or ``None`` if the curve never gets there.
+
+    Shapes:
+        n_labels (R,) increasing, accuracy (R,) -> {threshold: labels or None}
+    """
+    if len(n_labels) != len(accuracy) or len(n_labels) == 0:
+        raise ValueError(f"n_labels and accuracy must be non-empty and equal length, got "
+                         f"{len(n_labels)} and {len(accuracy)}")
+    if not full_accuracy > 0:
+        raise ValueError(f"full_accuracy must be > 0, got {full_accuracy}")
+    out: dict[float, int | None] = {}
+    for t in thresholds:
+        out[t] = next(
+            (int(n) for n, a in zip(n_labels, accuracy, strict=True) if (full_accuracy - a) / full_accuracy <= t),
+            None,
+        )
+    return out

@@ -1,0 +1,172 @@
+"""MC-dropout uncertainty and query strategies for deep active learning, thesis ch.7, section 7.2.2,
+eq. (7.3)-(7.4) (Gal and Ghahramani, 2016).
+
+* Predictive probability (eq. 7.3): ``p(y|x) = (1/T) Σ_t p(y|x, W_t)`` over ``T`` stochastic forward
+  passes with dropout **on** and batch norm in **eval** mode (running statistics), so the only source
+  of randomness is the dropout mask.
+* Uncertainty (eq. 7.4): the Shannon entropy ``H(y|x) = −Σ_c p(y=c|x) log p(y=c|x)`` of that average.
+* Query: the top-κ samples by score. ``"entropy"`` is the thesis strategy, ``"bald"`` (Houlsby et al.
+  2011; Gal et al. 2017) is the mutual information ``H[mean_t p_t] − mean_t H[p_t]``, and ``"random"``
+  is the baseline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+
+import torch
+from torch import nn
+
+__all__ = [
+    "STRATEGIES",
+    "mc_dropout_mode",
+    "mc_dropout_probs",
+    "predictive_entropy",
+    "bald_score",
+    "acquisition_scores",
+    "select_top_k",
+    "random_query",
+    "score_pool",
+]
+
+STRATEGIES = ("entropy", "bald", "random")
+
+
+@contextmanager
+def mc_dropout_mode(model: nn.Module) -> Iterator[nn.Module]:
+    """Put ``model`` in eval mode except its dropout layers; restore every module's flag afterwards."""
+    flags = {m: m.training for m in model.modules()}
+    dropouts = [m for m in model.modules() if isinstance(m, nn.modules.dropout._DropoutNd)]
+    if not dropouts:
+        raise ValueError("model has no dropout layer, so MC-dropout passes would all be identical")
+    model.eval()
+    for m in dropouts:
+        m.train()
+    try:
+        yield model
+    finally:
+        for m, flag in flags.items():
+            m.training = flag
+
+
+def _logits_of(out) -> torch.Tensor:
+    return out.logits if hasattr(out, "logits") else out
+
+
+@torch.no_grad()
+def mc_dropout_probs(
+    model: nn.Module,
+    points: torch.Tensor,
+    lengths: torch.Tensor | None = None,
+    num_passes: int = 20,
+    dropout: bool = True,
+) -> torch.Tensor:
+    """Softmax outputs of ``num_passes`` stochastic passes (the terms of eq. 7.3).
+
+    ``model(points, lengths)`` must return logits or an object with ``.logits``. With
+    ``dropout=False`` the passes run in plain eval mode and are identical (a deterministic baseline).
+
+    Shapes:
+        points (B, N, 3), lengths (B,) -> probs (T, B, k)
+    """
+    if num_passes < 1:
+        raise ValueError(f"num_passes must be >= 1, got {num_passes}")
+    if dropout:
+        with mc_dropout_mode(model):
+            return torch.stack([_logits_of(model(points, lengths)).softmax(-1) for _ in range(num_passes)])
+    was_training = model.training
+    model.eval()
+    try:
+        return torch.stack([_logits_of(model(points, lengths)).softmax(-1) for _ in range(num_passes)])
+    finally:
+        model.train(was_training)
+
+
+def _check_probs(probs: torch.Tensor, name: str, dim: int) -> None:
+    if probs.dim() != dim or probs.shape[-1] < 2:
+        raise ValueError(f"{name} must have {dim} dims with >= 2 classes, got {tuple(probs.shape)}")
+    if not torch.isfinite(probs).all() or (probs < 0).any():
+        raise ValueError(f"{name} must be finite and non-negative")
+
+
+def predictive_entropy(mean_probs: torch.Tensor) -> torch.Tensor:
+    """Shannon entropy in nats (eq. 7.4), with ``0 log 0 = 0``. Shapes: (B, k) -> (B,)"""
+    _check_probs(mean_probs, "mean_probs", 2)
+    return -torch.special.xlogy(mean_probs, mean_probs).sum(-1)
+
+
+def bald_score(probs: torch.Tensor) -> torch.Tensor:
+    """BALD mutual information ``H[mean_t p_t] − mean_t H[p_t]`` (≥ 0). Shapes: (T, B, k) -> (B,)"""
+    _check_probs(probs, "probs", 3)
+    expected_entropy = -torch.special.xlogy(probs, probs).sum(-1).mean(0)
+    return (predictive_entropy(probs.mean(0)) - expected_entropy).clamp_min(0.0)
+
+
+def acquisition_scores(probs: torch.Tensor, strategy: str, generator: torch.Generator | None = None):
+    """Score per sample for ``strategy`` (higher = query first). Shapes: (T, B, k) -> (B,)"""
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+    _check_probs(probs, "probs", 3)
+    if strategy == "entropy":
+        return predictive_entropy(probs.mean(0))
+    if strategy == "bald":
+        return bald_score(probs)
+    return torch.rand(probs.shape[1], generator=generator)
+
+
+def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
+    """Indices of the ``k`` highest scores, highest first (ties broken by lower index)."""
+    if scores.dim() != 1:
+        raise ValueError(f"scores must be 1-D, got {tuple(scores.shape)}")
+    if not 1 <= k <= scores.numel():
+        raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
+    order = torch.sort(-scores, stable=True).indices
+    return order[:k]
+
+
+def random_query(pool_indices: torch.Tensor, k: int, generator: torch.Generator | None = None):
+    """``k`` pool indices uniformly without replacement (the random-strategy baseline)."""
+    if not 1 <= k <= pool_indices.numel():
+        raise ValueError(f"k must be in [1, {pool_indices.numel()}], got {k}")
+    return pool_indices[torch.randperm(pool_indices.numel(), generator=generator)[:k]]
+
+
+@torch.no_grad()
+def score_pool(
+    model: nn.Module,
+    batches: Iterable[dict],
+    strategy: str,
+    num_passes: int = 20,
+    generator: torch.Generator | None = None,
+    progress: Callable[[Iterable], Iterable] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Acquisition score of every unlabelled cloud.
+
+    Args:
+        batches: e.g. ``ActivePoolDataModule.unlabelled_dataloader()``; each batch is
+            ``{"points", "lengths", "index"}`` with ``index`` the pool index.
+        progress: optional wrapper such as ``tqdm``.
+
+    Returns:
+        (pool indices (U,), scores (U,))
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+    device = next(model.parameters()).device
+    all_idx, all_scores = [], []
+    for batch in progress(batches) if progress else batches:
+        idx = torch.as_tensor(batch["index"]).reshape(-1)
+        if strategy == "random":
+            scores = torch.rand(idx.numel(), generator=generator)
+        else:
+            points = batch["points"].to(device)
+            lengths = batch.get("lengths")
+            lengths = lengths.to(device) if lengths is not None else None
+            probs = mc_dropout_probs(model, points, lengths, num_passes)
+            scores = acquisition_scores(probs, strategy).cpu()
+        all_idx.append(idx.cpu())
+        all_scores.append(scores)
+    if not all_idx:
+        raise ValueError("batches is empty: nothing left to score in the unlabelled pool")
+    return torch.cat(all_idx), torch.cat(all_scores)
