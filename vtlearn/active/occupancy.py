@@ -308,9 +308,7 @@ class OccupancyGrid:
         strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
         flat0 = cell0 @ strides
         cell_index = np.empty(total, dtype=np.int64)
-        t_start = np.empty(total, dtype=np.float64)
         cell_index[offset] = flat0
-        t_start[offset] = t_in
         for a in range(3):
             cnt_a = n_cross[:, a]
             n_ev = int(cnt_a.sum())
@@ -336,21 +334,37 @@ class OccupancyGrid:
                 flat += cnt * step[ev_ray, b] * strides[b]
             pos = offset[ev_ray] + rank
             cell_index[pos] = flat
-            t_start[pos] = t_ev
         ray_local = np.repeat(np.arange(n), m)
 
+        no_stop = np.zeros(total, dtype=bool)
         if stop_flat is None:
-            return RayTraversal(ray[ray_local], cell_index, np.zeros(total, dtype=bool), stop_cell, stop_range)
-        occ = stop_flat[cell_index]
-        before = np.cumsum(occ) - occ
-        keep = before == np.repeat(before[offset], m)  # no stopping cell earlier in the same ray
-        is_stop = occ & keep
-        pos = np.nonzero(is_stop)[0]
-        r_loc = ray_local[pos]
-        last = offset[r_loc] + m[r_loc] - 1
-        t_out = np.where(pos < last, t_start[np.minimum(pos + 1, total - 1)], t_end[r_loc])
+            return RayTraversal(ray[ray_local], cell_index, no_stop, stop_cell, stop_range)
+        occ_pos = np.flatnonzero(stop_flat[cell_index])
+        if occ_pos.size == 0:
+            return RayTraversal(ray[ray_local], cell_index, no_stop, stop_cell, stop_range)
+        # Entries are ray-major, so the first stopping entry of each ray is its first occurrence.
+        occ_ray = ray_local[occ_pos]
+        first = np.r_[True, occ_ray[1:] != occ_ray[:-1]]
+        pos, r_loc = occ_pos[first], occ_ray[first]
+        # Drop everything after the stopping cell of each stopped ray.
+        n_drop = offset[r_loc] + m[r_loc] - 1 - pos
+        drop = np.repeat(pos + 1 - np.cumsum(n_drop) + n_drop, n_drop) + np.arange(int(n_drop.sum()))
+        keep = np.ones(total, dtype=bool)
+        keep[drop] = False
+        is_stop = no_stop
+        is_stop[pos] = True
+        # Distance to the middle of the ray's segment inside the stopping cell (slab test on that cell).
+        cell_lo = lo + np.stack(np.unravel_index(cell_index[pos], self.shape), axis=1) * res
+        with np.errstate(invalid="ignore", over="ignore"):
+            ta = (cell_lo - o[r_loc]) * inv_d[r_loc]
+            tb = (cell_lo + res - o[r_loc]) * inv_d[r_loc]
+        par = d[r_loc] == 0.0
+        t_lo = np.where(par, -np.inf, np.minimum(ta, tb)).max(axis=1)
+        t_hi = np.where(par, np.inf, np.maximum(ta, tb)).min(axis=1)
+        t_lo = np.maximum(t_lo, t_in[r_loc])
+        t_hi = np.minimum(t_hi, t_end[r_loc])
         stop_cell[ray[r_loc]] = cell_index[pos]
-        stop_range[ray[r_loc]] = 0.5 * (t_start[pos] + t_out)
+        stop_range[ray[r_loc]] = 0.5 * (t_lo + np.maximum(t_hi, t_lo))
         return RayTraversal(ray[ray_local[keep]], cell_index[keep], is_stop[keep], stop_cell, stop_range)
 
     @staticmethod
@@ -422,10 +436,24 @@ class OccupancyGrid:
         return np.where(hit, trav.stop_range, r), hit
 
     def _delta_entropy_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-cell entropy drop of one miss and of one hit update, ``(n_cells,)`` each."""
         L = self.log_odds.reshape(-1)
-        h0 = _entropy_from_log_odds(L)
-        dh_miss = h0 - _entropy_from_log_odds(np.clip(L + self.l_miss, self.l_min, self.l_max))
-        dh_hit = h0 - _entropy_from_log_odds(np.clip(L + self.l_hit, self.l_min, self.l_max))
+
+        def drop(Lc):
+            h0 = _entropy_from_log_odds(Lc)
+            return (
+                h0 - _entropy_from_log_odds(np.clip(Lc + self.l_miss, self.l_min, self.l_max)),
+                h0 - _entropy_from_log_odds(np.clip(Lc + self.l_hit, self.l_min, self.l_max)),
+            )
+
+        # Unknown cells (L = 0) share one value; evaluating the entropy only at known cells keeps this
+        # cheap early in an exploration, when most of the grid is unknown.
+        known = np.flatnonzero(L)
+        miss0, hit0 = drop(np.zeros(1))
+        dh_miss = np.full(L.size, miss0[0])
+        dh_hit = np.full(L.size, hit0[0])
+        if known.size:
+            dh_miss[known], dh_hit[known] = drop(L[known])
         return dh_miss, dh_hit
 
     def expected_information_gain(
@@ -479,11 +507,22 @@ class OccupancyGrid:
         buf = self._stamp
         entry = np.arange(act.size, dtype=np.int64)
         keep = np.zeros(act.size, dtype=bool)
+        # Entries come ray-major, so they are grouped by action whenever the rays are.
+        grouped = act.size < 2 or bool((act[1:] >= act[:-1]).all())
         for a0 in range(0, n_act, chunk):
-            sel = entry if chunk >= n_act else entry[(act >= a0) & (act < a0 + chunk)]
+            if chunk >= n_act:
+                sel = entry
+            elif grouped:
+                i0, i1 = np.searchsorted(act, [a0, a0 + chunk])
+                sel = entry[i0:i1]
+            else:
+                sel = entry[(act >= a0) & (act < a0 + chunk)]
             key = (act[sel] - a0) * n_cells + cells[sel]
             h = is_hit[sel]
-            buf[key[~h]] = sel[~h]
-            buf[key[h]] = sel[h]
+            if h.any():
+                buf[key[~h]] = sel[~h]
+                buf[key[h]] = sel[h]
+            else:
+                buf[key] = sel
             keep[sel[buf[key] == sel]] = True
         return np.nonzero(keep)[0]
