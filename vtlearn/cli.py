@@ -17,6 +17,7 @@ from vtlearn import __version__
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
 COMMAND_MODULES: tuple[str, ...] = (
     "vtlearn.sim_data.cli",
+    "vtlearn.active.active_cli",
 )
 
 
