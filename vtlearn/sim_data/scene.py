@@ -45,7 +45,8 @@ class Scene:
     """A pybullet DIRECT client with an optional table plane and the meshes added to it.
 
     Args:
-        table: add a large static box whose top face is the plane z = 0.
+        table: add a static 1.2 m x 1.2 m table whose top face is the plane z = 0 (TinyRenderer time
+            grows with the pixels a body covers, so the table is kept table-sized).
         gravity: z gravity in m/s^2 (used only when free objects are stepped).
     """
 
@@ -55,8 +56,8 @@ class Scene:
         self.objects: dict[int, SceneObject] = {}
         self.table_id: int | None = None
         if table:
-            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[1.5, 1.5, 0.01], physicsClientId=self.client)
-            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[1.5, 1.5, 0.01], rgbaColor=[0.55, 0.45, 0.35, 1],
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.6, 0.6, 0.01], physicsClientId=self.client)
+            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.6, 0.6, 0.01], rgbaColor=[0.55, 0.45, 0.35, 1],
                                       physicsClientId=self.client)
             self.table_id = p.createMultiBody(0, col, vis, basePosition=[0, 0, -0.01], physicsClientId=self.client)
 
