@@ -44,7 +44,7 @@ def test_arm_touches_reach_and_land_on_surface(setup):
     _, arm, mesh_w = setup
     lo, hi = mesh_w.bounds
     rng = np.random.default_rng(0)
-    results = [arm.touch(*a, rng=rng) for a in sample_touches(lo, hi, 12, rng)]
+    results = [arm.touch(*a, rng=rng) for a in sample_touches(lo, hi, 24, rng)]
     pts = np.concatenate([r.points for r in results])
     assert sum(r.num_contacts > 0 for r in results) >= 3
     ref, _ = trimesh.sample.sample_surface(mesh_w, 200_000, seed=0)
