@@ -16,6 +16,9 @@ from vtlearn import __version__
 
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
 COMMAND_MODULES: tuple[str, ...] = (
+    "vtlearn.models.xavtnet_cli",
+    "vtlearn.classical.registration_cli",
+    "vtlearn.classical.tracking_cli",
     "vtlearn.sim_data.cli",
     "vtlearn.active.active_cli",
 )

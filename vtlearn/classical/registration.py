@@ -69,6 +69,8 @@ class RegistrationResult:
 def _o3d():
     import open3d as o3d
 
+    # FPFH on a sparse scene often finds too few matches; that is a measured outcome, not worth a warning
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     return o3d
 
 
