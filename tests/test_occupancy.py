@@ -226,3 +226,24 @@ def test_from_bounds_covers_box():
     assert grid.shape == (20, 10, 5)
     assert grid.resolution == pytest.approx(0.01)
     assert np.allclose(grid.upper, [0.2, 0.1, 0.05])
+
+
+def test_probabilistic_gain_matches_outcome_enumeration():
+    grid = OccupancyGrid([0.0, 0.0, 0.0], 0.1, (6, 2, 2))
+    grid.log_odds[:, 0, 0] = [-1.0, 0.0, 0.8, 0.0, 2.0, -0.5]
+    o, d = np.array([[-0.05, 0.05, 0.05]]), np.array([[1.0, 0.0, 0.0]])
+    gain = grid.expected_information_gain(o, d, 0.7, mode="probabilistic")[0]
+    # Reference: enumerate where the ray stops (cell i with prob p_i * prod_{j<i}(1 - p_j)) or not at all.
+    p = grid.probabilities()[:, 0, 0]
+    h0, expected, reach = grid.entropy(), 0.0, 1.0
+    for i in range(6):
+        post = grid.copy()
+        post.insert_rays(o, d, [0.1 * i + 0.1], [True])  # ends in the middle of cell i
+        expected += reach * p[i] * (h0 - post.entropy())
+        reach *= 1 - p[i]
+    post = grid.copy()
+    post.insert_rays(o, d, [0.7], [False])
+    expected += reach * (h0 - post.entropy())
+    assert gain == pytest.approx(expected, rel=1e-10)
+    with pytest.raises(ValueError, match="mode"):
+        grid.expected_information_gain(o, d, 0.7, mode="oracle")

@@ -221,6 +221,119 @@ def run_occupancy_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _table_mesh(category: str, seed: int):
+    """A sim_data shape at metric size standing on the table (z = 0)."""
+    from vtlearn.sim_data.shapes import generate_shape
+
+    mesh, record = generate_shape(category, seed)
+    mesh = mesh.copy()
+    mesh.apply_scale(record.scale_m)
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    return mesh
+
+
+def run_exploration_bench(args: argparse.Namespace) -> int:
+    from vtlearn.active.exploration import explore
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+
+    variants = [("active", "raycast"), ("active", "probabilistic"), ("random", "raycast"), ("uniform", "raycast")]
+    categories = [c.strip() for c in args.objects.split(",") if c.strip()]
+    if not categories:
+        raise ValueError("objects: give at least one sim_data category")
+    curves: dict[str, dict[str, list]] = {}
+    t0 = time.perf_counter()
+    for strategy, mode in variants:
+        name = strategy if strategy != "active" else f"active ({mode})"
+        runs = {"entropy": [], "coverage": [], "n_points": []}
+        for cat in categories:
+            for seed in range(args.seeds):
+                mesh = _table_mesh(cat, seed)
+                res = explore(
+                    mesh,
+                    strategy,
+                    args.touches,
+                    n_candidates=args.candidates,
+                    cells=args.cells,
+                    coverage_radius=args.coverage_radius,
+                    gain_mode=mode,
+                    seed=seed,
+                )
+                runs["entropy"].append((res.entropy[0] - res.entropy).tolist())
+                runs["coverage"].append(res.coverage.tolist())
+                runs["n_points"].append(res.n_points.tolist())
+        curves[name] = runs
+    elapsed = time.perf_counter() - t0
+
+    checkpoints = sorted({min(k, args.touches) for k in (5, 10, args.touches)})
+    rows = []
+    for name, runs in curves.items():
+        row = {"strategy": name}
+        for k in checkpoints:
+            row[f"dH@{k} (nats)"] = float(np.mean([r[k] for r in runs["entropy"]]))
+            row[f"coverage@{k}"] = float(np.mean([r[k] for r in runs["coverage"]]))
+        row[f"contacts@{args.touches}"] = float(np.mean([r[args.touches] for r in runs["n_points"]]))
+        rows.append(row)
+    columns = ["strategy"] + [f"dH@{k} (nats)" for k in checkpoints] + [f"coverage@{k}" for k in checkpoints]
+    columns.append(f"contacts@{args.touches}")
+    print_table(
+        rows,
+        columns,
+        f"Next-best-touch exploration, {len(categories)} categories x {args.seeds} instances, {args.touches} touches "
+        f"(grid-only precursor of the ACTOR experiment)",
+    )
+    print(
+        "dH = entropy removed from the occupancy grid since the start (eq. 7.9); coverage = fraction of the mesh "
+        f"surface within {args.coverage_radius * 1000:.0f} mm of a contact point. Wall time {elapsed:.1f} s (shared CPU)."
+    )
+    result = {
+        "benchmark": "active-exploration",
+        "note": "grid-only precursor of the ACTOR active-reconstruction experiment (thesis Fig. 8.7); no network",
+        "objects": categories,
+        "instances_per_object": args.seeds,
+        "touches": args.touches,
+        "candidates": args.candidates,
+        "cells_per_axis": args.cells,
+        "coverage_radius_m": args.coverage_radius,
+        "rows": rows,
+        "curves": curves,
+        "seconds": elapsed,
+        "machine": machine_info(),
+    }
+    if args.json:
+        path = write_json(args.json, result)
+        print(f"wrote {path}")
+        plot = str(path.with_suffix(".png"))
+        _plot_exploration(curves, args.touches, plot)
+        print(f"wrote {plot}")
+    return 0
+
+
+def _plot_exploration(curves: dict, touches: int, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    x = np.arange(touches + 1)
+    for name, runs in curves.items():
+        for ax, key in zip(axes, ("entropy", "coverage")):
+            arr = np.asarray(runs[key])
+            mean, std = arr.mean(axis=0), arr.std(axis=0)
+            ax.plot(x, mean, label=name)
+            ax.fill_between(x, mean - std, mean + std, alpha=0.15)
+    axes[0].set_ylabel("entropy removed from the grid (nats)")
+    axes[1].set_ylabel("surface coverage (fraction)")
+    for ax in axes:
+        ax.set_xlabel("number of touches")
+        ax.grid(alpha=0.3)
+    axes[1].legend()
+    fig.suptitle("Active vs random vs uniform next-best-touch (occupancy grid only)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def register_bench(sub) -> None:
     p = sub.add_parser("occupancy", help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap")
     p.add_argument("--cells", type=int, default=64, help="cells per grid axis (default 64)")
@@ -232,3 +345,16 @@ def register_bench(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default="runs/bench/occupancy.json", help="output JSON path")
     p.set_defaults(func=run_occupancy_bench)
+
+    p = sub.add_parser(
+        "active-exploration",
+        help="closed-loop next-best-touch on sim_data meshes: active vs random vs uniform, entropy and coverage",
+    )
+    p.add_argument("--objects", default="bottle,mug,spray_bottle,wineglass", help="comma-separated sim_data categories")
+    p.add_argument("--seeds", type=int, default=3, help="instances per category (default 3)")
+    p.add_argument("--touches", type=int, default=20, help="touch budget (default 20, as in thesis Fig. 8.7)")
+    p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo NBT candidates per step")
+    p.add_argument("--cells", type=int, default=40, help="grid cells per axis (default 40)")
+    p.add_argument("--coverage-radius", type=float, default=0.005, help="metres (default 0.005)")
+    p.add_argument("--json", default="runs/bench/active_exploration.json", help="output JSON (a PNG plot goes beside it)")
+    p.set_defaults(func=run_exploration_bench)

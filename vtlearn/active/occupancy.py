@@ -457,18 +457,33 @@ class OccupancyGrid:
         return dh_miss, dh_hit
 
     def expected_information_gain(
-        self, origins, directions, max_range, action_index=None, n_actions: int | None = None
+        self,
+        origins,
+        directions,
+        max_range,
+        action_index=None,
+        n_actions: int | None = None,
+        mode: str = "raycast",
     ) -> np.ndarray:
         """Expected information gain ``H(G) - H(G | a, z_hat)`` of many candidate actions at once (eq. 5.8).
 
-        Each action is the set of rays that share its ``action_index``. Its expected measurement is the
-        ray-cast of :meth:`expected_measurement`; the hypothetical update follows :meth:`insert_rays`
-        (each cell once per action, hit over miss), and the grid itself is left unchanged.
+        Each action is the set of rays that share its ``action_index``. With ``mode="raycast"`` (the
+        thesis' criterion) its expected measurement is the ray-cast of :meth:`expected_measurement`; the
+        hypothetical update follows :meth:`insert_rays` (each cell once per action, hit over miss), and
+        the grid itself is left unchanged.
+
+        ``mode="probabilistic"`` is an extension beyond the thesis: each ray may stop in any cell it
+        crosses, with probability ``p_i prod_{j<i} (1 - p_j)`` under the current belief, and the gain is
+        the expectation over those outcomes (stop at ``i``: misses before ``i``, a hit at ``i``; no
+        stop: misses everywhere). Unknown cells then count as likely surface instead of free space, so
+        the criterion stops favouring long sweeps through unexplored volume. The rays of one action are
+        treated as independent here (their gains add), so overlapping rays are counted more than once.
 
         Args:
             origins, directions, max_range: the rays of all candidate actions, grid frame.
             action_index: ``(R,)`` int in ``[0, n_actions)``; None means one ray per action.
             n_actions: number of actions ``A``; defaults to ``action_index.max() + 1``.
+            mode: ``"raycast"`` or ``"probabilistic"``.
 
         Shapes:
             origins, directions: ``(R, 3)``; max_range: scalar or ``(R,)``; -> ``(A,)`` nats.
@@ -485,6 +500,10 @@ class OccupancyGrid:
         if n_act < int(action_index.max()) + 1:
             raise ValueError(f"n_actions: {n_act} is smaller than action_index.max() + 1 = {int(action_index.max()) + 1}")
 
+        if mode == "probabilistic":
+            return self._probabilistic_gain(o, d, r, action_index, n_act)
+        if mode != "raycast":
+            raise ValueError(f"mode: expected 'raycast' or 'probabilistic', got {mode!r}")
         trav = self._dda(o, d, r, self.occupied_mask().ravel())
         dh_miss, dh_hit = self._delta_entropy_tables()
         act = action_index[trav.ray_index].astype(np.int64)
@@ -492,6 +511,32 @@ class OccupancyGrid:
         rep = self._first_per_action_cell(act, cells, is_hit, n_act)
         gain = np.where(is_hit[rep], dh_hit[cells[rep]], dh_miss[cells[rep]])
         return np.bincount(act[rep], weights=gain, minlength=n_act)
+
+    def _probabilistic_gain(self, o, d, r, action_index, n_act) -> np.ndarray:
+        trav = self._dda(o, d, r, None)
+        if trav.cell_index.size == 0:
+            return np.zeros(n_act)
+        dh_miss, dh_hit = self._delta_entropy_tables()
+        L = self.log_odds.reshape(-1)[trav.cell_index]
+        p = 0.5 * (1.0 + np.tanh(0.5 * L))
+        log_free = -np.logaddexp(0.0, L)  # log(1 - p)
+        ray = trav.ray_index
+        start = np.r_[True, ray[1:] != ray[:-1]]
+        seg = np.cumsum(start) - 1  # segment (ray) id of every entry, entries are ray-major
+        first = np.flatnonzero(start)
+
+        def exclusive_segment_cumsum(x):
+            c = np.cumsum(x) - x
+            return c - c[first][seg]
+
+        reach = np.exp(exclusive_segment_cumsum(log_free))  # P(ray reaches cell i)
+        m_before = exclusive_segment_cumsum(dh_miss[trav.cell_index])
+        m_all = m_before + dh_miss[trav.cell_index]
+        last = np.r_[first[1:] - 1, ray.size - 1]
+        gain_stop = reach * p * (m_before + dh_hit[trav.cell_index])
+        ray_gain = np.bincount(seg, weights=gain_stop)
+        ray_gain += reach[last] * (1.0 - p[last]) * m_all[last]  # passes every cell
+        return np.bincount(action_index[ray[first]], weights=ray_gain, minlength=n_act)
 
     def _first_per_action_cell(self, act, cells, is_hit, n_act) -> np.ndarray:
         """Indices of one entry per distinct (action, cell) pair, a hit entry wherever the pair has one.
