@@ -64,7 +64,9 @@ def test_pinch_actions_come_from_above_and_close_horizontally():
     assert np.allclose(T[:, :3, 2], [0, 0, -1])  # approach straight down
     assert np.allclose(T[:, 2, 0], 0)  # closing axis horizontal
     c = T[:, :3, 3]
-    assert (c[:, 0] >= 0).all() and (c[:, 0] <= 0.1).all() and (c[:, 1] >= 0).all() and (c[:, 1] <= 0.06).all()
+    assert (
+        (c[:, 0] >= 0).all() and (c[:, 0] <= 0.1).all() and (c[:, 1] >= 0).all() and (c[:, 1] <= 0.06).all()
+    )
     assert (c[:, 2] >= 0.2 * 0.2 - 1e-12).all() and (c[:, 2] <= 0.9 * 0.2 + 1e-12).all()
     assert np.allclose(acts.start[:, 2], 0.3) and np.allclose(acts.start[:, :2], c[:, :2])
 

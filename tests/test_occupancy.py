@@ -116,7 +116,9 @@ def test_diagonal_through_corners_is_six_connected():
 def test_expected_measurement_stops_at_believed_occupied_cell():
     grid = OccupancyGrid([0.0, 0.0, 0.0], 0.1, (6, 1, 1))
     grid.log_odds[3, 0, 0] = 2.0
-    ranges, hit = grid.expected_measurement([[-0.05, 0.05, 0.05], [0.55, 0.05, 0.05]], [[1, 0, 0], [1, 0, 0]], 1.0)
+    ranges, hit = grid.expected_measurement(
+        [[-0.05, 0.05, 0.05], [0.55, 0.05, 0.05]], [[1, 0, 0], [1, 0, 0]], 1.0
+    )
     assert hit.tolist() == [True, False]
     assert ranges[0] == pytest.approx(0.4)  # middle of cell 3 seen from x = -0.05
     assert ranges[1] == pytest.approx(1.0)
@@ -151,7 +153,9 @@ def test_batched_information_gain_equals_one_at_a_time_loop():
     directions = np.repeat([0.3, 0.25, 0.2] - origins[::k], k, axis=0) + rng.normal(0, 0.1, (n_act * k, 3))
     action_index = np.repeat(np.arange(n_act), k)
     batched = grid.expected_information_gain(origins, directions, 1.2, action_index)
-    looped = hypothetical_gain_loop(grid, origins, directions / np.linalg.norm(directions, axis=1)[:, None], 1.2, action_index)
+    looped = hypothetical_gain_loop(
+        grid, origins, directions / np.linalg.norm(directions, axis=1)[:, None], 1.2, action_index
+    )
     assert np.array_equal(grid.log_odds, before)  # the grid is unchanged
     assert batched.shape == (n_act,)
     assert np.allclose(batched, looped, atol=1e-9)

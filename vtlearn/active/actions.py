@@ -74,7 +74,9 @@ class OrientedBox:
         """An axis-aligned box ``[lower, upper]`` in the world frame."""
         lower, upper = np.asarray(lower, float), np.asarray(upper, float)
         if lower.shape != (3,) or upper.shape != (3,) or (upper <= lower).any():
-            raise ValueError(f"upper: must exceed lower on every axis, got {lower.tolist()} and {upper.tolist()}")
+            raise ValueError(
+                f"upper: must exceed lower on every axis, got {lower.tolist()} and {upper.tolist()}"
+            )
         T = np.eye(4)
         T[:3, 3] = (lower + upper) / 2
         return cls(T, upper - lower)
@@ -146,7 +148,9 @@ def _check_count(n, name="n"):
     return int(n)
 
 
-def _sample_feasible(draw: Callable[[int], ActionSet], n: int, feasible: Feasibility | None, max_rounds: int) -> ActionSet:
+def _sample_feasible(
+    draw: Callable[[int], ActionSet], n: int, feasible: Feasibility | None, max_rounds: int
+) -> ActionSet:
     if feasible is None:
         return draw(n)
     kept: list[ActionSet] = []
@@ -194,7 +198,11 @@ def sample_touch_actions(
         raise ValueError(f"standoff: need a non-negative finite distance, got {standoff}")
     rng = np.random.default_rng(seed)
     half = box.extents / 2
-    area = np.array([box.extents[1] * box.extents[2]] * 2 + [box.extents[0] * box.extents[2]] * 2 + [box.extents[0] * box.extents[1]])
+    area = np.array(
+        [box.extents[1] * box.extents[2]] * 2
+        + [box.extents[0] * box.extents[2]] * 2
+        + [box.extents[0] * box.extents[1]]
+    )
     prob = area / area.sum() if area_weighted else np.full(5, 0.2)
     R_wb, t_wb = box.T_world_box[:3, :3], box.T_world_box[:3, 3]
 

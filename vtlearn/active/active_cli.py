@@ -78,7 +78,7 @@ def _octomap_rows(grid, rays, n_actions: int, loop_actions: int) -> tuple[list[d
     # Same belief: every known cell of the dense grid written into the tree.
     known = np.nonzero(grid.log_odds.ravel() != 0.0)[0]
     centers = grid.cell_centers(np.stack(np.unravel_index(known, grid.shape), axis=1))
-    for c, lo in zip(centers, grid.log_odds.ravel()[known]):
+    for c, lo in zip(centers, grid.log_odds.ravel()[known], strict=False):
         tree.updateNode(c, float(lo), lazy_eval=True)
     tree.updateInnerOccupancy()
 
@@ -87,7 +87,7 @@ def _octomap_rows(grid, rays, n_actions: int, loop_actions: int) -> tuple[list[d
 
     def cast_all():
         ends, hits = [], []
-        for o, d, r in zip(o_all, d_all, r_all):
+        for o, d, r in zip(o_all, d_all, r_all, strict=False):
             hit = tree.castRay(o, d, end, ignoreUnknownCells=True, maxRange=float(r))
             hits.append(bool(hit))
             ends.append(end.copy() if hit else o + d * r)
@@ -100,12 +100,16 @@ def _octomap_rows(grid, rays, n_actions: int, loop_actions: int) -> tuple[list[d
     def insert_loop():
         for a in range(loop_actions):
             s = rays.action_index == a
-            for o, e in zip(o_all[s], ends[s]):
+            for o, e in zip(o_all[s], ends[s], strict=False):
                 tree.insertPointCloud(e[None, :].copy(), o.copy(), -1.0, lazy_eval=True)
 
     t_ins = _time(insert_loop, 1)[0] * n_actions / loop_actions
     rows = [
-        {"method": "octomap castRay (expected measurements, 1 call/ray)", "seconds": t_cast, "note": f"{int(sel_rays.size)} rays"},
+        {
+            "method": "octomap castRay (expected measurements, 1 call/ray)",
+            "seconds": t_cast,
+            "note": f"{int(sel_rays.size)} rays",
+        },
         {
             "method": "octomap castRay + insertPointCloud per action",
             "seconds": t_cast + t_ins,
@@ -117,7 +121,8 @@ def _octomap_rows(grid, rays, n_actions: int, loop_actions: int) -> tuple[list[d
         "version": getattr(pyoctomap, "__version__", "installed"),
         "cast_seconds": t_cast,
         "insert_seconds_extrapolated": t_ins,
-        "note": "pyoctomap exposes no ray-key enumeration or tree copy, so a hypothetical update cannot be undone "
+        "note": "pyoctomap exposes no ray-key enumeration or tree copy, so a hypothetical update cannot be "
+        "undone "
         "or scored without mutating the tree; castRay + insert is therefore a lower bound on an OctoMap IG.",
     }
     return rows, info
@@ -133,7 +138,9 @@ def run_occupancy_bench(args: argparse.Namespace) -> int:
     rays = sensor.rays(cands.T_world_sensor)
 
     def batched():
-        return grid.expected_information_gain(rays.origins, rays.directions, rays.max_range, rays.action_index, rays.n_actions)
+        return grid.expected_information_gain(
+            rays.origins, rays.directions, rays.max_range, rays.action_index, rays.n_actions
+        )
 
     batched()  # first call allocates the scratch buffer
     load_before = os.getloadavg()[0]
@@ -187,7 +194,10 @@ def run_occupancy_bench(args: argparse.Namespace) -> int:
     print_table(rows, ["method", "seconds", "note"], title)
     if not octo_info.get("available"):
         print(f"OctoMap: unavailable - {octo_info.get('reason')}")
-    print(f"Timings are on a shared CPU and are noisy (1-min load average {load_before:.2f} on {os.cpu_count()} cores).")
+    print(
+        f"Timings are on a shared CPU and are noisy "
+        f"(1-min load average {load_before:.2f} on {os.cpu_count()} cores)."
+    )
     result = {
         "benchmark": "occupancy",
         "target_seconds": 0.2,
@@ -236,7 +246,12 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
     from vtlearn.active.exploration import explore
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
-    variants = [("active", "raycast"), ("active", "probabilistic"), ("random", "raycast"), ("uniform", "raycast")]
+    variants = [
+        ("active", "raycast"),
+        ("active", "probabilistic"),
+        ("random", "raycast"),
+        ("uniform", "raycast"),
+    ]
     categories = [c.strip() for c in args.objects.split(",") if c.strip()]
     if not categories:
         raise ValueError("objects: give at least one sim_data category")
@@ -278,16 +293,20 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
     print_table(
         rows,
         columns,
-        f"Next-best-touch exploration, {len(categories)} categories x {args.seeds} instances, {args.touches} touches "
+        f"Next-best-touch exploration, {len(categories)} categories x {args.seeds} instances, "
+        f"{args.touches} touches "
         f"(grid-only precursor of the ACTOR experiment)",
     )
     print(
-        "dH = entropy removed from the occupancy grid since the start (eq. 7.9); coverage = fraction of the mesh "
-        f"surface within {args.coverage_radius * 1000:.0f} mm of a contact point. Wall time {elapsed:.1f} s (shared CPU)."
+        "dH = entropy removed from the occupancy grid since the start (eq. 7.9); "
+        "coverage = fraction of the mesh "
+        f"surface within {args.coverage_radius * 1000:.0f} mm of a contact point. "
+        f"Wall time {elapsed:.1f} s (shared CPU)."
     )
     result = {
         "benchmark": "active-exploration",
-        "note": "grid-only precursor of the ACTOR active-reconstruction experiment (thesis Fig. 8.7); no network",
+        "note": "grid-only precursor of the ACTOR active-reconstruction experiment "
+        "(thesis Fig. 8.7); no network",
         "objects": categories,
         "instances_per_object": args.seeds,
         "touches": args.touches,
@@ -317,7 +336,7 @@ def _plot_exploration(curves: dict, touches: int, path: str) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     x = np.arange(touches + 1)
     for name, runs in curves.items():
-        for ax, key in zip(axes, ("entropy", "coverage")):
+        for ax, key in zip(axes, ("entropy", "coverage"), strict=False):
             arr = np.asarray(runs[key])
             mean, std = arr.mean(axis=0), arr.std(axis=0)
             ax.plot(x, mean, label=name)
@@ -335,10 +354,15 @@ def _plot_exploration(curves: dict, touches: int, path: str) -> None:
 
 
 def register_bench(sub) -> None:
-    p = sub.add_parser("occupancy", help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap")
+    p = sub.add_parser(
+        "occupancy",
+        help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap",
+    )
     p.add_argument("--cells", type=int, default=64, help="cells per grid axis (default 64)")
     p.add_argument("--actions", type=int, default=500, help="candidate touch actions (default 500)")
-    p.add_argument("--prior-touches", type=int, default=20, help="touches integrated before timing (default 20)")
+    p.add_argument(
+        "--prior-touches", type=int, default=20, help="touches integrated before timing (default 20)"
+    )
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--loop-actions", type=int, default=50, help="actions timed in the one-at-a-time loop")
     p.add_argument("--no-octomap", action="store_true", help="skip the pyoctomap comparison")
@@ -348,13 +372,18 @@ def register_bench(sub) -> None:
 
     p = sub.add_parser(
         "active-exploration",
-        help="closed-loop next-best-touch on sim_data meshes: active vs random vs uniform, entropy and coverage",
+        help="closed-loop next-best-touch on sim_data meshes: active vs random vs uniform "
+        "(entropy, coverage)",
     )
-    p.add_argument("--objects", default="bottle,mug,spray_bottle,wineglass", help="comma-separated sim_data categories")
+    p.add_argument(
+        "--objects", default="bottle,mug,spray_bottle,wineglass", help="comma-separated sim_data categories"
+    )
     p.add_argument("--seeds", type=int, default=3, help="instances per category (default 3)")
     p.add_argument("--touches", type=int, default=20, help="touch budget (default 20, as in thesis Fig. 8.7)")
     p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo NBT candidates per step")
     p.add_argument("--cells", type=int, default=40, help="grid cells per axis (default 40)")
     p.add_argument("--coverage-radius", type=float, default=0.005, help="metres (default 0.005)")
-    p.add_argument("--json", default="runs/bench/active_exploration.json", help="output JSON (a PNG plot goes beside it)")
+    p.add_argument(
+        "--json", default="runs/bench/active_exploration.json", help="output JSON (a PNG plot goes beside it)"
+    )
     p.set_defaults(func=run_exploration_bench)

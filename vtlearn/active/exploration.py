@@ -131,7 +131,9 @@ def explore(
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
     if int(n_touches) < 1 or int(n_init) < 0 or int(n_init) > int(n_touches):
-        raise ValueError(f"n_touches, n_init: need n_touches >= 1 and 0 <= n_init <= n_touches, got {n_touches}, {n_init}")
+        raise ValueError(
+            f"n_touches, n_init: need n_touches >= 1 and 0 <= n_init <= n_touches, got {n_touches}, {n_init}"
+        )
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError("mesh: expected a non-empty trimesh.Trimesh")
     box = OrientedBox.from_points(mesh.vertices, margin=0.003)

@@ -135,9 +135,14 @@ class OccupancyGrid:
         if not 0.0 < p_miss < 0.5:
             raise ValueError(f"p_miss: must lie in (0, 0.5), got {p_miss}")
         if not 0.0 < clamp_min < 0.5 < clamp_max < 1.0:
-            raise ValueError(f"clamp_min, clamp_max: need 0 < clamp_min < 0.5 < clamp_max < 1, got {clamp_min}, {clamp_max}")
+            raise ValueError(
+                "clamp_min, clamp_max: need 0 < clamp_min < 0.5 < clamp_max < 1, "
+                f"got {clamp_min}, {clamp_max}"
+            )
         if not clamp_min <= occupied_threshold < clamp_max:
-            raise ValueError(f"occupied_threshold: must lie in [clamp_min, clamp_max), got {occupied_threshold}")
+            raise ValueError(
+                f"occupied_threshold: must lie in [clamp_min, clamp_max), got {occupied_threshold}"
+            )
         self.origin = origin
         self.resolution = float(resolution)
         self.shape = tuple(int(s) for s in shape_arr)
@@ -152,13 +157,21 @@ class OccupancyGrid:
 
     @classmethod
     def from_bounds(cls, lower, upper, cells_per_axis: int = 64, **kwargs) -> OccupancyGrid:
-        """A cubic-cell grid covering the box ``[lower, upper]``; its longest side gets ``cells_per_axis`` cells."""
+        """A cubic-cell grid covering ``[lower, upper]``; the longest side gets ``cells_per_axis`` cells."""
         lower = np.asarray(lower, dtype=np.float64)
         upper = np.asarray(upper, dtype=np.float64)
-        if lower.shape != (3,) or upper.shape != (3,) or not (np.isfinite(lower).all() and np.isfinite(upper).all()):
-            raise ValueError(f"lower, upper: expected finite (3,) corners, got {lower.tolist()}, {upper.tolist()}")
+        if (
+            lower.shape != (3,)
+            or upper.shape != (3,)
+            or not (np.isfinite(lower).all() and np.isfinite(upper).all())
+        ):
+            raise ValueError(
+                f"lower, upper: expected finite (3,) corners, got {lower.tolist()}, {upper.tolist()}"
+            )
         if (upper <= lower).any():
-            raise ValueError(f"upper: must exceed lower on every axis, got lower={lower.tolist()} upper={upper.tolist()}")
+            raise ValueError(
+                f"upper: must exceed lower on every axis, got lower={lower.tolist()} upper={upper.tolist()}"
+            )
         if int(cells_per_axis) < 1:
             raise ValueError(f"cells_per_axis: need >= 1, got {cells_per_axis}")
         res = float((upper - lower).max()) / int(cells_per_axis)
@@ -229,9 +242,11 @@ class OccupancyGrid:
         if (norm < 1e-12).any():
             raise ValueError(f"directions: {int((norm < 1e-12).sum())} direction vectors have zero length")
         d = d / norm[:, None]
-        r = np.broadcast_to(np.asarray(max_range, dtype=np.float64), (o.shape[0],)).copy() if np.ndim(
-            max_range
-        ) == 0 else np.asarray(max_range, dtype=np.float64)
+        r = (
+            np.broadcast_to(np.asarray(max_range, dtype=np.float64), (o.shape[0],)).copy()
+            if np.ndim(max_range) == 0
+            else np.asarray(max_range, dtype=np.float64)
+        )
         if r.shape != (o.shape[0],):
             raise ValueError(f"max_range: expected a scalar or shape ({o.shape[0]},), got {tuple(r.shape)}")
         if not np.isfinite(r).all() or (r < 0).any():
@@ -257,7 +272,9 @@ class OccupancyGrid:
             stop_flat = stop_mask.ravel()
         return self._dda(o, d, t_max, stop_flat)
 
-    def _dda(self, o: np.ndarray, d: np.ndarray, t_max: np.ndarray, stop_flat: np.ndarray | None) -> RayTraversal:
+    def _dda(
+        self, o: np.ndarray, d: np.ndarray, t_max: np.ndarray, stop_flat: np.ndarray | None
+    ) -> RayTraversal:
         n_rays = o.shape[0]
         lo, hi, res = self.origin, self.upper, self.resolution
         shape = np.asarray(self.shape, dtype=np.int64)
@@ -405,7 +422,7 @@ class OccupancyGrid:
         self._apply(np.unique(free), np.unique(end_flat[in_grid]))
 
     def insert_points(self, origins, endpoints) -> None:
-        """Integrate hit rays from sensor ``origins`` to measured surface points ``endpoints`` (both ``(R, 3)``)."""
+        """Integrate hit rays from ``origins`` to measured surface points ``endpoints`` (both ``(R, 3)``)."""
         o = as_points(origins, "origins")
         e = as_points(endpoints, "endpoints")
         if e.shape != o.shape:
@@ -493,12 +510,17 @@ class OccupancyGrid:
             action_index = np.arange(o.shape[0])
         action_index = np.asarray(action_index)
         if action_index.shape != (o.shape[0],) or not np.issubdtype(action_index.dtype, np.integer):
-            raise ValueError(f"action_index: expected a ({o.shape[0]},) integer array, got {action_index.dtype} {action_index.shape}")
+            raise ValueError(
+                f"action_index: expected a ({o.shape[0]},) integer array, "
+                f"got {action_index.dtype} {action_index.shape}"
+            )
         if (action_index < 0).any():
             raise ValueError("action_index: must be non-negative")
         n_act = int(action_index.max()) + 1 if n_actions is None else int(n_actions)
         if n_act < int(action_index.max()) + 1:
-            raise ValueError(f"n_actions: {n_act} is smaller than action_index.max() + 1 = {int(action_index.max()) + 1}")
+            raise ValueError(
+                f"n_actions: {n_act} is smaller than action_index.max() + 1 = {int(action_index.max()) + 1}"
+            )
 
         if mode == "probabilistic":
             return self._probabilistic_gain(o, d, r, action_index, n_act)

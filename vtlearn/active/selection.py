@@ -156,7 +156,9 @@ def pixel_box_to_plane(box_px, K, T_world_camera, plane_z: float = 0.0) -> np.nd
     return np.array([xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max()])
 
 
-def cloud_top_down_box(points, plane_distance: float = 0.005, min_points: int = 10, seed: int = 0) -> np.ndarray | None:
+def cloud_top_down_box(
+    points, plane_distance: float = 0.005, min_points: int = 10, seed: int = 0
+) -> np.ndarray | None:
     """World xy box ``C_pc`` of an object's cloud after removing the support plane (thesis 5.2.3).
 
     The dominant plane is found by RANSAC (Open3D ``segment_plane``); if it holds points, they are
@@ -188,7 +190,9 @@ def cloud_top_down_box(points, plane_distance: float = 0.005, min_points: int = 
     return np.array([pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max()])
 
 
-def detect_transparent(rgb_box_xy, points, omega: float = 0.5, plane_distance: float = 0.005) -> tuple[bool, float]:
+def detect_transparent(
+    rgb_box_xy, points, omega: float = 0.5, plane_distance: float = 0.005
+) -> tuple[bool, float]:
     """Transparency test of thesis 5.2.3: ``IoU(C_pc, C_rgb) < omega``.
 
     Args:
@@ -219,7 +223,9 @@ class Selection:
     kinds: list[str]
 
 
-def next_best_action(grid, candidates, transparent: bool = False, costs: EnergyCosts | None = None) -> Selection:
+def next_best_action(
+    grid, candidates, transparent: bool = False, costs: EnergyCosts | None = None
+) -> Selection:
     """Algorithm 2 of the thesis: score views, touches and pinches on one grid and pick by eq. 5.10.
 
     Args:
@@ -246,7 +252,9 @@ def next_best_action(grid, candidates, transparent: bool = False, costs: EnergyC
     if not parts:
         raise ValueError("candidates: every ActionSet is empty")
     rays = Rays.concatenate(parts)
-    gains = grid.expected_information_gain(rays.origins, rays.directions, rays.max_range, rays.action_index, rays.n_actions)
+    gains = grid.expected_information_gain(
+        rays.origins, rays.directions, rays.max_range, rays.action_index, rays.n_actions
+    )
     d = energy_costs(kinds, transparent, costs)
     best = select_next_best_action(gains, d)
     owner = [actions for actions, _ in candidates if len(actions)]

@@ -42,7 +42,9 @@ def as_transforms(T, name: str) -> np.ndarray:
     if arr.ndim == 2:
         arr = arr[None]
     if arr.ndim != 3 or arr.shape[1:] != (4, 4) or arr.shape[0] == 0:
-        raise ValueError(f"{name}: expected shape (4, 4) or (N, 4, 4) with N >= 1, got {tuple(to_numpy(T).shape)}")
+        raise ValueError(
+            f"{name}: expected shape (4, 4) or (N, 4, 4) with N >= 1, got {tuple(to_numpy(T).shape)}"
+        )
     if not np.isfinite(arr).all():
         raise ValueError(f"{name}: contains NaN or inf")
     R = arr[:, :3, :3]
@@ -76,7 +78,7 @@ class Rays:
             np.concatenate([p.origins for p in parts]),
             np.concatenate([p.directions for p in parts]),
             np.concatenate([p.max_range for p in parts]),
-            np.concatenate([p.action_index + s for p, s in zip(parts, shift)]),
+            np.concatenate([p.action_index + s for p, s in zip(parts, shift, strict=False)]),
             int(sum(p.n_actions for p in parts)),
         )
 
@@ -218,12 +220,16 @@ class ToFCamera:
         u = np.arange(self.stride // 2, self.width, self.stride, dtype=np.float64)
         v = np.arange(self.stride // 2, self.height, self.stride, dtype=np.float64)
         vv, uu = np.meshgrid(v, u, indexing="ij")
-        d = np.stack([(uu - self.cx) / self.fx, (vv - self.cy) / self.fy, np.ones_like(uu)], axis=-1).reshape(-1, 3)
+        d = np.stack([(uu - self.cx) / self.fx, (vv - self.cy) / self.fy, np.ones_like(uu)], axis=-1).reshape(
+            -1, 3
+        )
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     @property
     def rays_per_action(self) -> int:
-        return len(range(self.stride // 2, self.width, self.stride)) * len(range(self.stride // 2, self.height, self.stride))
+        return len(range(self.stride // 2, self.width, self.stride)) * len(
+            range(self.stride // 2, self.height, self.stride)
+        )
 
     def rays(self, T_world_camera) -> Rays:
         """Beams of cameras at ``T_world_camera`` ``(N, 4, 4)`` (optical frames)."""
@@ -232,10 +238,15 @@ class ToFCamera:
         n, k = T.shape[0], local.shape[0]
         directions = np.einsum("nij,kj->nki", T[:, :3, :3], local).reshape(-1, 3)
         origins = np.repeat(T[:, :3, 3], k, axis=0)
-        return Rays(origins, directions, np.full(n * k, self.max_range), np.repeat(np.arange(n, dtype=np.int64), k), n)
+        return Rays(
+            origins, directions, np.full(n * k, self.max_range), np.repeat(np.arange(n, dtype=np.int64), k), n
+        )
 
     def __repr__(self) -> str:
-        return f"ToFCamera({self.width}x{self.height}, fov={self.fov_deg}, stride={self.stride}, max_range={self.max_range})"
+        return (
+            f"ToFCamera({self.width}x{self.height}, fov={self.fov_deg}, stride={self.stride}, "
+            f"max_range={self.max_range})"
+        )
 
 
 def cast_rays_on_mesh(mesh, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
