@@ -70,7 +70,8 @@ def _kalman(A, H, Q, R, x, P, zs):
 
 @pytest.mark.parametrize("alpha,kappa", [(1.0, 0.0), (0.5, 1.0), (1e-2, 0.0)])
 @pytest.mark.parametrize("woodbury", [False, True])
-def test_linear_gaussian_matches_kalman_filter(alpha, kappa, woodbury):
+@pytest.mark.parametrize("n_iterations", [1, 3])
+def test_linear_gaussian_matches_kalman_filter(alpha, kappa, woodbury, n_iterations):
     # Constant-velocity model in 2-D (state: position, velocity); noisy position and a linear mix.
     rng = np.random.default_rng(1)
     dt = 0.1
@@ -96,6 +97,6 @@ def test_linear_gaussian_matches_kalman_filter(alpha, kappa, woodbury):
     )
     ref = _kalman(A, H, G @ Qw @ G.T, np.diag(r_diag), x0.copy(), P0.copy(), zs)
     for z, (x_ref, P_ref) in zip(zs, ref, strict=True):
-        ukf.step(z)
+        ukf.step(z, n_iterations=n_iterations)
         np.testing.assert_allclose(ukf.state, x_ref, atol=1e-6, rtol=1e-6)
         np.testing.assert_allclose(ukf.P, P_ref, atol=1e-6, rtol=1e-6)

@@ -154,10 +154,10 @@ class _PartMeasurement:
         T = np.stack(states)  # Sx4x4, T_world_part of each sigma point
         R, t = T[:, :3, :3], T[:, :3, 3]
         # scene points in each sigma point's part frame: R^T (s - t), SxMx3
-        local = np.einsum("sji,smj->smi", R, self.scene[None, :, :] - t[:, None, :])
+        local = (self.scene[None, :, :] - t[:, None, :]) @ R
         _, idx = self.tree.query(local.reshape(-1, 3), k=1, workers=1)  # one query for all sigma points
         p = self.model_c[idx].reshape(local.shape)  # SxMx3 closest model points
-        h = np.einsum("sij,smj->smi", R, p) + t[:, None, :]  # moved by each sigma point
+        h = p @ R.transpose(0, 2, 1) + t[:, None, :]  # moved by each sigma point
         return h.reshape(len(states), -1)
 
 
@@ -180,6 +180,9 @@ class ArtRegTracker:
         robust_scale: distance (m) beyond which a point's variance is inflated by (d / scale)^2.
         max_points_per_part: cap on the measurement points per part and frame (random subsample with
             a fixed seed); ``None`` uses every point.
+        n_iterations: measurement re-linearisations per frame (see :meth:`ManifoldUKF.update`);
+            1 is the plain update of eq. 6.6-6.10. Closest-point correspondences are only right near
+            the true pose, so a few iterations let the filter follow faster motions.
         alpha, beta, kappa: sigma-point parameters of eq. A.22.
         seed: seed of the subsampling generator.
 
@@ -200,7 +203,8 @@ class ArtRegTracker:
         init_std: tuple[float, float] = (0.005, 0.02),
         max_correspondence_distance: float = 0.05,
         robust_scale: float = 0.01,
-        max_points_per_part: int | None = 600,
+        max_points_per_part: int | None = 400,
+        n_iterations: int = 3,
         alpha: float = 1.0,
         beta: float = 2.0,
         kappa: float = 0.0,
@@ -229,6 +233,9 @@ class ArtRegTracker:
         self.max_correspondence_distance = float(max_correspondence_distance)
         self.robust_scale = float(robust_scale)
         self.max_points_per_part = max_points_per_part
+        if int(n_iterations) != n_iterations or n_iterations < 1:
+            raise ValueError(f"n_iterations must be a positive integer, got {n_iterations!r}")
+        self.n_iterations = int(n_iterations)
         self.rng = np.random.default_rng(seed)
         self.Q = np.diag([process_std[0] ** 2] * 3 + [process_std[1] ** 2] * 3)
         P0 = np.diag([init_std[0] ** 2] * 3 + [init_std[1] ** 2] * 3)
@@ -324,7 +331,7 @@ class ArtRegTracker:
             d = dist[sel]
             r = var[sel] * np.maximum(1.0, (d / self.robust_scale) ** 2)
             meas.scene = s
-            f.update(s.reshape(-1), R=np.repeat(r, 3))
+            f.update(s.reshape(-1), R=np.repeat(r, 3), n_iterations=self.n_iterations)
             self.last_counts[i] = len(sel)
         return self.poses
 

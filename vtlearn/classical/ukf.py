@@ -250,44 +250,61 @@ class ManifoldUKF:
         return x_pred
 
     # ------------------------------------------------------------------ update (eq. 6.6-6.10)
-    def update(self, z: Any, R: Any = None) -> Any:
+    def update(self, z: Any, R: Any = None, n_iterations: int = 1) -> Any:
         """Fuse a measurement ``z`` (eq. 6.6-6.10). Returns the updated state.
 
         Args:
             z: (m,) measurement vector.
             R: optional measurement covariance for this step (scalar, (m,) or (m, m)); defaults to
                 the ``R`` given at construction.
+            n_iterations: 1 is the update of eq. 6.6-6.10. With more, the measurement is
+                re-linearised about the latest estimate (an iterated, Gauss-Newton update as in the
+                iterated UKF / iterated posterior linearisation): sigma points with the *prior*
+                covariance are drawn around the iterate ``x_j``, the statistical linearisation
+                ``H_j = Pxz_j^T P^-1`` gives ``x_{j+1} = phi(x_pred, K_j (z - z_hat_j + H_j delta_j))``
+                with ``delta_j = phi_inv(x_pred, x_j)``, and eq. 6.10 uses the last ``K_j``. The
+                measurement is used once; only the linearisation point moves. Closest-point
+                measurements (ArtReg) need this when an object moves far between frames.
         """
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         if z.size == 0:
             raise ValueError("z is empty")
         if not np.all(np.isfinite(z)):
             raise ValueError("z contains NaN or inf")
+        if int(n_iterations) != n_iterations or n_iterations < 1:
+            raise ValueError(f"n_iterations must be a positive integer, got {n_iterations!r}")
         m = z.shape[0]
         R_m = _as_meas_cov(self.R if R is None else R, m)
 
-        x = self.state
+        x_pred, P = self.state, self.P
         w = self.w_state
-        xis = sigma_offsets(self.P, w)  # (2d, d)
-        sigmas = [x] + [self.phi(x, xi) for xi in xis]
-        Z = np.asarray(self.h(sigmas), dtype=np.float64)
-        if Z.shape != (2 * self.d + 1, m):
-            raise ValueError(f"h must return shape ({2 * self.d + 1}, {m}), got {Z.shape}")
+        xis = sigma_offsets(P, w)  # (2d, d), the same tangent offsets at every iterate
         wm, wc = w.wm, w.wc
-        z_hat = wm @ Z  # eq. 6.6
-        D = Z - z_hat  # (S, m)
-        Pxz = w.wi * xis.T @ D[1:]  # eq. 6.7, (d, m); the central point has sigma^0 = 0
-
-        if R_m.ndim == 1 and m > D.shape[0]:
-            K = self._gain_woodbury(D, wc, R_m, Pxz)
-        else:
-            Pzz = D.T @ (wc[:, None] * D) + (np.diag(R_m) if R_m.ndim == 1 else R_m)  # eq. 6.7
-            K = np.linalg.solve(Pzz, Pxz.T).T  # eq. 6.8
-        innovation = z - z_hat
-        self.state = self.phi(x, K @ innovation)  # eq. 6.9
+        x_j, delta = x_pred, np.zeros(self.d)
+        for j in range(int(n_iterations)):
+            sigmas = [x_j] + [self.phi(x_j, xi) for xi in xis]
+            Z = np.asarray(self.h(sigmas), dtype=np.float64)
+            if Z.shape != (2 * self.d + 1, m):
+                raise ValueError(f"h must return shape ({2 * self.d + 1}, {m}), got {Z.shape}")
+            z_hat = wm @ Z  # eq. 6.6
+            D = Z - z_hat  # (S, m)
+            Pxz = w.wi * xis.T @ D[1:]  # eq. 6.7, (d, m); the central point has sigma^0 = 0
+            if R_m.ndim == 1 and m > D.shape[0]:
+                K = self._gain_woodbury(D, wc, R_m, Pxz)
+            else:
+                Pzz = D.T @ (wc[:, None] * D) + (np.diag(R_m) if R_m.ndim == 1 else R_m)  # eq. 6.7
+                K = np.linalg.solve(Pzz, Pxz.T).T  # eq. 6.8
+            innovation = z - z_hat
+            if j > 0:
+                innovation = innovation + Pxz.T @ np.linalg.solve(P, delta)  # + H_j delta_j
+            delta = K @ innovation
+            x_j = self.phi(x_pred, delta)  # eq. 6.9
+            if j + 1 < n_iterations:
+                delta = self.phi_inv(x_pred, x_j)
+        self.state = x_j
         # eq. 6.10: K Pzz K^T = K Pxz^T because K Pzz = Pxz.
-        P = self.P - K @ Pxz.T
-        self.P = 0.5 * (P + P.T)
+        P_new = P - K @ Pxz.T
+        self.P = 0.5 * (P_new + P_new.T)
         self.last_innovation, self.last_gain = innovation, K
         return self.state
 
@@ -305,7 +322,7 @@ class ManifoldUKF:
         inner = np.diag(1.0 / wc) + B @ D.T  # (S, S)
         return A - (A @ D.T) @ np.linalg.solve(inner, B)
 
-    def step(self, z: Any, u: Any = None, R: Any = None) -> Any:
+    def step(self, z: Any, u: Any = None, R: Any = None, n_iterations: int = 1) -> Any:
         """One full filter cycle: :meth:`predict` then :meth:`update`. Returns the updated state."""
         self.predict(u)
-        return self.update(z, R)
+        return self.update(z, R, n_iterations)

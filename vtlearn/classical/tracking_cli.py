@@ -1,0 +1,342 @@
+"""Commands ``vtlearn track`` and ``vtlearn bench tracking`` (ArtReg, thesis ch.6).
+
+``vtlearn track --models a.ply b.ply --frames DIR [--tactile DIR] [--init-poses P.npy] --json OUT``
+tracks every model through the clouds in DIR (sorted by name; any format :func:`vtlearn.io.read_cloud`
+reads) and writes the per-frame ``T_world_object`` of each model.
+
+``vtlearn bench tracking --json OUT`` runs ArtReg and the baselines on identical simulated frames:
+
+- *articulated*: the four procedural categories of :mod:`vtlearn.sim_data.articulated` (thesis 6.3.5,
+  Fig. 6.17): per trial a random instance whose joints move from 0 to random values in [0, 1] over
+  ``--frames`` frames, 45 deg top-down depth camera; the ADI (eq. 6.19) of every part at the last frame;
+- *sequences* (thesis Table 6.2): single, multiple (3-7) and articulated objects moved along smooth
+  random trajectories, the first one pushed by a probe whose contacts are the tactile points; the
+  tracking error of eq. 6.18 (XY distance of each part's model centroid) averaged over frames, and ADI;
+- *speed*: ArtReg's rate for 2 parts with 1000 points each (all points, and the default cap).
+
+It prints tables, writes JSON (ADI mean / median / std per category and method in cm, Welch p-values of
+ArtReg against each baseline, frames per second) and, with ``--plots DIR``, a violin plot and a
+trajectory plot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["register", "register_bench", "run_tracker", "TRACKERS"]
+
+
+def _trackers() -> dict[str, Any]:
+    from vtlearn.classical.artreg import ArtRegTracker
+    from vtlearn.classical.tracking_baselines import (
+        HAS_PROBREG,
+        FilterRegTracker,
+        FrameToFrameICPTracker,
+        ParticleFilterTracker,
+    )
+
+    out = {"artreg": ArtRegTracker, "pf": ParticleFilterTracker, "icp": FrameToFrameICPTracker}
+    if HAS_PROBREG:
+        out["filterreg"] = FilterRegTracker
+    return out
+
+
+TRACKERS = ("artreg", "pf", "icp", "filterreg")
+
+
+def run_tracker(cls: Any, models: list[np.ndarray], T0: np.ndarray, scenes: list[np.ndarray],
+                tactile: list[np.ndarray | None] | None = None, **kwargs: Any) -> tuple[np.ndarray, float]:
+    """Track a sequence frame by frame. Returns ((F, N, 4, 4) estimates, seconds spent in ``step``).
+
+    Frame 0 initialises the trackers at the ground truth ``T0`` (N, 4, 4); frames 1.. are tracked.
+    """
+    tracker = cls(models, list(T0), **kwargs)
+    out = [np.asarray(T0)]
+    spent = 0.0
+    for k in range(1, len(scenes)):
+        t0 = time.perf_counter()
+        poses = tracker.step(scenes[k], tactile[k] if tactile is not None else None)
+        spent += time.perf_counter() - t0
+        out.append(np.stack(poses))
+    return np.stack(out), spent
+
+
+# ---------------------------------------------------------------------------------------------- track
+def _cmd_track(args: argparse.Namespace) -> int:
+    import json
+
+    from vtlearn.io import read_cloud
+
+    models = [read_cloud(m) for m in args.models]
+    frames_dir = Path(args.frames)
+    if not frames_dir.is_dir():
+        raise ValueError(f"--frames must be a directory of point clouds, got {args.frames}")
+    files = sorted(f for f in frames_dir.iterdir() if f.suffix.lower() in (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz"))
+    if not files:
+        raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
+    if args.init_poses:
+        T0 = np.load(args.init_poses, allow_pickle=False) if args.init_poses.endswith(".npy") else \
+            np.asarray(json.loads(Path(args.init_poses).read_text()), dtype=np.float64)
+        T0 = T0.reshape(-1, 4, 4)
+    else:
+        T0 = np.repeat(np.eye(4)[None], len(models), 0)  # models are the t = 0 segmented clouds
+    cls = _trackers()[args.method]
+    kwargs = {}
+    if args.method == "artreg":
+        kwargs = {"process_std": tuple(args.process_std), "visual_std": args.visual_std,
+                  "max_points_per_part": args.max_points or None}
+    tracker = cls(models, list(T0), **kwargs)
+    from tqdm import tqdm
+
+    result = []
+    t_total = 0.0
+    for f in tqdm(files, desc="track", unit="frame"):
+        scene = read_cloud(f) if f.stat().st_size > 0 else np.zeros((0, 3))
+        tactile = None
+        if args.tactile:
+            cand = Path(args.tactile) / f.name
+            tactile = read_cloud(cand) if cand.exists() else None
+        t0 = time.perf_counter()
+        poses = tracker.step(scene, tactile)
+        t_total += time.perf_counter() - t0
+        entry = {"frame": f.name, "T_world_object": [np.asarray(P).tolist() for P in poses]}
+        if hasattr(tracker, "covariances"):
+            entry["covariance"] = [np.asarray(P).tolist() for P in tracker.covariances]
+        result.append(entry)
+    out = {"method": args.method, "models": args.models, "n_frames": len(files),
+           "fps": len(files) / max(t_total, 1e-9), "frames": result}
+    if args.json:
+        from vtlearn.bench_utils import write_json
+
+        write_json(args.json, out)
+        print(f"wrote {args.json}")
+    else:
+        print(json.dumps(out["frames"][-1], indent=1))
+    print(f"{len(files)} frames, {out['fps']:.1f} frames/s")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    sp = subparsers.add_parser("track", help="track objects/parts through a directory of point clouds (ArtReg)")
+    sp.add_argument("--models", nargs="+", required=True, help="model cloud per object/part (t = 0 segments)")
+    sp.add_argument("--frames", required=True, help="directory of scene clouds, tracked in name order")
+    sp.add_argument("--tactile", default=None, help="directory of tactile clouds with the frames' file names")
+    sp.add_argument("--init-poses", default=None, help=".npy or .json (N, 4, 4) T_world_object at t = 0 (default I)")
+    sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
+    sp.add_argument("--process-std", type=float, nargs=2, default=(0.01, 0.03), metavar=("M", "RAD"))
+    sp.add_argument("--visual-std", type=float, default=0.003)
+    sp.add_argument("--max-points", type=int, default=400, help="measurement points per part (0: all)")
+    sp.add_argument("--json", default=None, help="write the per-frame poses here")
+    sp.set_defaults(func=_cmd_track)
+
+
+# ---------------------------------------------------------------------------------------------- bench
+def _xy_error(est: np.ndarray, gt: np.ndarray, models: list[np.ndarray]) -> np.ndarray:
+    """Eq. 6.18 per frame and part: XY distance of each part's model centroid. (F, N) metres."""
+    c = np.stack([np.append(m.mean(0), 1.0) for m in models])  # N x 4
+    pe = np.einsum("fnij,nj->fni", est, c)[..., :2]
+    pg = np.einsum("fnij,nj->fni", gt, c)[..., :2]
+    return np.linalg.norm(pe - pg, axis=-1)
+
+
+def _adi(models: list[np.ndarray], est: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    from vtlearn.geometry.metrics import adi
+
+    return np.array([adi(m, e, g) for m, e, g in zip(models, est, gt, strict=True)])
+
+
+def _speed(n_points: int, cap: int | None, n_steps: int = 60) -> float:
+    """ArtReg frames/s for 2 box-shaped parts with ``n_points`` points each, static, noiseless."""
+    from vtlearn.classical.artreg import ArtRegTracker, se3_exp_single
+
+    rng = np.random.default_rng(0)
+    models, scene = [], []
+    for i, size in enumerate(((0.12, 0.08, 0.05), (0.06, 0.06, 0.1))):
+        s = np.asarray(size) / 2
+        pts = rng.uniform(-1, 1, size=(n_points, 3)) * s
+        ax = rng.integers(0, 3, n_points)
+        pts[np.arange(n_points), ax] = np.sign(rng.uniform(-1, 1, n_points)) * s[ax]
+        T = se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i]))
+        models.append(pts)
+        scene.append(pts @ T[:3, :3].T + T[:3, 3] + rng.normal(scale=0.001, size=pts.shape))
+    Ts = [se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i])) for i in range(2)]
+    tracker = ArtRegTracker(models, Ts, max_points_per_part=cap)
+    scene = np.concatenate(scene)
+    tracker.step(scene)
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        tracker.step(scene)
+    return n_steps / (time.perf_counter() - t0)
+
+
+def _summary(vals: np.ndarray) -> dict:
+    vals = np.asarray(vals, dtype=np.float64) * 100.0
+    return {"mean_cm": float(vals.mean()), "median_cm": float(np.median(vals)), "std_cm": float(vals.std(ddof=1))
+            if len(vals) > 1 else 0.0, "n": int(len(vals))}
+
+
+def _welch(a: np.ndarray, b: np.ndarray) -> float | None:
+    from scipy.stats import ttest_ind
+
+    if len(a) < 2 or len(b) < 2:
+        return None
+    return float(ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.sim_data.articulated import CATEGORIES, articulation_sequence, motion_sequence
+
+    available = _trackers()
+    methods = [m for m in args.methods if m in available]
+    skipped = [m for m in args.methods if m not in available]
+    res: dict[str, Any] = {"machine": machine_info(), "methods": methods, "skipped_methods": skipped,
+                           "config": {k: v for k, v in vars(args).items() if k != "func"}}
+    traj_example = None
+
+    # ---- articulated benchmark (thesis 6.3.5)
+    art_vals: dict[str, dict[str, list[float]]] = {c: {m: [] for m in methods} for c in CATEGORIES}
+    time_spent = {m: 0.0 for m in methods}
+    frames_done = {m: 0 for m in methods}
+    jobs = [(c, t) for c in CATEGORIES for t in range(args.trials)]
+    for c, t in tqdm(jobs, desc="articulated", unit="trial"):
+        seq = articulation_sequence(c, seed=1000 * CATEGORIES.index(c) + t, n_frames=args.frames,
+                                    width=args.width, height=args.height)
+        for m in methods:
+            est, spent = run_tracker(available[m], seq.models, seq.T_world_part[0], seq.scenes)
+            art_vals[c][m].extend(_adi(seq.models, est[-1], seq.T_world_part[-1]).tolist())
+            time_spent[m] += spent
+            frames_done[m] += len(seq.scenes) - 1
+
+    # ---- sequences (thesis Table 6.2)
+    kinds = ("single", "multiple", "articulated")
+    seq_err: dict[str, dict[str, list[float]]] = {k: {m: [] for m in methods} for k in kinds}
+    seq_adi: dict[str, dict[str, list[float]]] = {k: {m: [] for m in methods} for k in kinds}
+    jobs = [(k, t) for k in kinds for t in range(args.seq_trials)]
+    for k, t in tqdm(jobs, desc="sequences", unit="seq"):
+        seq = motion_sequence(k, seed=5000 + 100 * kinds.index(k) + t, n_frames=args.seq_frames,
+                              width=args.width, height=args.height)
+        for m in methods:
+            est, spent = run_tracker(available[m], seq.models, seq.T_world_part[0], seq.scenes, seq.tactile)
+            err = _xy_error(est[1:], seq.T_world_part[1:], seq.models)  # F-1 x N
+            seq_err[k][m].append(float(err.mean()))
+            seq_adi[k][m].append(float(np.mean(_adi(seq.models, est[-1], seq.T_world_part[-1]))))
+            time_spent[m] += spent
+            frames_done[m] += len(seq.scenes) - 1
+            if k == "multiple" and traj_example is None:
+                traj_example = {"gt": seq.T_world_part, "models": seq.models, "est": {}}
+            if k == "multiple" and traj_example is not None and traj_example["gt"] is seq.T_world_part:
+                traj_example["est"][m] = est
+
+    # ---- tables
+    rows = []
+    out_art: dict[str, Any] = {}
+    for c in (*CATEGORIES, "all"):
+        out_art[c] = {}
+        for m in methods:
+            vals = np.array(sum((art_vals[cc][m] for cc in CATEGORIES), []) if c == "all" else art_vals[c][m])
+            s = _summary(vals)
+            if m != "artreg" and "artreg" in methods:
+                ref = np.array(sum((art_vals[cc]["artreg"] for cc in CATEGORIES), []) if c == "all" else art_vals[c]["artreg"])
+                s["welch_p_vs_artreg"] = _welch(ref, vals)
+            out_art[c][m] = s
+            rows.append({"category": c, "method": m, "ADI mean cm": s["mean_cm"], "median cm": s["median_cm"],
+                         "std cm": s["std_cm"], "n": s["n"], "p (Welch vs ArtReg)": s.get("welch_p_vs_artreg", "-")})
+    print_table(rows, ["category", "method", "ADI mean cm", "median cm", "std cm", "n", "p (Welch vs ArtReg)"],
+                "Articulated benchmark (ADI of every part at the last frame, eq. 6.19)")
+    res["articulated"] = out_art
+    res["articulated_raw_m"] = art_vals
+
+    rows = []
+    out_seq: dict[str, Any] = {}
+    for k in kinds:
+        out_seq[k] = {}
+        for m in methods:
+            e = _summary(np.array(seq_err[k][m]))
+            a = _summary(np.array(seq_adi[k][m]))
+            entry = {"xy_error": e, "adi_last_frame": a}
+            if m != "artreg" and "artreg" in methods:
+                entry["welch_p_vs_artreg"] = _welch(np.array(seq_err[k]["artreg"]), np.array(seq_err[k][m]))
+            out_seq[k][m] = entry
+            rows.append({"sequence": k, "method": m, "eq.6.18 error cm": e["mean_cm"], "+- std": e["std_cm"],
+                         "ADI cm": a["mean_cm"], "n seq": e["n"], "p (Welch)": entry.get("welch_p_vs_artreg", "-")})
+    print_table(rows, ["sequence", "method", "eq.6.18 error cm", "+- std", "ADI cm", "n seq", "p (Welch)"],
+                "Tracking sequences (thesis Table 6.2 analogue; error averaged over frames)")
+    res["sequences"] = out_seq
+
+    fps = {m: frames_done[m] / max(time_spent[m], 1e-9) for m in methods}
+    speed = {"artreg_2x1000_all_points_hz": _speed(1000, None), "artreg_2x1000_cap400_hz": _speed(1000, 400)}
+    res["fps"], res["speed"] = fps, speed
+    print_table([{"method": m, "frames/s (benchmark frames)": fps[m]} for m in methods],
+                ["method", "frames/s (benchmark frames)"], "Tracking rate (step() only; shared CPU, noisy)")
+    print_table([{"case": k, "Hz": v} for k, v in speed.items()], ["case", "Hz"], "ArtReg speed, 2 parts x 1000 points")
+
+    if args.plots:
+        res["plots"] = _plots(Path(args.plots), art_vals, methods, traj_example)
+    if args.json:
+        write_json(args.json, res)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _plots(out_dir: Path, art_vals: dict, methods: list[str], traj: dict | None) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cats = list(art_vals)
+    fig, axes = plt.subplots(1, len(cats), figsize=(4 * len(cats), 4), sharey=False)
+    for ax, c in zip(np.atleast_1d(axes), cats, strict=True):
+        data = [np.asarray(art_vals[c][m]) * 100 for m in methods]
+        ax.violinplot([d if len(d) else [np.nan] for d in data], showmedians=True)
+        ax.set_xticks(range(1, len(methods) + 1), methods)
+        ax.set_title(c)
+        ax.set_ylabel("ADI (cm)")
+    fig.suptitle("Articulated benchmark (Fig. 6.17 analogue)")
+    fig.tight_layout()
+    p1 = out_dir / "tracking_violin.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+    paths = [str(p1)]
+    if traj is not None:
+        fig, ax = plt.subplots(figsize=(6, 6))
+        cs = [np.append(m.mean(0), 1.0) for m in traj["models"]]
+        for n, c in enumerate(cs):
+            g = traj["gt"][:, n] @ c
+            ax.plot(g[:, 0], g[:, 1], "k-", lw=2, label="ground truth" if n == 0 else None)
+            for m, st in zip(methods, ("-", "--", ":", "-."), strict=False):
+                e = traj["est"][m][:, n] @ c
+                ax.plot(e[:, 0], e[:, 1], st, label=m if n == 0 else None)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend()
+        ax.set_title("Multiple-object sequence: part centroid trajectories")
+        p2 = out_dir / "tracking_trajectories.png"
+        fig.savefig(p2, dpi=110)
+        plt.close(fig)
+        paths.append(str(p2))
+    return paths
+
+
+def register_bench(bench_subparsers: Any) -> None:
+    sp = bench_subparsers.add_parser("tracking", help="ArtReg vs particle filter / ICP / FilterReg (thesis ch.6)")
+    sp.add_argument("--json", default=None, help="write results here")
+    sp.add_argument("--plots", default=None, help="directory for the violin and trajectory plots")
+    sp.add_argument("--methods", nargs="+", default=list(TRACKERS), choices=list(TRACKERS))
+    sp.add_argument("--trials", type=int, default=10, help="articulated trials per category (thesis: 10)")
+    sp.add_argument("--frames", type=int, default=20, help="frames per articulated trial")
+    sp.add_argument("--seq-trials", type=int, default=5, help="sequences per kind (single/multiple/articulated)")
+    sp.add_argument("--seq-frames", type=int, default=60, help="frames per sequence (30 Hz)")
+    sp.add_argument("--width", type=int, default=320)
+    sp.add_argument("--height", type=int, default=240)
+    sp.set_defaults(func=_cmd_bench)
