@@ -1,0 +1,381 @@
+"""``vtlearn bench crossmodal`` and ``vtlearn bench active-learning``: thesis ch.7 experiments in simulation.
+
+* ``bench crossmodal``: the Table 7.2 / 7.4 analogue. Every domain-adaptation variant (no-DA, MMD,
+  CORAL, VTLoss fc1, VTLoss fc2, VTLoss, and DANN beyond the thesis) is trained on labelled visual
+  clouds + unlabelled tactile clouds and scored on labelled tactile test clouds, mean ± std over
+  seeds. No target labels are used for model selection (a fixed epoch budget). It also writes the
+  VTLoss confusion matrix (Table 7.3 analogue) and a t-SNE of source/target fc2 features before
+  (no-DA) and after (VTLoss) adaptation (Fig. 7.4).
+* ``bench active-learning``: the Fig. 7.5a / Table 7.1 analogue. Accuracy against labels for
+  MC-dropout entropy (thesis), BALD and random queries, and the labels each needs to come within
+  10/5/3/2 % relative error of a model trained on the whole pool.
+
+Both read a LightningCLI-style YAML (``--config``) for the model's ``init_args``, the datamodule's
+``init_args`` and ``trainer.max_epochs``; command-line flags override it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+# Table 7.2/7.4 rows -> XAVTNet overrides; configs/xavtnet_ablation/<name>.yaml hold the same values.
+VARIANTS: dict[str, dict] = {
+    "noda": {"da_method": "none"},
+    "mmd": {"da_method": "vtloss", "use_mmd": True, "use_coral": False, "da_layers": ["fc1", "fc2"]},
+    "coral": {"da_method": "vtloss", "use_mmd": False, "use_coral": True, "da_layers": ["fc1", "fc2"]},
+    "vtloss_fc1": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1"]},
+    "vtloss_fc2": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc2"]},
+    "vtloss": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"]},
+    "dann": {"da_method": "dann"},
+}
+THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
+                    "vtloss": 81.25}
+
+
+def load_config(path: str | None) -> dict:
+    """``{"model": init_args, "data": init_args, "trainer": {...}}`` from a LightningCLI YAML (safe_load)."""
+    if path is None:
+        return {"model": {}, "data": {}, "trainer": {}}
+    import yaml
+
+    with open(path) as f:
+        raw = yaml.safe_load(f) or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"config: {path} is not a YAML mapping")
+
+    def init_args(section):
+        sec = raw.get(section) or {}
+        return dict(sec.get("init_args", {}) or {}) if isinstance(sec, dict) else {}
+
+    return {"model": init_args("model"), "data": init_args("data"), "trainer": dict(raw.get("trainer") or {})}
+
+
+def _quiet_lightning() -> None:
+    for name in ("lightning", "lightning.pytorch", "lightning.fabric"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+def _trainer(max_epochs: int):
+    import lightning as L
+
+    return L.Trainer(max_epochs=max_epochs, accelerator="cpu", devices=1, logger=False,
+                     enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                     num_sanity_val_steps=0, limit_val_batches=0)
+
+
+def _collect_features(model, loader):
+    feats, labels = [], []
+    for batch in loader:
+        out = model.extract_features(batch["points"], batch["lengths"])
+        feats.append(out["fc2"].numpy())
+        labels.append(batch["label"].numpy())
+    return np.concatenate(feats), np.concatenate(labels)
+
+
+def _tsne_figure(panels: dict, class_names, path: Path, seed: int) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from sklearn.manifold import TSNE
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 5.5))
+    axes = np.atleast_1d(axes)
+    cmap = plt.get_cmap("tab20")
+    for ax, (title, (fs, ys, ft, yt)) in zip(axes, panels.items(), strict=True):
+        both = np.concatenate([fs, ft])
+        emb = TSNE(n_components=2, perplexity=min(30.0, (len(both) - 1) / 3), init="pca",
+                   random_state=seed).fit_transform(both)
+        es, et = emb[: len(fs)], emb[len(fs):]
+        ax.scatter(es[:, 0], es[:, 1], c=[cmap(int(y) % 20) for y in ys], marker="o", s=14, alpha=0.6,
+                   label="visual (source)")
+        ax.scatter(et[:, 0], et[:, 1], c=[cmap(int(y) % 20) for y in yt], marker="^", s=22,
+                   edgecolors="k", linewidths=0.4, label="tactile (target)")
+        ax.set_title(title)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.legend(loc="best", fontsize=8)
+    fig.suptitle("fc2 features, colour = class (Fig. 7.4 analogue)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    norm = conf / np.clip(conf.sum(1, keepdims=True), 1, None)
+    fig, ax = plt.subplots(figsize=(7, 6))
+    im = ax.imshow(norm, cmap="Blues", vmin=0, vmax=1)
+    ax.set_xticks(range(len(class_names)), class_names, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(class_names)), class_names, fontsize=7)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    for i in range(len(class_names)):
+        for j in range(len(class_names)):
+            if norm[i, j] > 0:
+                ax.text(j, i, f"{norm[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                        color="white" if norm[i, j] > 0.5 else "black")
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_crossmodal_bench(args: argparse.Namespace) -> int:
+    import lightning as L
+    import torch
+    from tqdm.auto import tqdm
+
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet import XAVTNet
+
+    _quiet_lightning()
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.config)
+    data_kwargs = {**cfg["data"], **({"data_dir": args.data} if args.data else {})}
+    if "data_dir" not in data_kwargs:
+        raise ValueError("--data: no dataset directory given (and none in --config)")
+    if args.batch_size:
+        data_kwargs["batch_size"] = args.batch_size
+    max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        raise ValueError(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    out_dir = Path(args.out_dir)
+    base = {k: v for k, v in cfg["model"].items() if k not in VARIANTS["vtloss"] and k != "num_classes"}
+
+    per_run: list[dict] = []
+    keep: dict = {}
+    jobs = [(v, s) for v in variants for s in seeds]
+    for variant, seed in tqdm(jobs, desc="bench crossmodal"):
+        L.seed_everything(seed, verbose=False)
+        dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
+        model = XAVTNet(num_classes=dm.num_classes, **base, **VARIANTS[variant])
+        t0 = time.perf_counter()
+        trainer = _trainer(max_epochs)
+        trainer.fit(model, train_dataloaders=dm.train_dataloader())
+        fit_s = time.perf_counter() - t0
+        tactile = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
+        conf = model.last_test_confusion.numpy()
+        visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
+        row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
+               "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
+        per_run.append(row)
+        tqdm.write(f"{variant} seed {seed}: tactile {row['tactile_acc']:.1f}%  visual {row['visual_acc']:.1f}%  "
+                   f"({fit_s:.0f} s)")
+        if seed == seeds[0] and variant in ("noda", "vtloss") and not args.no_figures:
+            fs, ys = _collect_features(model, dm.source_test_dataloader())
+            ft, yt = _collect_features(model, dm.test_dataloader())
+            keep[variant] = (fs, ys, ft, yt)
+        class_names = dm.class_names
+
+    rows = []
+    for variant in variants:
+        t = np.array([r["tactile_acc"] for r in per_run if r["variant"] == variant])
+        v = np.array([r["visual_acc"] for r in per_run if r["variant"] == variant])
+        rows.append({
+            "variant": variant,
+            "tactile_acc": f"{t.mean():.2f} ± {t.std(ddof=1) if len(t) > 1 else 0.0:.2f}",
+            "visual_acc": f"{v.mean():.2f} ± {v.std(ddof=1) if len(v) > 1 else 0.0:.2f}",
+            "thesis_V→T": THESIS_TABLE_7_2.get(variant, "-"),
+            "tactile_mean": float(t.mean()), "tactile_std": float(t.std(ddof=1)) if len(t) > 1 else 0.0,
+            "visual_mean": float(v.mean()), "seeds": len(t),
+        })
+    print_table(rows, ["variant", "tactile_acc", "visual_acc", "thesis_V→T", "seeds"],
+                f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
+                f"{max_epochs} epochs")
+    means = {r["variant"]: r["tactile_mean"] for r in rows}
+    checks = {}
+    if {"vtloss", "noda"} <= means.keys():
+        checks["vtloss_minus_noda"] = means["vtloss"] - means["noda"]
+    if {"vtloss", "mmd", "coral"} <= means.keys():
+        checks["vtloss_beats_mmd_and_coral"] = means["vtloss"] > max(means["mmd"], means["coral"])
+    if {"vtloss", "vtloss_fc1", "vtloss_fc2"} <= means.keys():
+        checks["both_layers_beat_each"] = means["vtloss"] > max(means["vtloss_fc1"], means["vtloss_fc2"])
+    for k, v in checks.items():
+        print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
+
+    figures = {}
+    if not args.no_figures:
+        conf_runs = [r for r in per_run if r["variant"] == "vtloss"] or per_run
+        conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
+        figures["confusion"] = str(out_dir / "confusion_vtloss.png")
+        _confusion_figure(conf, class_names, Path(figures["confusion"]),
+                          f"Tactile confusion ({conf_runs[0]['variant']}, summed over seeds)")
+        panels = {}
+        if "noda" in keep:
+            panels["before adaptation (no-DA)"] = keep["noda"]
+        if "vtloss" in keep:
+            panels["after adaptation (VTLoss)"] = keep["vtloss"]
+        if panels:
+            figures["tsne"] = str(out_dir / "tsne_before_after.png")
+            _tsne_figure(panels, class_names, Path(figures["tsne"]), seeds[0])
+        for name, path in figures.items():
+            print(f"{name}: {path}")
+    write_json(args.json, {
+        "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
+        "seeds": seeds, "model_base": base, "rows": rows, "runs": per_run, "checks": checks,
+        "class_names": class_names, "figures": figures, "machine": machine_info(),
+        "note": "CPU shared with other jobs; fit_s timings are noisy",
+    })
+    print(f"wrote {args.json}")
+    return 0
+
+
+def run_active_learning_bench(args: argparse.Namespace) -> int:
+    import lightning as L
+    import torch
+
+    from vtlearn.active.learning_loop import ActiveLearningLoop, labels_to_reach, train_and_test
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.datamodules import ActivePoolDataModule
+    from vtlearn.models.xavtnet import XAVTNet
+
+    _quiet_lightning()
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.config)
+    data_kwargs = {**cfg["data"], **({"data_dir": args.data} if args.data else {})}
+    if "data_dir" not in data_kwargs:
+        raise ValueError("--data: no dataset directory given (and none in --config)")
+    for key in ("initial_labels", "seed"):
+        data_kwargs.pop(key, None)
+    if args.modality:
+        data_kwargs["modality"] = args.modality
+    if args.batch_size:
+        data_kwargs["batch_size"] = args.batch_size
+    al = dict(cfg.get("active", {}) or {})
+    max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 10))
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    base = {k: v for k, v in cfg["model"].items() if k != "num_classes"}
+    base.setdefault("da_method", "none")
+
+    probe = ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs)
+    num_classes, pool = probe.num_classes, probe.pool_size
+
+    def factory(seed: int):
+        return XAVTNet(num_classes=num_classes, **base)
+
+    # Reference: the model trained on the fully labelled pool (Table 7.1 "fully trained network").
+    full = []
+    for seed in seeds:
+        L.seed_everything(seed, verbose=False)
+        dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
+        full.append(train_and_test(factory(seed), dm.train_dataloader(), dm.test_dataloader(), max_epochs))
+        print(f"full pool ({pool} labels) seed {seed}: acc {100 * full[-1]:.1f}%", flush=True)
+    acc_full = float(np.mean(full))
+
+    curves: dict[str, dict] = {}
+    for strategy in strategies:
+        runs = []
+        for seed in seeds:
+            dm = ActivePoolDataModule(initial_labels=args.n0, seed=seed, **data_kwargs)
+            loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=args.kappa, rounds=args.rounds,
+                                      mc_passes=args.mc_passes, max_epochs=max_epochs,
+                                      warm_start=args.warm_start, seed=seed)
+            runs.append(loop.history_dicts() if loop.run() else [])
+        n = [h["n_labels"] for h in runs[0]]
+        acc = np.array([[h["accuracy"] for h in r] for r in runs])
+        curves[strategy] = {"n_labels": n, "acc_mean": acc.mean(0).tolist(), "acc_std": acc.std(0).tolist(),
+                            "runs": runs}
+    thresholds = (0.10, 0.05, 0.03, 0.02)
+    rows = []
+    for strategy, c in curves.items():
+        reach = labels_to_reach(c["n_labels"], c["acc_mean"], acc_full, thresholds)
+        c["labels_to_reach"] = {f"{int(t * 100)}%": v for t, v in reach.items()}
+        rows.append({"strategy": strategy, **{f"{int(t * 100)}%": (v if v is not None else "not reached")
+                                               for t, v in reach.items()},
+                     "final_acc": 100 * c["acc_mean"][-1]})
+    print_table(rows, ["strategy", "10%", "5%", "3%", "2%", "final_acc"],
+                f"Table 7.1 analogue: labels to reach relative error vs full-pool model "
+                f"(acc {100 * acc_full:.1f}%, {pool} labels), mean over {len(seeds)} seeds")
+    ratio = None
+    if {"entropy", "random"} <= curves.keys():
+        a = curves["entropy"]["labels_to_reach"]["2%"]
+        r = curves["random"]["labels_to_reach"]["2%"]
+        if a is not None and r is not None:
+            ratio = a / r
+        print(f"entropy/random labels at 2% relative error: {ratio if ratio is not None else 'n/a'} "
+              f"(target <= 0.65)")
+    plot = Path(args.plot)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for strategy, c in curves.items():
+        m, s = 100 * np.array(c["acc_mean"]), 100 * np.array(c["acc_std"])
+        ax.plot(c["n_labels"], m, marker="o", label=strategy)
+        ax.fill_between(c["n_labels"], m - s, m + s, alpha=0.2)
+    ax.axhline(100 * acc_full, color="k", ls="--", lw=1, label="full pool")
+    ax.set_xlabel("labelled clouds")
+    ax.set_ylabel("test accuracy (%)")
+    ax.set_title("MC-dropout active learning (Fig. 7.5a analogue)")
+    ax.legend()
+    fig.tight_layout()
+    plot.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(plot, dpi=120)
+    plt.close(fig)
+    print(f"plot: {plot}")
+    write_json(args.json, {
+        "bench": "active-learning", "config": args.config, "data": data_kwargs, "pool_size": pool,
+        "n0": args.n0, "kappa": args.kappa, "rounds": args.rounds, "mc_passes": args.mc_passes,
+        "max_epochs": max_epochs, "warm_start": args.warm_start, "seeds": seeds, "full_acc": full,
+        "curves": curves, "table_7_1": rows, "ratio_entropy_random_2pct": ratio, "unused_config_active": al,
+        "machine": machine_info(),
+    })
+    print(f"wrote {args.json}")
+    return 0
+
+
+def register_bench(sub) -> None:
+    p = sub.add_parser("crossmodal", help="Table 7.2/7.4 analogue: V->T accuracy of every DA variant over seeds")
+    p.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/xavtnet.yaml)")
+    p.add_argument("--data", default=None, help="crossmodal dataset dir (overrides the config's data_dir)")
+    p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma list of {list(VARIANTS)}")
+    p.add_argument("--seeds", type=int, default=3, help="number of seeds (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="first seed")
+    p.add_argument("--max-epochs", type=int, default=None)
+    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the CPU is shared)")
+    p.add_argument("--no-figures", action="store_true", help="skip the confusion matrix and t-SNE figures")
+    p.add_argument("--out-dir", default="runs/bench/crossmodal", help="figure folder")
+    p.add_argument("--json", default="runs/bench/crossmodal.json")
+    p.set_defaults(func=run_crossmodal_bench)
+
+    q = sub.add_parser("active-learning", help="Table 7.1 analogue: MC-dropout entropy/BALD vs random queries")
+    q.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/active_learning.yaml)")
+    q.add_argument("--data", default=None, help="dataset dir (overrides the config's data_dir)")
+    q.add_argument("--modality", default=None, help="visual (thesis) or tactile; default from the config")
+    q.add_argument("--strategies", default="entropy,random", help="comma list of entropy, bald, random")
+    q.add_argument("--n0", type=int, default=24, help="initial random labels")
+    q.add_argument("--kappa", type=int, default=24, help="queries per round")
+    q.add_argument("--rounds", type=int, default=6)
+    q.add_argument("--mc-passes", type=int, default=20, help="T of eq. 7.3")
+    q.add_argument("--warm-start", action="store_true", help="fine-tune between rounds (default: from scratch)")
+    q.add_argument("--seeds", type=int, default=2)
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--max-epochs", type=int, default=None)
+    q.add_argument("--batch-size", type=int, default=None)
+    q.add_argument("--threads", type=int, default=1)
+    q.add_argument("--plot", default="runs/bench/active_learning.png")
+    q.add_argument("--json", default="runs/bench/active_learning.json")
+    q.set_defaults(func=run_active_learning_bench)
