@@ -135,5 +135,7 @@ def test_bad_input_raises_value_error():
         sample_view_actions([0, 0, 0], 0.0, 3)
     with pytest.raises(ValueError, match="p_view"):
         view_rotation([[0.0, 0.0, 0.0]], [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="max_rounds"):
+        sample_touch_actions(box, 3, max_rounds=0)
     with pytest.raises(ValueError, match="max_reach"):
         ReachFeasibility([0, 0, 0], max_reach=0.1, min_reach=0.2)

@@ -151,6 +151,8 @@ def _check_count(n, name="n"):
 def _sample_feasible(
     draw: Callable[[int], ActionSet], n: int, feasible: Feasibility | None, max_rounds: int
 ) -> ActionSet:
+    if int(max_rounds) < 1:
+        raise ValueError(f"max_rounds: need >= 1, got {max_rounds}")
     if feasible is None:
         return draw(n)
     kept: list[ActionSet] = []

@@ -242,11 +242,9 @@ class OccupancyGrid:
         if (norm < 1e-12).any():
             raise ValueError(f"directions: {int((norm < 1e-12).sum())} direction vectors have zero length")
         d = d / norm[:, None]
-        r = (
-            np.broadcast_to(np.asarray(max_range, dtype=np.float64), (o.shape[0],)).copy()
-            if np.ndim(max_range) == 0
-            else np.asarray(max_range, dtype=np.float64)
-        )
+        r = np.asarray(max_range, dtype=np.float64)
+        if r.ndim == 0:
+            r = np.full(o.shape[0], float(r))
         if r.shape != (o.shape[0],):
             raise ValueError(f"max_range: expected a scalar or shape ({o.shape[0]},), got {tuple(r.shape)}")
         if not np.isfinite(r).all() or (r < 0).any():
@@ -258,7 +256,8 @@ class OccupancyGrid:
 
         A ray visits every cell it enters at a distance ``t < max_range`` from its origin, in order. With
         ``stop_mask`` (an ``(nx, ny, nz)`` bool array) a ray also ends at the first cell where the mask is
-        True, and that cell is flagged in ``is_stop``.
+        True, and that cell is flagged in ``is_stop``. The output is ray-major: all cells of ray 0 in walk
+        order, then those of ray 1, and so on (rays that miss the grid contribute nothing).
 
         Shapes:
             origins, directions: ``(R, 3)`` (directions need not be unit); max_range: scalar or ``(R,)``.
