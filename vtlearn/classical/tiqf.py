@@ -512,10 +512,18 @@ class SequentialTIQF:
         P_init: initial quaternion covariance ``(4, 4)`` (thesis: ``I_4``).
         rho: correspondence uncertainty of eq. 4.18.
         inner_iter: correspondence re-estimations per touch.
+        refine: after the sequential update, re-estimate the mean with the batch outer loop (:class:`TIQF`,
+            closest points for all measured points, ``n_escapes`` perturbation escapes) from the current
+            estimate. The covariance stays the sequential one. Without it, pairs whose correspondences were
+            wrong at the time of their touch keep pulling the mean (their information is frozen in ``P``),
+            which stalls the filter from a poor initial pose; Algorithm 1 likewise re-estimates the
+            correspondences of all points at every touch.
+        n_escapes: escape attempts of the refinement (thesis 4.3.2).
     """
 
     def __init__(self, model, T_init=None, P_init=None, rho: float = 1e-2, inner_iter: int = 10,
-                 tol_rot_deg: float = 0.1, tol_trans: float = 1e-4):
+                 tol_rot_deg: float = 0.1, tol_trans: float = 1e-4, refine: bool = False, n_escapes: int = 0,
+                 seed: int | None = 0):
         if not rho > 0:
             raise ValueError(f"rho: must be > 0, got {rho}")
         self.model = as_points(model, "model", min_points=3)
@@ -531,6 +539,8 @@ class SequentialTIQF:
         self.tol_rot_deg = tol_rot_deg
         self.tol_trans = tol_trans
         self.scene = np.zeros((0, 3))
+        self.refine = refine
+        self._batch = TIQF(rho=rho, tol_rot_deg=tol_rot_deg, tol_trans=tol_trans, n_escapes=n_escapes, seed=seed)
 
     @property
     def R(self) -> np.ndarray:
@@ -581,4 +591,8 @@ class SequentialTIQF:
             if done:
                 break
         self.x, self.P, self.t = x, P, t
+        if self.refine and len(self.scene) >= 3:
+            res = self._batch.register(self.model, self.scene, T_init=self.T_scene_model, model_tree=self.tree)
+            self.x = res.q if res.q @ self.x >= 0 else -res.q
+            self.t = res.T_scene_model[:3, 3].copy()
         return self.T_scene_model
