@@ -299,7 +299,6 @@ class OccupancyGrid:
 
         o, d, inv_d = o[ray], d[ray], inv_d[ray]
         t_in, t_end = t_enter[ray], t_exit[ray]
-        n = ray.size
         cell0 = np.floor((o + d * t_in[:, None] - lo) / res).astype(np.int64)
         np.clip(cell0, 0, shape - 1, out=cell0)
         step = np.sign(d).astype(np.int64)
@@ -330,36 +329,33 @@ class OccupancyGrid:
             n_ev = int(cnt_a.sum())
             if n_ev == 0:
                 continue
-            ev_ray = np.repeat(np.arange(n), cnt_a)
+            # Per-ray values are expanded with np.repeat (sequential) rather than gathered.
             ev_k = np.arange(n_ev) - np.repeat(np.cumsum(cnt_a) - cnt_a, cnt_a)
-            t_ev = t_first[ev_ray, a] + ev_k * t_delta[ev_ray, a]
+            t_ev = np.repeat(t_first[:, a], cnt_a) + ev_k * np.repeat(t_delta[:, a], cnt_a)
             rank = 1 + ev_k
-            flat = flat0[ev_ray] + (ev_k + 1) * step[ev_ray, a] * strides[a]
+            flat = np.repeat(flat0, cnt_a) + (ev_k + 1) * np.repeat(step[:, a] * strides[a], cnt_a)
             for b in range(3):
-                if b == a:
+                if b == a or not n_cross[cnt_a > 0, b].any():
                     continue
-                nb = n_cross[ev_ray, b]
-                if not nb.any():
-                    continue
-                tf, td = t_first[ev_ray, b], t_delta[ev_ray, b]
+                nb = np.repeat(n_cross[:, b], cnt_a)
+                tf, td = np.repeat(t_first[:, b], cnt_a), np.repeat(t_delta[:, b], cnt_a)
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                     est = np.ceil((t_ev - tf) / td)
                 cnt = np.clip(np.nan_to_num(est, nan=0.0, posinf=0.0, neginf=0.0), 0, nb).astype(np.int64)
                 cnt = self._fix_count(cnt, tf, td, t_ev, nb, inclusive=b < a)
                 rank += cnt
-                flat += cnt * step[ev_ray, b] * strides[b]
-            pos = offset[ev_ray] + rank
-            cell_index[pos] = flat
-        ray_local = np.repeat(np.arange(n), m)
+                flat += cnt * np.repeat(step[:, b] * strides[b], cnt_a)
+            cell_index[np.repeat(offset, cnt_a) + rank] = flat
+        ray_out = np.repeat(ray, m)
 
         no_stop = np.zeros(total, dtype=bool)
         if stop_flat is None:
-            return RayTraversal(ray[ray_local], cell_index, no_stop, stop_cell, stop_range)
+            return RayTraversal(ray_out, cell_index, no_stop, stop_cell, stop_range)
         occ_pos = np.flatnonzero(stop_flat[cell_index])
         if occ_pos.size == 0:
-            return RayTraversal(ray[ray_local], cell_index, no_stop, stop_cell, stop_range)
+            return RayTraversal(ray_out, cell_index, no_stop, stop_cell, stop_range)
         # Entries are ray-major, so the first stopping entry of each ray is its first occurrence.
-        occ_ray = ray_local[occ_pos]
+        occ_ray = np.searchsorted(offset, occ_pos, side="right") - 1  # local ray of each entry
         first = np.r_[True, occ_ray[1:] != occ_ray[:-1]]
         pos, r_loc = occ_pos[first], occ_ray[first]
         # Drop everything after the stopping cell of each stopped ray.
@@ -381,7 +377,7 @@ class OccupancyGrid:
         t_hi = np.minimum(t_hi, t_end[r_loc])
         stop_cell[ray[r_loc]] = cell_index[pos]
         stop_range[ray[r_loc]] = 0.5 * (t_lo + np.maximum(t_hi, t_lo))
-        return RayTraversal(ray[ray_local[keep]], cell_index[keep], is_stop[keep], stop_cell, stop_range)
+        return RayTraversal(ray_out[keep], cell_index[keep], is_stop[keep], stop_cell, stop_range)
 
     @staticmethod
     def _fix_count(cnt, t_first, t_delta, t_limit, cap, inclusive: bool):
@@ -530,8 +526,10 @@ class OccupancyGrid:
         act = action_index[trav.ray_index].astype(np.int64)
         cells, is_hit = trav.cell_index, trav.is_stop
         rep = self._first_per_action_cell(act, cells, is_hit, n_act)
-        gain = np.where(is_hit[rep], dh_hit[cells[rep]], dh_miss[cells[rep]])
-        return np.bincount(act[rep], weights=gain, minlength=n_act)
+        if rep.size < act.size:  # some rays of an action share cells
+            act, cells, is_hit = act[rep], cells[rep], is_hit[rep]
+        gain = np.where(is_hit, dh_hit[cells], dh_miss[cells])
+        return np.bincount(act, weights=gain, minlength=n_act)
 
     def _probabilistic_gain(self, o, d, r, action_index, n_act) -> np.ndarray:
         trav = self._dda(o, d, r, None)
