@@ -232,3 +232,26 @@ def test_reconstruct_validates_input():
         reconstruct(model, np.full((10, 3), np.nan))
     with pytest.raises(ValueError, match="points"):
         reconstruct(model, np.zeros((10, 2)))
+
+
+def test_actor_loss_equals_foundation_chamfer_with_padding():
+    from vtlearn.geometry.metrics import chamfer_distance
+
+    torch.manual_seed(3)
+    pred, target = torch.randn(3, 9, 3, dtype=torch.float64), torch.randn(3, 7, 3, dtype=torch.float64)
+    lengths = torch.tensor([7, 4, 2])
+    expected = 5.0 * chamfer_distance(pred, target, y_lengths=lengths, reduction="mean")
+    torch.testing.assert_close(actor_loss(pred, target, alpha=5.0, target_lengths=lengths), expected)
+    naive = 5.0 * sum(_naive_chamfer(pred[b], target[b, : lengths[b]]) for b in range(3)) / 3
+    torch.testing.assert_close(actor_loss(pred, target, alpha=5.0, target_lengths=lengths), naive)
+
+
+def test_strided_conv_transpose_matches_pytorch():
+    from vtlearn.models.components.actor_decoder import StridedConvTranspose1d
+
+    torch.manual_seed(4)
+    layer = StridedConvTranspose1d(5, 3, 4, bias=True)
+    x = torch.randn(2, 5, 6)
+    ref = torch.nn.functional.conv_transpose1d(x, layer.weight, layer.bias, stride=4)
+    torch.testing.assert_close(layer(x), ref)
+    assert layer(x).shape == (2, 3, 24)

@@ -13,7 +13,32 @@ import math
 import torch
 from torch import Tensor, nn
 
-__all__ = ["ActorDecoder"]
+__all__ = ["ActorDecoder", "StridedConvTranspose1d"]
+
+
+class StridedConvTranspose1d(nn.ConvTranspose1d):
+    """``nn.ConvTranspose1d`` with kernel = stride (no overlap), computed as one matrix product.
+
+    Without overlap every input position emits ``kernel_size`` outputs independently, so the layer is
+    a per-position linear map; this avoids PyTorch's slow CPU path for transposed convolutions.
+    Same parameters and result as the parent class (tested).
+
+    Shapes:
+        x: (B, C_in, L) -> (B, C_out, L * stride)
+    """
+
+    def __init__(self, in_channels: int, out_channels: int, stride: int, bias: bool = True) -> None:
+        super().__init__(in_channels, out_channels, kernel_size=stride, stride=stride, bias=bias)
+
+    def forward(self, x: Tensor) -> Tensor:  # type: ignore[override]
+        b, c_in, length = x.shape
+        k = self.kernel_size[0]
+        w = self.weight.reshape(c_in, -1)  # C_in x (C_out * k)
+        y = (x.transpose(1, 2) @ w).reshape(b, length, self.out_channels, k)  # B x L x C_out x k
+        y = y.permute(0, 2, 1, 3).reshape(b, self.out_channels, length * k)
+        if self.bias is not None:
+            y = y + self.bias[None, :, None]
+        return y
 
 
 class ActorDecoder(nn.Module):
@@ -53,7 +78,7 @@ class ActorDecoder(nn.Module):
         for i, s in enumerate(strides):
             c_out = deconv_channels[i] if i < len(deconv_channels) else 3
             last = i == len(strides) - 1
-            layers.append(nn.ConvTranspose1d(c_in, c_out, kernel_size=s, stride=s, bias=last))
+            layers.append(StridedConvTranspose1d(c_in, c_out, s, bias=last))
             if not last:
                 layers.append(nn.BatchNorm1d(c_out))
                 layers.append(nn.ReLU())
