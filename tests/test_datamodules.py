@@ -33,7 +33,7 @@ def test_reconstruction_batch_contract(recon_dir):
         assert ((b["lengths"] >= 40) & (b["lengths"] <= 120)).all()
         assert b["sparse"].shape[1] == b["lengths"].max()
         for i in range(B):  # padding is zeros beyond each length
-            assert torch.all(b["sparse"][i, b["lengths"][i]:] == 0)
+            assert torch.all(b["sparse"][i, b["lengths"][i] :] == 0)
 
 
 def test_reconstruction_sparse_lies_near_dense_and_rotation_is_about_z(recon_dir):
@@ -46,8 +46,11 @@ def test_reconstruction_sparse_lies_near_dense_and_rotation_is_about_z(recon_dir
     raw = load_split(recon_dir, "test")["dense"][0]
     # a z-rotation keeps heights and radial distances from the z-axis
     np.testing.assert_allclose(np.sort(b["dense"][0, :, 2].numpy()), np.sort(raw[:, 2]), atol=1e-5)
-    np.testing.assert_allclose(np.sort(np.linalg.norm(b["dense"][0, :, :2].numpy(), axis=1)),
-                               np.sort(np.linalg.norm(raw[:, :2], axis=1)), atol=1e-5)
+    np.testing.assert_allclose(
+        np.sort(np.linalg.norm(b["dense"][0, :, :2].numpy(), axis=1)),
+        np.sort(np.linalg.norm(raw[:, :2], axis=1)),
+        atol=1e-5,
+    )
 
 
 def test_eval_batches_are_deterministic_train_batches_are_not(recon_dir):
@@ -86,13 +89,19 @@ def test_crossmodal_batches(cross_dir):
     batch = next(iter(dm.train_dataloader()))[0]
     assert set(batch) == {"source", "target"}
     src, tgt = batch["source"], batch["target"]
-    assert src["points"].shape == (2, 1024, 3) and (src["lengths"] == 1024).all() and src["label"].dtype == torch.int64
+    assert (
+        src["points"].shape == (2, 1024, 3)
+        and (src["lengths"] == 1024).all()
+        and src["label"].dtype == torch.int64
+    )
     assert set(tgt) == {"points", "lengths"}  # target labels never reach training
     assert ((tgt["lengths"] >= 30) & (tgt["lengths"] <= 120)).all()
     for loader in (dm.val_dataloader(), dm.test_dataloader(), dm.source_test_dataloader()):
         b = next(iter(loader))
         assert set(b) == {"points", "lengths", "label"}
-        assert torch.allclose(b["points"].sum(1) / b["lengths"][:, None], torch.zeros(3), atol=1e-5)  # centred
+        assert torch.allclose(
+            b["points"].sum(1) / b["lengths"][:, None], torch.zeros(3), atol=1e-5
+        )  # centred
 
 
 def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
@@ -105,9 +114,16 @@ def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
 def test_splits_are_by_instance(cross_dir):
     inst = {s: set(load_split(cross_dir, s)["instance"].tolist()) for s in ("train", "val", "test")}
     assert inst["train"] and inst["val"] and inst["test"]
-    assert not (inst["train"] & inst["val"]) and not (inst["train"] & inst["test"]) and not (inst["val"] & inst["test"])
+    assert (
+        not (inst["train"] & inst["val"])
+        and not (inst["train"] & inst["test"])
+        and not (inst["val"] & inst["test"])
+    )
     d = load_split(cross_dir, "train")
-    assert set(d["tactile_instance"].tolist()) <= inst["train"] and set(d["visual_instance"].tolist()) <= inst["train"]
+    assert (
+        set(d["tactile_instance"].tolist()) <= inst["train"]
+        and set(d["visual_instance"].tolist()) <= inst["train"]
+    )
 
 
 def test_active_pool_query(cross_dir):

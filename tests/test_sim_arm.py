@@ -34,7 +34,10 @@ def test_fk_matches_pybullet_random_configurations(setup):
         T_fk = arm.fk_hand(q)
         assert np.linalg.norm(T_fk[:3, 3] - T_pb[:3, 3]) < 1e-3
         assert np.abs(T_fk[:3, :3] - T_pb[:3, :3]).max() < 1e-3
-        taxels_pb = arm.sim.sensor.taxel_positions() @ (T_pb @ arm.T_hand_pad)[:3, :3].T + (T_pb @ arm.T_hand_pad)[:3, 3]
+        taxels_pb = (
+            arm.sim.sensor.taxel_positions() @ (T_pb @ arm.T_hand_pad)[:3, :3].T
+            + (T_pb @ arm.T_hand_pad)[:3, 3]
+        )
         assert np.linalg.norm(arm.taxel_positions_world(q) - taxels_pb, axis=1).max() < 1e-3
 
 

@@ -64,7 +64,9 @@ def test_clean_depth_backprojects_onto_surface():
     cam = RGBDCamera(160, 120, noise=DepthNoise.off())
     T = sample_hemisphere_views(mesh_w.centroid, 0.5, 1, np.random.default_rng(3))[0]
     frame = cam.render(scene, T)
-    assert frame.rgb.shape == (120, 160, 3) and frame.depth.shape == (120, 160) and frame.seg.dtype == np.int32
+    assert (
+        frame.rgb.shape == (120, 160, 3) and frame.depth.shape == (120, 160) and frame.seg.dtype == np.int32
+    )
     assert (frame.seg == body).sum() > 200 and (frame.seg == scene.table_id).any()
     pts = cam.point_cloud(frame, body)
     assert np.median(_dist(mesh_w, pts)) < 1e-3

@@ -32,8 +32,11 @@ def test_category_folders_skip_broken_and_non_manifold(tmp_path, caplog):
     _box(tmp_path / "box" / "good.obj")
     (tmp_path / "box" / "broken.obj").write_text("this is not a mesh\n")
     # three triangles sharing the edge (0, 1): non-manifold
-    fin = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]],
-                          [[0, 1, 2], [1, 0, 3], [0, 1, 4]], process=False)
+    fin = trimesh.Trimesh(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]],
+        [[0, 1, 2], [1, 0, 3], [0, 1, 4]],
+        process=False,
+    )
     fin.export(tmp_path / "box" / "fin.obj")
     with caplog.at_level(logging.WARNING):
         items = scan_mesh_folder(tmp_path)
@@ -54,7 +57,13 @@ def test_gen_data_from_mesh_folder(tmp_path):
     for cat, ext in (("tall", (0.05, 0.05, 0.2)), ("flat", (0.2, 0.2, 0.03))):
         for i in range(3):
             _box(tmp_path / "meshes" / cat / f"{i}.obj", np.asarray(ext) * (1 + 0.1 * i))
-    cfg = GenConfig(kind="reconstruction", categories=["tall", "flat"], per_category=3, touches=8, pinches=2,
-                    mesh_source=str(tmp_path / "meshes"))
+    cfg = GenConfig(
+        kind="reconstruction",
+        categories=["tall", "flat"],
+        per_category=3,
+        touches=8,
+        pinches=2,
+        mesh_source=str(tmp_path / "meshes"),
+    )
     m = generate_dataset(cfg, tmp_path / "out", progress=False)
     assert m["class_names"] == ["tall", "flat"] and sum(s["instances"] for s in m["splits"].values()) == 6

@@ -7,7 +7,13 @@ import trimesh
 from vtlearn.sim_data.scene import Scene
 from vtlearn.sim_data.sensors import SENSORS, get_sensor
 from vtlearn.sim_data.shapes import generate_shape
-from vtlearn.sim_data.tactile import TactileConfig, TactileSimulator, pad_frame, sample_pinches, sample_touches
+from vtlearn.sim_data.tactile import (
+    TactileConfig,
+    TactileSimulator,
+    pad_frame,
+    sample_pinches,
+    sample_touches,
+)
 
 
 def _setup(category="mug", seed=1, config=None, sensor="xela_4x4"):
@@ -95,8 +101,10 @@ def test_min_contacts_and_config_validation():
 
 def test_pinch_contacts_both_fingers():
     scene = Scene()
-    body = scene.add_mesh(trimesh.creation.box(extents=[0.06, 0.06, 0.1]),
-                          T_world_object=np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.05], [0, 0, 0, 1.0]]))
+    body = scene.add_mesh(
+        trimesh.creation.box(extents=[0.06, 0.06, 0.1]),
+        T_world_object=np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.05], [0, 0, 0, 1.0]]),
+    )
     sim = TactileSimulator(scene, "xela_4x4", objects=[body])
     res = sim.pinch([0, 0, 0.06], axis_angle=0.0, width=0.2)
     assert res.num_contacts == 32

@@ -12,13 +12,36 @@ import pytest
 
 from vtlearn.sim_data.writer import GenConfig, _split_counts, generate_dataset, sha256_file
 
-ARGS = ["reconstruction", "--categories", "can,box,cup", "--per-category", "4", "--shard-size", "1",
-        "--touches", "6", "--pinches", "2", "--sections", "16", "--seed", "5"]
+ARGS = [
+    "reconstruction",
+    "--categories",
+    "can,box,cup",
+    "--per-category",
+    "4",
+    "--shard-size",
+    "1",
+    "--touches",
+    "6",
+    "--pinches",
+    "2",
+    "--sections",
+    "16",
+    "--seed",
+    "5",
+]
 
 
 def _cfg():
-    return GenConfig(kind="reconstruction", categories=["can", "box", "cup"], per_category=4, shard_size=1,
-                     touches=6, pinches=2, sections=16, seed=5)
+    return GenConfig(
+        kind="reconstruction",
+        categories=["can", "box", "cup"],
+        per_category=4,
+        shard_size=1,
+        touches=6,
+        pinches=2,
+        sections=16,
+        seed=5,
+    )
 
 
 def test_split_counts():
@@ -41,8 +64,9 @@ def test_shards_format_and_manifest(tmp_path):
     # same config, same directory: nothing to redo and an identical manifest
     assert generate_dataset(_cfg(), tmp_path, progress=False) == m
     with pytest.raises(ValueError, match="out_dir"):
-        generate_dataset(GenConfig(kind="reconstruction", categories=["can"], per_category=2), tmp_path,
-                         progress=False)
+        generate_dataset(
+            GenConfig(kind="reconstruction", categories=["can"], per_category=2), tmp_path, progress=False
+        )
 
 
 def test_killed_then_rerun_gives_identical_manifest(tmp_path):
@@ -50,8 +74,12 @@ def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     ref = generate_dataset(_cfg(), tmp_path / "ref", progress=False)
     out = tmp_path / "killed"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "vtlearn.cli", "gen-data", *ARGS, "--out", str(out)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vtlearn.cli", "gen-data", *ARGS, "--out", str(out)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and len(list(out.glob("*.npz.json"))) < 3:

@@ -23,15 +23,25 @@ from vtlearn.datamodules.shards import collate_clouds, load_manifest, load_split
 
 class ActivePoolDataModule(pl.LightningDataModule):
     """Args:
-        data_dir: a `gen-data crossmodal` (tactile or visual) or `gen-data reconstruction` (tactile) dataset.
-        initial_labels: pool items labelled at the start (n0), drawn at random with ``seed``.
-        modality: ``tactile`` or ``visual``.
-        batch_size, normalize, units, rotate_z, num_workers, verify: as in :class:`CrossModalDataModule`.
+    data_dir: a `gen-data crossmodal` (tactile or visual) or `gen-data reconstruction` (tactile) dataset.
+    initial_labels: pool items labelled at the start (n0), drawn at random with ``seed``.
+    modality: ``tactile`` or ``visual``.
+    batch_size, normalize, units, rotate_z, num_workers, verify: as in :class:`CrossModalDataModule`.
     """
 
-    def __init__(self, data_dir: str, initial_labels: int = 10, seed: int = 0, modality: str = "tactile",
-                 batch_size: int = 32, normalize: str = "center", units: str = "canonical", rotate_z: bool = True,
-                 num_workers: int = 0, verify: bool = True):
+    def __init__(
+        self,
+        data_dir: str,
+        initial_labels: int = 10,
+        seed: int = 0,
+        modality: str = "tactile",
+        batch_size: int = 32,
+        normalize: str = "center",
+        units: str = "canonical",
+        rotate_z: bool = True,
+        num_workers: int = 0,
+        verify: bool = True,
+    ):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
@@ -73,8 +83,9 @@ class ActivePoolDataModule(pl.LightningDataModule):
 
     def query(self, indices) -> torch.Tensor:
         """Reveal the labels of unlabelled pool ``indices`` and move them to the labelled set."""
-        idx = np.asarray(torch.as_tensor(indices).cpu().numpy() if torch.is_tensor(indices) else indices,
-                         dtype=np.int64).reshape(-1)
+        idx = np.asarray(
+            torch.as_tensor(indices).cpu().numpy() if torch.is_tensor(indices) else indices, dtype=np.int64
+        ).reshape(-1)
         if len(idx) == 0:
             raise ValueError("indices: empty")
         if len(np.unique(idx)) != len(idx):
@@ -88,13 +99,27 @@ class ActivePoolDataModule(pl.LightningDataModule):
 
     def _pool_dataset(self, indices, labelled: bool, train: bool) -> CloudDataset:
         clouds, labels, scales = self._pool
-        return CloudDataset(clouds, labels, train=train, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, indices=indices, scales=scales, with_label=labelled,
-                            with_index=not labelled)
+        return CloudDataset(
+            clouds,
+            labels,
+            train=train,
+            normalize=self.normalize,
+            rotate_z=self.rotate_z,
+            seed=self.seed,
+            indices=indices,
+            scales=scales,
+            with_label=labelled,
+            with_index=not labelled,
+        )
 
     def _loader(self, ds, shuffle: bool) -> DataLoader:
-        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
-                          collate_fn=collate_clouds)
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            collate_fn=collate_clouds,
+        )
 
     def train_dataloader(self) -> DataLoader:
         if not self._labelled.any():
@@ -106,8 +131,15 @@ class ActivePoolDataModule(pl.LightningDataModule):
 
     def _eval(self, split: str) -> DataLoader:
         clouds, labels, scales = modality_clouds(self._split(split), self.modality, self.units == "metres")
-        ds = CloudDataset(clouds, labels, train=False, normalize=self.normalize, rotate_z=self.rotate_z,
-                          seed=self.seed, scales=scales)
+        ds = CloudDataset(
+            clouds,
+            labels,
+            train=False,
+            normalize=self.normalize,
+            rotate_z=self.rotate_z,
+            seed=self.seed,
+            scales=scales,
+        )
         return self._loader(ds, shuffle=False)
 
     def val_dataloader(self) -> DataLoader:

@@ -37,9 +37,19 @@ from vtlearn.datamodules.shards import (
 class CloudDataset(Dataset):
     """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}."""
 
-    def __init__(self, clouds: list[np.ndarray], labels: np.ndarray | None, train: bool, normalize: str = "center",
-                 rotate_z: bool = True, seed: int = 0, indices: np.ndarray | None = None,
-                 scales: np.ndarray | None = None, with_label: bool = True, with_index: bool = False):
+    def __init__(
+        self,
+        clouds: list[np.ndarray],
+        labels: np.ndarray | None,
+        train: bool,
+        normalize: str = "center",
+        rotate_z: bool = True,
+        seed: int = 0,
+        indices: np.ndarray | None = None,
+        scales: np.ndarray | None = None,
+        with_label: bool = True,
+        with_index: bool = False,
+    ):
         if len(clouds) == 0:
             raise ValueError("clouds: empty dataset")
         normalize_cloud(np.zeros((1, 3)), normalize)  # validates the mode early
@@ -66,11 +76,15 @@ class CloudDataset(Dataset):
         return item
 
 
-def modality_clouds(d: dict, modality: str, metres: bool) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:
+def modality_clouds(
+    d: dict, modality: str, metres: bool
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:
     """(clouds, labels, per-cloud metres scale or None) of one modality from a loaded split."""
     if modality == "visual":
         if "visual" not in d:
-            raise ValueError("modality: this dataset has no visual clouds (generate it with `gen-data crossmodal`)")
+            raise ValueError(
+                "modality: this dataset has no visual clouds (generate it with `gen-data crossmodal`)"
+            )
         clouds, labels, inst = list(d["visual"]), d["visual_label"], d["visual_instance"]
     elif modality == "tactile":
         clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
@@ -96,8 +110,17 @@ class CrossModalDataModule(pl.LightningDataModule):
         num_workers, seed, verify: see :class:`ReconstructionDataModule`.
     """
 
-    def __init__(self, data_dir: str, batch_size: int = 32, normalize: str = "center", units: str = "canonical",
-                 rotate_z: bool = True, num_workers: int = 0, seed: int = 0, verify: bool = True):
+    def __init__(
+        self,
+        data_dir: str,
+        batch_size: int = 32,
+        normalize: str = "center",
+        units: str = "canonical",
+        rotate_z: bool = True,
+        num_workers: int = 0,
+        seed: int = 0,
+        verify: bool = True,
+    ):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
@@ -124,12 +147,26 @@ class CrossModalDataModule(pl.LightningDataModule):
 
     def dataset(self, split: str, modality: str, with_label: bool = True) -> CloudDataset:
         clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")
-        return CloudDataset(clouds, labels, train=split == "train", normalize=self.normalize,
-                            rotate_z=self.rotate_z, seed=self.seed, scales=scales, with_label=with_label)
+        return CloudDataset(
+            clouds,
+            labels,
+            train=split == "train",
+            normalize=self.normalize,
+            rotate_z=self.rotate_z,
+            seed=self.seed,
+            scales=scales,
+            with_label=with_label,
+        )
 
     def _loader(self, ds: Dataset, shuffle: bool) -> DataLoader:
-        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
-                          collate_fn=collate_clouds, persistent_workers=self.num_workers > 0)
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            collate_fn=collate_clouds,
+            persistent_workers=self.num_workers > 0,
+        )
 
     def train_dataloader(self) -> CombinedLoader:
         source = self._loader(self.dataset("train", "visual"), shuffle=True)

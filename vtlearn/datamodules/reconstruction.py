@@ -33,8 +33,17 @@ from vtlearn.datamodules.shards import (
 class ReconstructionDataset(Dataset):
     """Per instance: a random voxel-subsampled sparse cloud and the dense target (canonical frame)."""
 
-    def __init__(self, dense: np.ndarray, labels: np.ndarray, min_points: int, max_points: int,
-                 train: bool, seed: int = 0, rotate_z: bool = True, sparse: list[np.ndarray] | None = None):
+    def __init__(
+        self,
+        dense: np.ndarray,
+        labels: np.ndarray,
+        min_points: int,
+        max_points: int,
+        train: bool,
+        seed: int = 0,
+        rotate_z: bool = True,
+        sparse: list[np.ndarray] | None = None,
+    ):
         if dense.ndim != 3 or dense.shape[-1] != 3 or len(dense) == 0:
             raise ValueError(f"dense: need a non-empty (N, P, 3) array, got shape {dense.shape}")
         self.dense, self.labels = dense.astype(np.float32), labels.astype(np.int64)
@@ -55,7 +64,11 @@ class ReconstructionDataset(Dataset):
         if self.rotate_z:
             R = rotation_z(rng.uniform(0, 2 * np.pi))
             dense, sparse = dense @ R.T, sparse @ R.T
-        return {"sparse": sparse.astype(np.float32), "dense": dense.astype(np.float32), "label": int(self.labels[i])}
+        return {
+            "sparse": sparse.astype(np.float32),
+            "dense": dense.astype(np.float32),
+            "label": int(self.labels[i]),
+        }
 
 
 class ReconstructionDataModule(pl.LightningDataModule):
@@ -71,8 +84,17 @@ class ReconstructionDataModule(pl.LightningDataModule):
         verify: check shard sha256 sums against the manifest when loading.
     """
 
-    def __init__(self, data_dir: str, batch_size: int = 32, min_points: int = 40, max_points: int = 120,
-                 rotate_z: bool = True, num_workers: int = 0, seed: int = 0, verify: bool = True):
+    def __init__(
+        self,
+        data_dir: str,
+        batch_size: int = 32,
+        min_points: int = 40,
+        max_points: int = 120,
+        rotate_z: bool = True,
+        num_workers: int = 0,
+        seed: int = 0,
+        verify: bool = True,
+    ):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
@@ -107,14 +129,26 @@ class ReconstructionDataModule(pl.LightningDataModule):
             for j, inst in enumerate(d["tactile_instance"]):
                 first.setdefault(int(inst), j)
             sparse = [sparse[first[int(inst)]] for inst in d["instance"]]
-        return ReconstructionDataset(d["dense"], d["label"], self.min_points, self.max_points,
-                                     train=split == "train", seed=self.seed, rotate_z=self.rotate_z,
-                                     sparse=sparse)
+        return ReconstructionDataset(
+            d["dense"],
+            d["label"],
+            self.min_points,
+            self.max_points,
+            train=split == "train",
+            seed=self.seed,
+            rotate_z=self.rotate_z,
+            sparse=sparse,
+        )
 
     def _loader(self, ds, shuffle: bool) -> DataLoader:
-        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
-                          collate_fn=partial(collate_clouds, cloud_keys=("sparse",)),
-                          persistent_workers=self.num_workers > 0)
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            collate_fn=partial(collate_clouds, cloud_keys=("sparse",)),
+            persistent_workers=self.num_workers > 0,
+        )
 
     def train_dataloader(self) -> DataLoader:
         return self._loader(self._dataset("train"), shuffle=True)

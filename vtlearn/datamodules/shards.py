@@ -19,8 +19,10 @@ from vtlearn.geometry import pad_clouds
 def load_manifest(data_dir: str | Path) -> dict:
     path = Path(data_dir) / "manifest.json"
     if not path.exists():
-        raise FileNotFoundError(f"data_dir: no manifest.json in {data_dir} (run `vtlearn gen-data` first, "
-                                "or finish an interrupted run by rerunning it)")
+        raise FileNotFoundError(
+            f"data_dir: no manifest.json in {data_dir} (run `vtlearn gen-data` first, "
+            "or finish an interrupted run by rerunning it)"
+        )
     return json.loads(path.read_text())
 
 
@@ -51,7 +53,7 @@ def load_split(data_dir: str | Path, split: str, verify: bool = True) -> dict[st
 
 
 def split_clouds(points: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
-    return [points[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+    return [points[offsets[i] : offsets[i + 1]] for i in range(len(offsets) - 1)]
 
 
 def rotation_z(theta: float) -> np.ndarray:
@@ -72,8 +74,9 @@ def normalize_cloud(points: np.ndarray, mode: str) -> np.ndarray:
     raise ValueError(f"normalize: expected 'none', 'center' or 'unit_sphere', got {mode!r}")
 
 
-def random_voxel_subsample(points: np.ndarray, n_min: int, n_max: int, rng: np.random.Generator,
-                           iters: int = 12) -> np.ndarray:
+def random_voxel_subsample(
+    points: np.ndarray, n_min: int, n_max: int, rng: np.random.Generator, iters: int = 12
+) -> np.ndarray:
     """Random voxel-grid subsampling to a size drawn uniformly from ``[n_min, n_max]``.
 
     A target ``n`` is drawn, then the voxel size is bisected (in log scale, with a random grid offset)

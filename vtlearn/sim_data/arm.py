@@ -53,9 +53,15 @@ class PandaArm:
         T_hand_pad: sensor mount on ``panda_hand``.
     """
 
-    def __init__(self, scene: Scene, sensor="xela_4x4", config: TactileConfig | None = None,
-                 T_world_base: np.ndarray | None = None, T_hand_pad: np.ndarray | None = None,
-                 objects: list[int] | None = None):
+    def __init__(
+        self,
+        scene: Scene,
+        sensor="xela_4x4",
+        config: TactileConfig | None = None,
+        T_world_base: np.ndarray | None = None,
+        T_hand_pad: np.ndarray | None = None,
+        objects: list[int] | None = None,
+    ):
         import pytorch_kinematics as pk
 
         self.scene = scene
@@ -66,16 +72,29 @@ class PandaArm:
         from vtlearn.geometry import matrix_to_quat
 
         w, x, y, z = np.asarray(matrix_to_quat(self.T_world_base[:3, :3]), dtype=np.float64)
-        self.robot = p.loadURDF(PANDA_URDF, self.T_world_base[:3, 3].tolist(), [x, y, z, w], useFixedBase=True,
-                                physicsClientId=scene.client)
-        self.hand_index = next(j for j in range(p.getNumJoints(self.robot, physicsClientId=scene.client))
-                               if p.getJointInfo(self.robot, j, physicsClientId=scene.client)[12].decode() == HAND_LINK)
+        self.robot = p.loadURDF(
+            PANDA_URDF,
+            self.T_world_base[:3, 3].tolist(),
+            [x, y, z, w],
+            useFixedBase=True,
+            physicsClientId=scene.client,
+        )
+        self.hand_index = next(
+            j
+            for j in range(p.getNumJoints(self.robot, physicsClientId=scene.client))
+            if p.getJointInfo(self.robot, j, physicsClientId=scene.client)[12].decode() == HAND_LINK
+        )
         info = [p.getJointInfo(self.robot, j, physicsClientId=scene.client) for j in range(ARM_JOINTS)]
         self.lower = np.array([i[8] for i in info])
         self.upper = np.array([i[9] for i in info])
-        with open(PANDA_URDF, "rb") as f, contextlib.redirect_stdout(io.StringIO()), \
-                contextlib.redirect_stderr(io.StringIO()):
-            self.chain = pk.build_serial_chain_from_urdf(f.read(), HAND_LINK).to(dtype=__import__("torch").float64)
+        with (
+            open(PANDA_URDF, "rb") as f,
+            contextlib.redirect_stdout(io.StringIO()),
+            contextlib.redirect_stderr(io.StringIO()),
+        ):
+            self.chain = pk.build_serial_chain_from_urdf(f.read(), HAND_LINK).to(
+                dtype=__import__("torch").float64
+            )
         self.sim = TactileSimulator(scene, sensor, config, objects)
         self.q = np.array([0.0, -0.4, 0.0, -2.2, 0.0, 1.9, 0.8])
         self.set_joints(self.q)
@@ -105,8 +124,9 @@ class PandaArm:
 
     def pybullet_hand(self) -> np.ndarray:
         """T_world_hand of the current joint state from pybullet's own link state."""
-        st = p.getLinkState(self.robot, self.hand_index, computeForwardKinematics=True,
-                            physicsClientId=self.scene.client)
+        st = p.getLinkState(
+            self.robot, self.hand_index, computeForwardKinematics=True, physicsClientId=self.scene.client
+        )
         return pose_to_matrix(st[4], st[5])
 
     def ik(self, T_world_pad: np.ndarray, iterations: int = 5) -> np.ndarray:
@@ -118,10 +138,18 @@ class PandaArm:
         q = self.q
         for _ in range(iterations):
             sol = p.calculateInverseKinematics(
-                self.robot, self.hand_index, T_hand[:3, 3].tolist(), [x, y, z, w],
-                lowerLimits=self.lower.tolist(), upperLimits=self.upper.tolist(),
-                jointRanges=(self.upper - self.lower).tolist(), restPoses=q.tolist(),
-                maxNumIterations=200, residualThreshold=1e-6, physicsClientId=self.scene.client)
+                self.robot,
+                self.hand_index,
+                T_hand[:3, 3].tolist(),
+                [x, y, z, w],
+                lowerLimits=self.lower.tolist(),
+                upperLimits=self.upper.tolist(),
+                jointRanges=(self.upper - self.lower).tolist(),
+                restPoses=q.tolist(),
+                maxNumIterations=200,
+                residualThreshold=1e-6,
+                physicsClientId=self.scene.client,
+            )
             q = np.clip(np.asarray(sol[:ARM_JOINTS]), self.lower, self.upper)
             self.set_joints(q)
         return q

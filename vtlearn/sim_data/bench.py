@@ -29,8 +29,14 @@ def bench_touches(n: int, sensor: str = "xela_4x4") -> dict:
         t0 = time.perf_counter()
         contacts = [sim.touch(*a).num_contacts for a in acts]
         dt = time.perf_counter() - t0
-    return {"faces": len(mesh.faces), "touches": n, "seconds": dt, "touches_per_s": n / dt,
-            "contact_rate": float(np.mean(np.array(contacts) > 0)), "mean_contacts": float(np.mean(contacts))}
+    return {
+        "faces": len(mesh.faces),
+        "touches": n,
+        "seconds": dt,
+        "touches_per_s": n / dt,
+        "contact_rate": float(np.mean(np.array(contacts) > 0)),
+        "mean_contacts": float(np.mean(contacts)),
+    }
 
 
 def bench_camera(frames: int, width: int = 320, height: int = 240) -> dict:
@@ -53,8 +59,13 @@ def bench_camera(frames: int, width: int = 320, height: int = 240) -> dict:
             pts = cam.point_cloud(cam.render(scene, V, rng), body, rng)
             ms.append(1000 * (time.perf_counter() - t0))
             npts.append(len(pts))
-    return {"resolution": f"{width}x{height}", "frames": frames, "ms_mean": float(np.mean(ms)),
-            "ms_median": float(np.median(ms)), "points_mean": float(np.mean(npts))}
+    return {
+        "resolution": f"{width}x{height}",
+        "frames": frames,
+        "ms_mean": float(np.mean(ms)),
+        "ms_median": float(np.median(ms)),
+        "points_mean": float(np.mean(npts)),
+    }
 
 
 def bench_shapes(n: int) -> dict:
@@ -74,12 +85,24 @@ def run(args: argparse.Namespace) -> int:
     cam = bench_camera(args.frames)
     shapes = bench_shapes(args.shapes)
     rows = [
-        {"metric": "touch actions / s (free sensor, xela_4x4)", "value": touch["touches_per_s"], "goal": ">= 200",
-         "detail": f"{touch['faces']} faces, contact rate {touch['contact_rate']:.2f}"},
-        {"metric": "camera frame -> cloud (ms, median)", "value": cam["ms_median"], "goal": "<= 50",
-         "detail": f"{cam['resolution']}, mean {cam['ms_mean']:.1f} ms, {cam['points_mean']:.0f} pts"},
-        {"metric": "gen-shapes shapes / s", "value": shapes["shapes_per_s"], "goal": "-",
-         "detail": f"{shapes['shapes']} shapes, 12 categories, 48 sections"},
+        {
+            "metric": "touch actions / s (free sensor, xela_4x4)",
+            "value": touch["touches_per_s"],
+            "goal": ">= 200",
+            "detail": f"{touch['faces']} faces, contact rate {touch['contact_rate']:.2f}",
+        },
+        {
+            "metric": "camera frame -> cloud (ms, median)",
+            "value": cam["ms_median"],
+            "goal": "<= 50",
+            "detail": f"{cam['resolution']}, mean {cam['ms_mean']:.1f} ms, {cam['points_mean']:.0f} pts",
+        },
+        {
+            "metric": "gen-shapes shapes / s",
+            "value": shapes["shapes_per_s"],
+            "goal": "-",
+            "detail": f"{shapes['shapes']} shapes, 12 categories, 48 sections",
+        },
     ]
     print_table(rows, ["metric", "value", "goal", "detail"], title="vtlearn bench sim (single process)")
     path = write_json(args.json, {"touch": touch, "camera": cam, "shapes": shapes, "machine": machine_info()})

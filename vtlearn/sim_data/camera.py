@@ -62,7 +62,9 @@ class TransparencyModel:
         if not 0 <= self.p_missing <= 1:
             raise ValueError(f"p_missing: need a probability, got {self.p_missing}")
         if not 0 <= self.deep_min <= self.deep_max:
-            raise ValueError(f"deep_min/deep_max: need 0 <= deep_min <= deep_max, got {self.deep_min}, {self.deep_max}")
+            raise ValueError(
+                f"deep_min/deep_max: need 0 <= deep_min <= deep_max, got {self.deep_min}, {self.deep_max}"
+            )
 
 
 @dataclass
@@ -95,8 +97,16 @@ class RGBDCamera:
         transparency: :class:`TransparencyModel` applied to bodies flagged transparent in the scene.
     """
 
-    def __init__(self, width: int = 320, height: int = 240, fov_y_deg: float = 60.0, near: float = 0.05,
-                 far: float = 4.0, noise: DepthNoise | None = None, transparency: TransparencyModel | None = None):
+    def __init__(
+        self,
+        width: int = 320,
+        height: int = 240,
+        fov_y_deg: float = 60.0,
+        near: float = 0.05,
+        far: float = 4.0,
+        noise: DepthNoise | None = None,
+        transparency: TransparencyModel | None = None,
+    ):
         self.width, self.height = int(width), int(height)
         self.K = intrinsics_from_fov(self.width, self.height, fov_y_deg)
         # TinyRenderer rasterises pixel (u, v) at image coordinates (u, v + 1) rather than at the
@@ -109,9 +119,13 @@ class RGBDCamera:
         self.fov_y_deg, self.near, self.far = float(fov_y_deg), float(near), float(far)
         self.noise = noise if noise is not None else DepthNoise()
         self.transparency = transparency if transparency is not None else TransparencyModel()
-        self._proj = p.computeProjectionMatrixFOV(self.fov_y_deg, self.width / self.height, self.near, self.far)
+        self._proj = p.computeProjectionMatrixFOV(
+            self.fov_y_deg, self.width / self.height, self.near, self.far
+        )
 
-    def render(self, scene: Scene, T_world_camera: np.ndarray, rng: np.random.Generator | None = None) -> RGBDFrame:
+    def render(
+        self, scene: Scene, T_world_camera: np.ndarray, rng: np.random.Generator | None = None
+    ) -> RGBDFrame:
         """Render RGB, metric depth (noise and transparency applied) and the body-id segmentation."""
         T = np.asarray(T_world_camera, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -120,8 +134,13 @@ class RGBDCamera:
         # OpenGL looks down -z with y up: T_world_gl = T_world_camera @ diag(1, -1, -1, 1).
         view = np.linalg.inv(T @ np.diag([1.0, -1.0, -1.0, 1.0]))
         _, _, rgba, zbuf, seg = p.getCameraImage(
-            self.width, self.height, viewMatrix=view.T.ravel().tolist(), projectionMatrix=self._proj,
-            renderer=p.ER_TINY_RENDERER, physicsClientId=scene.client)
+            self.width,
+            self.height,
+            viewMatrix=view.T.ravel().tolist(),
+            projectionMatrix=self._proj,
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=scene.client,
+        )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[..., :3]
         zbuf = np.asarray(zbuf, dtype=np.float64).reshape(self.height, self.width)
         seg = np.asarray(seg, dtype=np.int64).reshape(self.height, self.width)
@@ -158,7 +177,9 @@ class RGBDCamera:
         depth[(depth < nz.min_range) | (depth > nz.max_range)] = 0.0
         return depth
 
-    def point_cloud(self, frame: RGBDFrame, body_id: int | None = None, rng: np.random.Generator | None = None):
+    def point_cloud(
+        self, frame: RGBDFrame, body_id: int | None = None, rng: np.random.Generator | None = None
+    ):
         """World-frame cloud of the valid pixels (of ``body_id`` only when given)."""
         mask = frame.depth > 0
         if body_id is not None:
@@ -167,8 +188,14 @@ class RGBDCamera:
         return backproject(frame.depth, frame.K, frame.T_world_camera, mask, lateral_px=lateral, rng=rng)
 
 
-def backproject(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, mask: np.ndarray | None = None,
-                lateral_px: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
+def backproject(
+    depth: np.ndarray,
+    K: np.ndarray,
+    T_world_camera: np.ndarray,
+    mask: np.ndarray | None = None,
+    lateral_px: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """Back-project a metric depth image to world-frame points ``p_world = T_world_camera @ p_camera``.
 
     Pixel (u, v) looks through its centre (u + 0.5, v + 0.5); ``p_camera = z K^-1 [u, v, 1]``.
@@ -217,16 +244,19 @@ def viewpoint_rotation(p_view: np.ndarray, o_centroid: np.ndarray) -> np.ndarray
         theta = np.arccos(np.clip(h @ Z, -1, 1))
         ex, ey, ez = e
         c, sn, C = np.cos(theta), np.sin(theta), 1 - np.cos(theta)
-        Rv = np.array([
-            [c + ex * ex * C, ex * ey * C - ez * sn, ey * sn + ex * ez * C],
-            [ez * sn + ex * ey * C, c + ey * ey * C, -ex * sn + ey * ez * C],
-            [-ey * sn + ex * ez * C, ex * sn + ey * ez * C, c + ez * ez * C],
-        ])
+        Rv = np.array(
+            [
+                [c + ex * ex * C, ex * ey * C - ez * sn, ey * sn + ex * ez * C],
+                [ez * sn + ex * ey * C, c + ey * ey * C, -ex * sn + ey * ez * C],
+                [-ey * sn + ex * ez * C, ex * sn + ey * ez * C, c + ez * ez * C],
+            ]
+        )
     return Rv.T @ np.diag([1.0, -1.0, -1.0])
 
 
-def sample_hemisphere_views(o_centroid, radius: float, n: int, rng: np.random.Generator,
-                            min_elevation_deg: float = 10.0) -> np.ndarray:
+def sample_hemisphere_views(
+    o_centroid, radius: float, n: int, rng: np.random.Generator, min_elevation_deg: float = 10.0
+) -> np.ndarray:
     """(n, 4, 4) T_world_camera on the upper hemisphere of ``radius`` around ``o_centroid`` (eq. 5.3-5.5).
 
     Positions are uniform on the sphere by Marsaglia's method, reflected to z >= 0 and rejected

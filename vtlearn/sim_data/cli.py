@@ -22,14 +22,29 @@ def _cmd_gen_data(args: argparse.Namespace) -> int:
     from vtlearn.sim_data.writer import GenConfig, generate_dataset
 
     cfg = GenConfig(
-        kind=args.kind, categories=args.categories, per_category=args.per_category, seed=args.seed,
-        split_fractions=args.splits, shard_size=args.shard_size, sections=args.sections, sensor=args.sensor,
-        touches=args.touches, pinches=args.pinches, position_noise=args.position_noise, dropout=args.dropout,
-        views=args.views, image_width=args.width, image_height=args.height, depth_noise=not args.no_depth_noise,
-        tactile_clouds=args.tactile_clouds, mesh_source=args.meshes or "procedural",
+        kind=args.kind,
+        categories=args.categories,
+        per_category=args.per_category,
+        seed=args.seed,
+        split_fractions=args.splits,
+        shard_size=args.shard_size,
+        sections=args.sections,
+        sensor=args.sensor,
+        touches=args.touches,
+        pinches=args.pinches,
+        position_noise=args.position_noise,
+        dropout=args.dropout,
+        views=args.views,
+        image_width=args.width,
+        image_height=args.height,
+        depth_noise=not args.no_depth_noise,
+        tactile_clouds=args.tactile_clouds,
+        mesh_source=args.meshes or "procedural",
     )
     manifest = generate_dataset(cfg, args.out, workers=args.workers)
-    print(json.dumps({s: {k: v for k, v in d.items() if k != "shards"} for s, d in manifest["splits"].items()}))
+    print(
+        json.dumps({s: {k: v for k, v in d.items() if k != "shards"} for s, d in manifest["splits"].items()})
+    )
     print(f"dataset in {args.out} (manifest.json)")
     return 0
 
@@ -47,7 +62,9 @@ def register(sub) -> None:
 
     p = sub.add_parser("gen-shapes", help="procedural category-level meshes (.obj + .json per instance)")
     p.add_argument("--out", required=True)
-    p.add_argument("--categories", type=_csv, default=list(CATEGORIES), help="comma-separated (default: all 12)")
+    p.add_argument(
+        "--categories", type=_csv, default=list(CATEGORIES), help="comma-separated (default: all 12)"
+    )
     p.add_argument("--per-category", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sections", type=int, default=48, help="angular resolution of revolved parts")
@@ -59,11 +76,17 @@ def register(sub) -> None:
     p.add_argument("--categories", type=_csv, default=list(CATEGORIES))
     p.add_argument("--per-category", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--splits", type=lambda s: [float(x) for x in s.split(",")], default=[0.7, 0.15, 0.15],
-                   help="train,val,test instance fractions")
+    p.add_argument(
+        "--splits",
+        type=lambda s: [float(x) for x in s.split(",")],
+        default=[0.7, 0.15, 0.15],
+        help="train,val,test instance fractions",
+    )
     p.add_argument("--shard-size", type=int, default=16, help="instances per shard")
     p.add_argument("--sections", type=int, default=48)
-    p.add_argument("--sensor", default="xela_4x4", help="xela_4x4 | xela_6x4 | xela_6x1 | contactile_3x3 | RxC@Pmm")
+    p.add_argument(
+        "--sensor", default="xela_4x4", help="xela_4x4 | xela_6x4 | xela_6x1 | contactile_3x3 | RxC@Pmm"
+    )
     p.add_argument("--touches", type=int, default=40, help="reconstruction: touches per instance")
     p.add_argument("--pinches", type=int, default=10, help="reconstruction: pinches per instance")
     p.add_argument("--position-noise", type=float, default=0.0, help="tactile position noise std (m)")
@@ -73,9 +96,12 @@ def register(sub) -> None:
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--height", type=int, default=240)
     p.add_argument("--no-depth-noise", action="store_true")
-    p.add_argument("--meshes", default=None,
-                   help="use real meshes instead of procedural ones: a ShapeNetCore v2, ModelNet40 or "
-                        "category-per-folder directory, or 'pybullet_data'")
+    p.add_argument(
+        "--meshes",
+        default=None,
+        help="use real meshes instead of procedural ones: a ShapeNetCore v2, ModelNet40 or "
+        "category-per-folder directory, or 'pybullet_data'",
+    )
     p.add_argument("--workers", type=int, default=1)
     p.set_defaults(func=_cmd_gen_data)
 

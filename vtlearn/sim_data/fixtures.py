@@ -15,9 +15,20 @@ TINY_CATEGORIES = ["mug", "bottle", "box"]
 
 
 def tiny_config(kind: str, seed: int = 0) -> GenConfig:
-    return GenConfig(kind=kind, categories=list(TINY_CATEGORIES), per_category=3, seed=seed, shard_size=2,
-                     sections=24, touches=16, pinches=4, views=2, image_width=160, image_height=120,
-                     tactile_clouds=2)
+    return GenConfig(
+        kind=kind,
+        categories=list(TINY_CATEGORIES),
+        per_category=3,
+        seed=seed,
+        shard_size=2,
+        sections=24,
+        touches=16,
+        pinches=4,
+        views=2,
+        image_width=160,
+        image_height=120,
+        tactile_clouds=2,
+    )
 
 
 def make_tiny_dataset(kind: str, out_dir: str | Path, seed: int = 0) -> Path:

@@ -25,12 +25,31 @@ log = logging.getLogger(__name__)
 
 MESH_EXTS = (".obj", ".off", ".ply", ".stl")
 SHAPENET_SYNSETS = {
-    "02876657": "bottle", "02946921": "can", "03797390": "mug", "02880940": "bowl", "03593526": "jar",
-    "02808440": "bathtub", "02747177": "trash_bin", "03642806": "laptop", "03991062": "pot",
-    "04401088": "telephone", "02942699": "camera", "03624134": "knife", "04074963": "remote",
+    "02876657": "bottle",
+    "02946921": "can",
+    "03797390": "mug",
+    "02880940": "bowl",
+    "03593526": "jar",
+    "02808440": "bathtub",
+    "02747177": "trash_bin",
+    "03642806": "laptop",
+    "03991062": "pot",
+    "04401088": "telephone",
+    "02942699": "camera",
+    "03624134": "knife",
+    "04074963": "remote",
 }
-NOMINAL_SIZE_M = {"bottle": 0.25, "can": 0.12, "mug": 0.12, "bowl": 0.16, "jar": 0.12, "cup": 0.1,
-                  "bunny": 0.15, "duck": 0.1, "teddy": 0.2}
+NOMINAL_SIZE_M = {
+    "bottle": 0.25,
+    "can": 0.12,
+    "mug": 0.12,
+    "bowl": 0.16,
+    "jar": 0.12,
+    "cup": 0.1,
+    "bunny": 0.15,
+    "duck": 0.1,
+    "teddy": 0.2,
+}
 DEFAULT_SIZE_M = 0.15
 
 
@@ -61,8 +80,10 @@ def _item(category: str, path: Path) -> dict:
 
 def scan_shapenet(root: str | Path) -> list[dict]:
     root = Path(root)
-    return [_item(SHAPENET_SYNSETS.get(p.parts[-4], p.parts[-4]), p)
-            for p in sorted(root.glob("*/*/models/model_normalized.obj"))]
+    return [
+        _item(SHAPENET_SYNSETS.get(p.parts[-4], p.parts[-4]), p)
+        for p in sorted(root.glob("*/*/models/model_normalized.obj"))
+    ]
 
 
 def scan_modelnet(root: str | Path) -> list[dict]:
@@ -79,9 +100,15 @@ def scan_pybullet_data(random_objects: int = 50) -> list[dict]:
     import pybullet_data
 
     d = Path(pybullet_data.getDataPath())
-    items = [_item("bunny", d / "bunny.obj"), _item("duck", d / "duck.obj"),
-             _item("teddy", d / "teddy2_VHACD_CHs.obj"), _item("mug", d / "objects" / "mug.obj")]
-    items += [_item("random_object", p) for p in sorted((d / "random_urdfs").glob("*/*.obj"))[:random_objects]]
+    items = [
+        _item("bunny", d / "bunny.obj"),
+        _item("duck", d / "duck.obj"),
+        _item("teddy", d / "teddy2_VHACD_CHs.obj"),
+        _item("mug", d / "objects" / "mug.obj"),
+    ]
+    items += [
+        _item("random_object", p) for p in sorted((d / "random_urdfs").glob("*/*.obj"))[:random_objects]
+    ]
     return items
 
 
@@ -95,8 +122,10 @@ def scan_mesh_folder(spec: str | Path, check: bool = True) -> list[dict]:
             raise FileNotFoundError(f"spec: no such mesh directory {root}")
         items = scan_shapenet(root) or scan_modelnet(root) or scan_category_folders(root)
         if not items:
-            raise ValueError(f"spec: no meshes found in {root} (expected ShapeNetCore v2, ModelNet40 or "
-                             "<category>/<mesh> folders)")
+            raise ValueError(
+                f"spec: no meshes found in {root} (expected ShapeNetCore v2, ModelNet40 or "
+                "<category>/<mesh> folders)"
+            )
     if not check:
         return items
     good = []

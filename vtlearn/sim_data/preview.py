@@ -26,11 +26,15 @@ def _instance_meshes(manifest: dict) -> dict[int, object]:
 
                 out[it["instance"]] = lambda it=it: normalize_mesh(read_mesh(it["file"]))[0]
             else:
-                out[it["instance"]] = lambda it=it: generate_shape(it["category"], it["seed"], cfg.sections)[0]
+                out[it["instance"]] = lambda it=it: generate_shape(it["category"], it["seed"], cfg.sections)[
+                    0
+                ]
     return out
 
 
-def write_preview(dataset: str | Path, out: str | Path | None = None, max_categories: int = 12, seed: int = 0) -> Path:
+def write_preview(
+    dataset: str | Path, out: str | Path | None = None, max_categories: int = 12, seed: int = 0
+) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -78,8 +82,15 @@ def write_preview(dataset: str | Path, out: str | Path | None = None, max_catego
             ax = fig.add_subplot(len(names), len(cols), r * len(cols) + c + 1, projection="3d")
             if col == "mesh" and inst in meshes:
                 m = meshes[inst]()
-                ax.plot_trisurf(m.vertices[:, 0], m.vertices[:, 1], m.vertices[:, 2], triangles=m.faces,
-                                color="tab:orange", linewidth=0, alpha=0.9)
+                ax.plot_trisurf(
+                    m.vertices[:, 0],
+                    m.vertices[:, 1],
+                    m.vertices[:, 2],
+                    triangles=m.faces,
+                    color="tab:orange",
+                    linewidth=0,
+                    alpha=0.9,
+                )
             elif col in clouds:
                 p = clouds[col]
                 ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=1 if len(p) > 500 else 6, c=p[:, 2], cmap="viridis")

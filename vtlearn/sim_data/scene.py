@@ -56,15 +56,30 @@ class Scene:
         self.objects: dict[int, SceneObject] = {}
         self.table_id: int | None = None
         if table:
-            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.6, 0.6, 0.01], physicsClientId=self.client)
-            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.6, 0.6, 0.01], rgbaColor=[0.55, 0.45, 0.35, 1],
-                                      physicsClientId=self.client)
-            self.table_id = p.createMultiBody(0, col, vis, basePosition=[0, 0, -0.01], physicsClientId=self.client)
+            col = p.createCollisionShape(
+                p.GEOM_BOX, halfExtents=[0.6, 0.6, 0.01], physicsClientId=self.client
+            )
+            vis = p.createVisualShape(
+                p.GEOM_BOX,
+                halfExtents=[0.6, 0.6, 0.01],
+                rgbaColor=[0.55, 0.45, 0.35, 1],
+                physicsClientId=self.client,
+            )
+            self.table_id = p.createMultiBody(
+                0, col, vis, basePosition=[0, 0, -0.01], physicsClientId=self.client
+            )
 
     # ------------------------------------------------------------------ objects
-    def add_mesh(self, mesh: trimesh.Trimesh, scale: float = 1.0, T_world_object: np.ndarray | None = None,
-                 fixed: bool = True, transparent: bool = False, rgba=(0.8, 0.3, 0.2, 1.0),
-                 mass: float = 0.2) -> int:
+    def add_mesh(
+        self,
+        mesh: trimesh.Trimesh,
+        scale: float = 1.0,
+        T_world_object: np.ndarray | None = None,
+        fixed: bool = True,
+        transparent: bool = False,
+        rgba=(0.8, 0.3, 0.2, 1.0),
+        mass: float = 0.2,
+    ) -> int:
         """Add ``mesh`` (vertices times ``scale`` = metres) at ``T_world_object``; returns the body id.
 
         A fixed object gets an exact concave triangle-mesh collider (what the taxel rays hit). A free
@@ -82,16 +97,29 @@ class Scene:
         idx = mesh_m.faces.astype(np.int32).ravel().tolist()
         kw = {"physicsClientId": self.client}
         if fixed:
-            col = p.createCollisionShape(p.GEOM_MESH, vertices=v, indices=idx,
-                                         flags=p.GEOM_FORCE_CONCAVE_TRIMESH, **kw)
+            col = p.createCollisionShape(
+                p.GEOM_MESH, vertices=v, indices=idx, flags=p.GEOM_FORCE_CONCAVE_TRIMESH, **kw
+            )
         else:
             hull = mesh_m.convex_hull
             col = p.createCollisionShape(p.GEOM_MESH, vertices=hull.vertices.tolist(), **kw)
         # Unit normals per vertex make TinyRenderer shading sane for revolved meshes.
-        vis = p.createVisualShape(p.GEOM_MESH, vertices=v, indices=idx, rgbaColor=list(rgba),
-                                  normals=mesh_m.vertex_normals.tolist(), **kw)
-        body = p.createMultiBody(0.0 if fixed else mass, col, vis, basePosition=T[:3, 3].tolist(),
-                                 baseOrientation=_xyzw(T[:3, :3]), **kw)
+        vis = p.createVisualShape(
+            p.GEOM_MESH,
+            vertices=v,
+            indices=idx,
+            rgbaColor=list(rgba),
+            normals=mesh_m.vertex_normals.tolist(),
+            **kw,
+        )
+        body = p.createMultiBody(
+            0.0 if fixed else mass,
+            col,
+            vis,
+            basePosition=T[:3, 3].tolist(),
+            baseOrientation=_xyzw(T[:3, :3]),
+            **kw,
+        )
         self.objects[body] = SceneObject(body, mesh_m, T, fixed, transparent)
         return body
 
@@ -108,7 +136,9 @@ class Scene:
         pos, q = p.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
         return pose_to_matrix(pos, q)
 
-    def ray_test(self, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def ray_test(
+        self, starts: np.ndarray, ends: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Batched ray casts. Returns (body ids (R,), hit fractions (R,), hit points (R, 3), normals (R, 3)).
 
         Missed rays have body id -1 and fraction 1.
@@ -116,8 +146,9 @@ class Scene:
         out = []
         # pybullet caps one batch at MAX_RAY_INTERSECTION_BATCH_SIZE (16k) rays.
         for i in range(0, len(starts), 16000):
-            out += p.rayTestBatch(starts[i:i + 16000].tolist(), ends[i:i + 16000].tolist(),
-                                  physicsClientId=self.client)
+            out += p.rayTestBatch(
+                starts[i : i + 16000].tolist(), ends[i : i + 16000].tolist(), physicsClientId=self.client
+            )
         ids = np.array([o[0] for o in out], dtype=np.int64)
         frac = np.array([o[2] for o in out], dtype=np.float64)
         pts = np.array([o[3] for o in out], dtype=np.float64).reshape(-1, 3)

@@ -153,8 +153,14 @@ def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 
 def _bottle(rng, sections):
-    p = {"height": _u(rng, 0.18, 0.32), "radius": _u(rng, 0.028, 0.045), "neck_radius": _u(rng, 0.01, 0.016),
-         "neck_height": _u(rng, 0.015, 0.05), "shoulder_frac": _u(rng, 0.12, 0.35), "bulge": _u(rng, 0.4, 1.6)}
+    p = {
+        "height": _u(rng, 0.18, 0.32),
+        "radius": _u(rng, 0.028, 0.045),
+        "neck_radius": _u(rng, 0.01, 0.016),
+        "neck_height": _u(rng, 0.015, 0.05),
+        "shoulder_frac": _u(rng, 0.12, 0.35),
+        "bulge": _u(rng, 0.4, 1.6),
+    }
     h, r, nr = p["height"], p["radius"], p["neck_radius"]
     z_sh = h - p["neck_height"] - 0.012
     z_body = z_sh - p["shoulder_frac"] * h
@@ -183,16 +189,25 @@ def _open_vessel(r_bottom, r_top, h, wall, base, sections, foot=None):
 
 
 def _cup(rng, sections):
-    p = {"height": _u(rng, 0.07, 0.13), "r_bottom": _u(rng, 0.022, 0.035), "flare": _u(rng, 0.005, 0.02),
-         "wall": _u(rng, 0.002, 0.004)}
+    p = {
+        "height": _u(rng, 0.07, 0.13),
+        "r_bottom": _u(rng, 0.022, 0.035),
+        "flare": _u(rng, 0.005, 0.02),
+        "wall": _u(rng, 0.002, 0.004),
+    }
     m = _open_vessel(p["r_bottom"], p["r_bottom"] + p["flare"], p["height"], p["wall"], 0.006, sections)
     return m, p
 
 
 def _mug(rng, sections):
-    p = {"height": _u(rng, 0.08, 0.12), "radius": _u(rng, 0.035, 0.05), "wall": _u(rng, 0.003, 0.006),
-         "handle_reach": _u(rng, 0.022, 0.04), "handle_span": _u(rng, 0.45, 0.75),
-         "handle_radius": _u(rng, 0.005, 0.008)}
+    p = {
+        "height": _u(rng, 0.08, 0.12),
+        "radius": _u(rng, 0.035, 0.05),
+        "wall": _u(rng, 0.003, 0.006),
+        "handle_reach": _u(rng, 0.022, 0.04),
+        "handle_span": _u(rng, 0.45, 0.75),
+        "handle_radius": _u(rng, 0.005, 0.008),
+    }
     h, r = p["height"], p["radius"]
     body = _open_vessel(r, r, h, p["wall"], 0.008, sections)
     zc, span = h * 0.52, p["handle_span"] * h / 2
@@ -201,16 +216,24 @@ def _mug(rng, sections):
 
 
 def _wineglass(rng, sections):
-    p = {"foot_radius": _u(rng, 0.028, 0.045), "stem_radius": _u(rng, 0.003, 0.005),
-         "stem_height": _u(rng, 0.045, 0.1), "bowl_radius": _u(rng, 0.032, 0.05), "bowl_height": _u(rng, 0.07, 0.12),
-         "rim_frac": _u(rng, 0.65, 1.0), "wall": 0.0015}
+    p = {
+        "foot_radius": _u(rng, 0.028, 0.045),
+        "stem_radius": _u(rng, 0.003, 0.005),
+        "stem_height": _u(rng, 0.045, 0.1),
+        "bowl_radius": _u(rng, 0.032, 0.05),
+        "bowl_height": _u(rng, 0.07, 0.12),
+        "rim_frac": _u(rng, 0.65, 1.0),
+        "wall": 0.0015,
+    }
     fr, sr, sh = p["foot_radius"], p["stem_radius"], p["stem_height"]
     br, bh, w = p["bowl_radius"], p["bowl_height"], p["wall"]
     z0 = 0.004 + sh
     # Bowl outline: from the stem, widen like a sphere to br, then narrow to the rim radius.
     t = np.linspace(0.05, 1.0, 14)
     ang = t * (np.pi / 2 + np.arccos(np.clip(p["rim_frac"], -1, 1)))
-    outer = np.stack([np.maximum(br * np.sin(ang), sr), z0 + bh * (1 - np.cos(ang)) / (1 - np.cos(ang[-1]))], 1)
+    outer = np.stack(
+        [np.maximum(br * np.sin(ang), sr), z0 + bh * (1 - np.cos(ang)) / (1 - np.cos(ang[-1]))], 1
+    )
     inner = outer[::-1].copy()
     inner[:, 0] = np.maximum(inner[:, 0] - w, 0.0)
     inner = inner[inner[:, 1] > z0 + 0.006]
@@ -220,9 +243,14 @@ def _wineglass(rng, sections):
 
 
 def _spray_bottle(rng, sections):
-    p = {"height": _u(rng, 0.13, 0.2), "radius": _u(rng, 0.03, 0.045), "neck_radius": _u(rng, 0.012, 0.016),
-         "head_height": _u(rng, 0.035, 0.055), "head_length": _u(rng, 0.05, 0.075),
-         "trigger_length": _u(rng, 0.025, 0.045)}
+    p = {
+        "height": _u(rng, 0.13, 0.2),
+        "radius": _u(rng, 0.03, 0.045),
+        "neck_radius": _u(rng, 0.012, 0.016),
+        "head_height": _u(rng, 0.035, 0.055),
+        "head_length": _u(rng, 0.05, 0.075),
+        "trigger_length": _u(rng, 0.025, 0.045),
+    }
     h, r, nr = p["height"], p["radius"], p["neck_radius"]
     prof = [[0, 0], [r, 0], [r, h * 0.8]] + _arc(r, h * 0.8, nr, h * 0.92, 6).tolist() + [[nr, h], [0, h]]
     body = _revolve(prof, sections)
@@ -237,9 +265,14 @@ def _spray_bottle(rng, sections):
 
 
 def _detergent_bottle(rng, sections):
-    p = {"height": _u(rng, 0.18, 0.28), "half_width": _u(rng, 0.04, 0.065), "half_depth": _u(rng, 0.025, 0.04),
-         "squareness": _u(rng, 3.0, 6.0), "cap_radius": _u(rng, 0.015, 0.022),
-         "handle_radius": _u(rng, 0.007, 0.011)}
+    p = {
+        "height": _u(rng, 0.18, 0.28),
+        "half_width": _u(rng, 0.04, 0.065),
+        "half_depth": _u(rng, 0.025, 0.04),
+        "squareness": _u(rng, 3.0, 6.0),
+        "cap_radius": _u(rng, 0.015, 0.022),
+        "handle_radius": _u(rng, 0.007, 0.011),
+    }
     h, a, b = p["height"], p["half_width"], p["half_depth"]
     prof = [[0, 0], [0.96, 0], [1.0, 0.01], [1.0, h * 0.78]]
     prof += _arc(1.0, h * 0.78, 0.35, h * 0.9, 6).tolist() + [[0.35, h * 0.9], [0, h * 0.9]]
@@ -247,8 +280,14 @@ def _detergent_bottle(rng, sections):
     cap = _cylinder(p["cap_radius"], h * 0.9 - 0.004, h, 24, xy=(-a * 0.35, 0))
     # Handle arches over the back-right shoulder from the top of the body to the upper side wall.
     t = np.linspace(0, np.pi / 2, 14)
-    path = np.stack([a * 0.2 + (a * 0.78) * np.sin(t), np.zeros_like(t),
-                     h * 0.86 + 0.03 * np.cos(t) - 0.1 * h * (1 - np.cos(t)) * np.sin(t)], 1)
+    path = np.stack(
+        [
+            a * 0.2 + (a * 0.78) * np.sin(t),
+            np.zeros_like(t),
+            h * 0.86 + 0.03 * np.cos(t) - 0.1 * h * (1 - np.cos(t)) * np.sin(t),
+        ],
+        1,
+    )
     handle = _tube(path, p["handle_radius"])
     return trimesh.util.concatenate([body, cap, handle]), p
 
@@ -259,24 +298,38 @@ def _box_shape(rng, sections):
 
 
 def _jar(rng, sections):
-    p = {"height": _u(rng, 0.07, 0.15), "radius": _u(rng, 0.035, 0.06), "shoulder": _u(rng, 0.005, 0.02),
-         "lid_height": _u(rng, 0.012, 0.03), "lid_overhang": _u(rng, 0.0, 0.004)}
+    p = {
+        "height": _u(rng, 0.07, 0.15),
+        "radius": _u(rng, 0.035, 0.06),
+        "shoulder": _u(rng, 0.005, 0.02),
+        "lid_height": _u(rng, 0.012, 0.03),
+        "lid_overhang": _u(rng, 0.0, 0.004),
+    }
     h, r, s = p["height"], p["radius"], p["shoulder"]
     neck = r - s
     lid = neck + p["lid_overhang"]
     hb = h - p["lid_height"]
-    prof = [[0, 0], [r - 0.004, 0], [r, 0.004], [r, hb - s - 0.004]] + _arc(r, hb - s - 0.004, neck, hb, 5).tolist()
+    prof = [[0, 0], [r - 0.004, 0], [r, 0.004], [r, hb - s - 0.004]] + _arc(
+        r, hb - s - 0.004, neck, hb, 5
+    ).tolist()
     prof += [[lid, hb], [lid, h - 0.002], [lid - 0.002, h], [0, h]]
     return _revolve(prof, sections), p
 
 
 def _bowl(rng, sections):
-    p = {"radius": _u(rng, 0.06, 0.1), "height": _u(rng, 0.04, 0.08), "foot_frac": _u(rng, 0.3, 0.5),
-         "wall": _u(rng, 0.003, 0.006), "roundness": _u(rng, 0.6, 1.4)}
+    p = {
+        "radius": _u(rng, 0.06, 0.1),
+        "height": _u(rng, 0.04, 0.08),
+        "foot_frac": _u(rng, 0.3, 0.5),
+        "wall": _u(rng, 0.003, 0.006),
+        "roundness": _u(rng, 0.6, 1.4),
+    }
     r, h, w = p["radius"], p["height"], p["wall"]
     foot = r * p["foot_frac"]
     t = np.linspace(0.0, 1.0, 12)
-    outer = np.stack([foot + (r - foot) * np.sin(t * np.pi / 2) ** p["roundness"], 0.006 + (h - 0.006) * t], 1)
+    outer = np.stack(
+        [foot + (r - foot) * np.sin(t * np.pi / 2) ** p["roundness"], 0.006 + (h - 0.006) * t], 1
+    )
     inner = outer[::-1].copy()
     inner[:, 0] -= w
     inner[-1] = [0.0, inner[-1, 1]]
@@ -289,7 +342,11 @@ def _bowl(rng, sections):
 
 
 def _tape_roll(rng, sections):
-    p = {"outer_radius": _u(rng, 0.04, 0.065), "inner_frac": _u(rng, 0.55, 0.8), "width": _u(rng, 0.012, 0.05)}
+    p = {
+        "outer_radius": _u(rng, 0.04, 0.065),
+        "inner_frac": _u(rng, 0.55, 0.8),
+        "width": _u(rng, 0.012, 0.05),
+    }
     ro, w = p["outer_radius"], p["width"]
     ri = ro * p["inner_frac"]
     prof = [[ri, 0], [ro, 0], [ro, w], [ri, w], [ri, 0]]
@@ -297,22 +354,40 @@ def _tape_roll(rng, sections):
 
 
 def _shampoo_bottle(rng, sections):
-    p = {"height": _u(rng, 0.14, 0.24), "half_width": _u(rng, 0.03, 0.045), "depth_ratio": _u(rng, 0.4, 0.7),
-         "taper": _u(rng, 0.7, 1.0), "cap_height": _u(rng, 0.02, 0.04)}
+    p = {
+        "height": _u(rng, 0.14, 0.24),
+        "half_width": _u(rng, 0.03, 0.045),
+        "depth_ratio": _u(rng, 0.4, 0.7),
+        "taper": _u(rng, 0.7, 1.0),
+        "cap_height": _u(rng, 0.02, 0.04),
+    }
     h, a, hc = p["height"], p["half_width"], p["cap_height"]
     hb = h - hc
     prof = [[0, 0], [0.9 * p["taper"], 0], [p["taper"], 0.012], [1.0, hb * 0.6], [0.95, hb * 0.85]]
     prof += _arc(0.95, hb * 0.85, 0.55, hb, 4).tolist() + [[0, hb]]
     body = _superellipse_warp(_revolve(prof, sections), a, a * p["depth_ratio"], 2.0)
-    cap = _superellipse_warp(_revolve([[0, hb - 0.003], [0.55, hb - 0.003], [0.55, h], [0, h]], sections),
-                             a, a * p["depth_ratio"], 2.0)
+    cap = _superellipse_warp(
+        _revolve([[0, hb - 0.003], [0.55, hb - 0.003], [0.55, h], [0, h]], sections),
+        a,
+        a * p["depth_ratio"],
+        2.0,
+    )
     return trimesh.util.concatenate([body, cap]), p
 
 
 _BUILDERS: dict[str, Callable] = {
-    "bottle": _bottle, "can": _can, "cup": _cup, "mug": _mug, "wineglass": _wineglass,
-    "spray_bottle": _spray_bottle, "detergent_bottle": _detergent_bottle, "box": _box_shape, "jar": _jar,
-    "bowl": _bowl, "tape_roll": _tape_roll, "shampoo_bottle": _shampoo_bottle,
+    "bottle": _bottle,
+    "can": _can,
+    "cup": _cup,
+    "mug": _mug,
+    "wineglass": _wineglass,
+    "spray_bottle": _spray_bottle,
+    "detergent_bottle": _detergent_bottle,
+    "box": _box_shape,
+    "jar": _jar,
+    "bowl": _bowl,
+    "tape_roll": _tape_roll,
+    "shampoo_bottle": _shampoo_bottle,
 }
 
 
@@ -365,8 +440,14 @@ def instance_seed(seed: int, category: str, index: int) -> int:
     return int(ss.generate_state(1, dtype=np.uint32)[0])
 
 
-def write_shapes(out_dir: str | Path, categories: Sequence[str] = CATEGORIES, per_category: int = 10,
-                 seed: int = 0, sections: int = 48, progress: bool = True) -> list[dict]:
+def write_shapes(
+    out_dir: str | Path,
+    categories: Sequence[str] = CATEGORIES,
+    per_category: int = 10,
+    seed: int = 0,
+    sections: int = 48,
+    progress: bool = True,
+) -> list[dict]:
     """Write ``<out>/<category>/<category>_<i>.obj`` + ``.json`` for each instance; returns the records."""
     from tqdm import tqdm
 

@@ -84,9 +84,13 @@ class TouchResult:
         if not results:
             return TouchResult()
         return TouchResult(
-            np.concatenate([r.points for r in results]), np.concatenate([r.normals for r in results]),
-            np.concatenate([r.forces for r in results]), np.concatenate([r.taxel_ids for r in results]),
-            np.concatenate([r.body_ids for r in results]), results[-1].T_world_pad)
+            np.concatenate([r.points for r in results]),
+            np.concatenate([r.normals for r in results]),
+            np.concatenate([r.forces for r in results]),
+            np.concatenate([r.taxel_ids for r in results]),
+            np.concatenate([r.body_ids for r in results]),
+            results[-1].T_world_pad,
+        )
 
 
 def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
@@ -121,8 +125,13 @@ class TactileSimulator:
             contact with anything else (the table) stops the pad but yields no tactile point.
     """
 
-    def __init__(self, scene: Scene, sensor: TaxelSensor | str = "xela_4x4",
-                 config: TactileConfig | None = None, objects: list[int] | None = None):
+    def __init__(
+        self,
+        scene: Scene,
+        sensor: TaxelSensor | str = "xela_4x4",
+        config: TactileConfig | None = None,
+        objects: list[int] | None = None,
+    ):
         self.scene = scene
         self.sensor = get_sensor(sensor)
         self.config = config or TactileConfig()
@@ -134,7 +143,9 @@ class TactileSimulator:
         objs = list(self.scene.objects) if self.objects is None else self.objects
         return np.isin(ids, objs)
 
-    def touch(self, start, direction, roll: float = 0.0, rng: np.random.Generator | None = None) -> TouchResult:
+    def touch(
+        self, start, direction, roll: float = 0.0, rng: np.random.Generator | None = None
+    ) -> TouchResult:
         """Guarded touch along ``direction`` from ``start`` (world frame, metres)."""
         return self.touch_from(pad_frame(start, direction, roll), rng)
 
@@ -169,11 +180,23 @@ class TactileSimulator:
         if cfg.position_noise > 0:
             rng = rng if rng is not None else np.random.default_rng()
             points += rng.normal(scale=cfg.position_noise, size=points.shape)
-        return TouchResult(points, nrm[idx].copy(), force[idx].copy(), idx.astype(np.int64),
-                           ids[idx].astype(np.int64), T_stop)
+        return TouchResult(
+            points,
+            nrm[idx].copy(),
+            force[idx].copy(),
+            idx.astype(np.int64),
+            ids[idx].astype(np.int64),
+            T_stop,
+        )
 
-    def pinch(self, center, axis_angle: float, width: float, approach_height: float = 0.1,
-              rng: np.random.Generator | None = None) -> TouchResult:
+    def pinch(
+        self,
+        center,
+        axis_angle: float,
+        width: float,
+        approach_height: float = 0.1,
+        rng: np.random.Generator | None = None,
+    ) -> TouchResult:
         """Pinch from above: descend two facing pads to ``center`` and close them along an xy axis.
 
         Args:
@@ -226,8 +249,15 @@ def bbox_faces(lo, hi):
     return faces
 
 
-def sample_touches(lo, hi, n: int, rng: np.random.Generator, standoff: float = 0.03,
-                   mode: str = "random", margin: float = 0.9) -> list[tuple[np.ndarray, np.ndarray, float]]:
+def sample_touches(
+    lo,
+    hi,
+    n: int,
+    rng: np.random.Generator,
+    standoff: float = 0.03,
+    mode: str = "random",
+    margin: float = 0.9,
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Touch actions (start, direction, roll) on the bounding-box faces except the bottom.
 
     ``mode="random"`` picks faces with probability proportional to area and points uniformly on them

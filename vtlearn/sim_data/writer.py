@@ -91,8 +91,10 @@ class GenConfig:
         if self.shard_size < 1:
             raise ValueError(f"shard_size: need >= 1, got {self.shard_size}")
         if not 1 <= self.tactile_min_points <= self.tactile_max_points:
-            raise ValueError("tactile_min_points/tactile_max_points: need 1 <= min <= max, "
-                             f"got {self.tactile_min_points}, {self.tactile_max_points}")
+            raise ValueError(
+                "tactile_min_points/tactile_max_points: need 1 <= min <= max, "
+                f"got {self.tactile_min_points}, {self.tactile_max_points}"
+            )
 
 
 # --------------------------------------------------------------------------- planning
@@ -117,16 +119,20 @@ def plan_instances(cfg: GenConfig, mesh_items: list[dict] | None = None) -> dict
     plan: dict[str, list[dict]] = {s: [] for s in SPLITS}
     for label, cat in enumerate(cfg.categories):
         if mesh_items is None:
-            items = [{"category": cat, "label": label, "index": i, "seed": instance_seed(cfg.seed, cat, i)}
-                     for i in range(cfg.per_category)]
+            items = [
+                {"category": cat, "label": label, "index": i, "seed": instance_seed(cfg.seed, cat, i)}
+                for i in range(cfg.per_category)
+            ]
         else:
-            items = [dict(m, label=label, index=i) for i, m in enumerate(
-                [m for m in mesh_items if m["category"] == cat][: cfg.per_category])]
+            items = [
+                dict(m, label=label, index=i)
+                for i, m in enumerate([m for m in mesh_items if m["category"] == cat][: cfg.per_category])
+            ]
         order = rng.permutation(len(items))
         counts = _split_counts(len(items), cfg.split_fractions)
         start = 0
         for split, c in zip(SPLITS, counts, strict=True):
-            plan[split] += [items[j] for j in sorted(order[start:start + c])]
+            plan[split] += [items[j] for j in sorted(order[start : start + c])]
             start += c
     for i, items in enumerate(plan.values()):
         for j, it in enumerate(items):
@@ -139,8 +145,14 @@ def plan_shards(cfg: GenConfig, plan: dict[str, list[dict]]) -> list[dict]:
     for split in SPLITS:
         items = plan[split]
         for k in range(0, len(items), cfg.shard_size):
-            jobs.append({"name": f"{split}-{k // cfg.shard_size:05d}.npz", "split": split,
-                         "shard": k // cfg.shard_size, "items": items[k:k + cfg.shard_size]})
+            jobs.append(
+                {
+                    "name": f"{split}-{k // cfg.shard_size:05d}.npz",
+                    "split": split,
+                    "shard": k // cfg.shard_size,
+                    "items": items[k : k + cfg.shard_size],
+                }
+            )
     return jobs
 
 
@@ -253,11 +265,25 @@ def generate_shard(cfg: GenConfig, job: dict) -> dict[str, np.ndarray]:
     tcfg = TactileConfig(position_noise=cfg.position_noise, dropout=cfg.dropout)
     cam = None
     if cfg.kind == "crossmodal":
-        cam = RGBDCamera(cfg.image_width, cfg.image_height,
-                         noise=DepthNoise() if cfg.depth_noise else DepthNoise.off())
-    out: dict[str, list] = {k: [] for k in ("dense", "label", "instance", "scale_m", "transparent",
-                                            "tactile", "tactile_label", "tactile_instance",
-                                            "visual", "visual_label", "visual_instance")}
+        cam = RGBDCamera(
+            cfg.image_width, cfg.image_height, noise=DepthNoise() if cfg.depth_noise else DepthNoise.off()
+        )
+    out: dict[str, list] = {
+        k: []
+        for k in (
+            "dense",
+            "label",
+            "instance",
+            "scale_m",
+            "transparent",
+            "tactile",
+            "tactile_label",
+            "tactile_instance",
+            "visual",
+            "visual_label",
+            "visual_instance",
+        )
+    }
     with Scene() as scene:
         for item in job["items"]:
             mesh, scale, transparent = _load_mesh(item, cfg)
@@ -326,16 +352,26 @@ def _run_job(cfg_dict: dict, job: dict, out_dir: str) -> dict:
     arrays = generate_shard(cfg, job)
     out = Path(out_dir)
     digest = write_npz_atomic(out / job["name"], arrays)
-    meta = {"file": job["name"], "split": job["split"], "sha256": digest,
-            "instances": int(len(arrays["label"])), "tactile_clouds": int(len(arrays["tactile_label"])),
-            "visual_clouds": int(len(arrays.get("visual_label", ())))}
+    meta = {
+        "file": job["name"],
+        "split": job["split"],
+        "sha256": digest,
+        "instances": int(len(arrays["label"])),
+        "tactile_clouds": int(len(arrays["tactile_label"])),
+        "visual_clouds": int(len(arrays.get("visual_label", ()))),
+    }
     write_json_atomic(out / (job["name"] + ".json"), meta)
     return meta
 
 
 # --------------------------------------------------------------------------- driver
-def generate_dataset(cfg: GenConfig, out_dir: str | Path, workers: int = 1, progress: bool = True,
-                     max_shards: int | None = None) -> dict:
+def generate_dataset(
+    cfg: GenConfig,
+    out_dir: str | Path,
+    workers: int = 1,
+    progress: bool = True,
+    max_shards: int | None = None,
+) -> dict:
     """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests)."""
     from tqdm import tqdm
 
@@ -363,7 +399,9 @@ def generate_dataset(cfg: GenConfig, out_dir: str | Path, workers: int = 1, prog
     if max_shards is not None:
         todo = todo[:max_shards]
     log.info("gen-data %s: %d shards, %d already done", cfg.kind, len(jobs), len(jobs) - len(todo))
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=f"gen-data {cfg.kind}", disable=not progress)
+    bar = tqdm(
+        total=len(jobs), initial=len(jobs) - len(todo), desc=f"gen-data {cfg.kind}", disable=not progress
+    )
     if workers <= 1:
         for j in todo:
             done[j["name"]] = _run_job(cfg_dict, j, str(out))
@@ -387,10 +425,15 @@ def generate_dataset(cfg: GenConfig, out_dir: str | Path, workers: int = 1, prog
         "class_names": list(cfg.categories),
         "num_classes": len(cfg.categories),
         "config": cfg_dict,
-        "splits": {s: {"instances": sum(m["instances"] for m in shards if m["split"] == s),
-                       "tactile_clouds": sum(m["tactile_clouds"] for m in shards if m["split"] == s),
-                       "visual_clouds": sum(m["visual_clouds"] for m in shards if m["split"] == s),
-                       "shards": [m["file"] for m in shards if m["split"] == s]} for s in SPLITS},
+        "splits": {
+            s: {
+                "instances": sum(m["instances"] for m in shards if m["split"] == s),
+                "tactile_clouds": sum(m["tactile_clouds"] for m in shards if m["split"] == s),
+                "visual_clouds": sum(m["visual_clouds"] for m in shards if m["split"] == s),
+                "shards": [m["file"] for m in shards if m["split"] == s],
+            }
+            for s in SPLITS
+        },
         "shards": shards,
     }
     write_json_atomic(out / "manifest.json", manifest)
