@@ -129,3 +129,15 @@ def test_bad_input_raises_value_error():
         detect_transparent([0, 0, 1, 1], np.zeros((0, 3)), omega=0.0)
     with pytest.raises(ValueError, match="candidates"):
         next_best_action(OccupancyGrid([0, 0, 0], 0.1, (2, 2, 2)), [])
+
+
+def test_default_costs_pick_views_for_opaque_and_touches_for_transparent():
+    from vtlearn.active.actions import OrientedBox, sample_touch_actions, sample_view_actions
+
+    box = OrientedBox.from_aabb([-0.04, -0.04, 0.0], [0.04, 0.04, 0.15])
+    grid = OccupancyGrid.from_bounds(box.center - 0.1, box.center + 0.1, cells_per_axis=32)
+    touches = sample_touch_actions(box, 20, seed=0)
+    views = sample_view_actions(box.center, 0.5, 5, seed=0)
+    cands = [(touches, TactileArray("xela_4x4", ray_length=0.2)), (views, ToFCamera())]
+    assert next_best_action(grid, cands, transparent=False).kind == "view"
+    assert next_best_action(grid, cands, transparent=True).kind == "touch"
