@@ -255,3 +255,14 @@ def test_strided_conv_transpose_matches_pytorch():
     ref = torch.nn.functional.conv_transpose1d(x, layer.weight, layer.bias, stride=4)
     torch.testing.assert_close(layer(x), ref)
     assert layer(x).shape == (2, 3, 24)
+
+
+def test_chamfer_hausdorff_equals_foundation_metrics():
+    from vtlearn.geometry.metrics import chamfer_distance, hausdorff_distance
+    from vtlearn.models.actor import chamfer_hausdorff
+
+    torch.manual_seed(5)
+    x, y = torch.randn(3, 11, 3, dtype=torch.float64), torch.randn(3, 8, 3, dtype=torch.float64)
+    cd, hd = chamfer_hausdorff(x, y)
+    torch.testing.assert_close(cd, chamfer_distance(x, y, reduction="none"))
+    torch.testing.assert_close(hd, hausdorff_distance(x, y, reduction="none"))

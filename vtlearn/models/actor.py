@@ -29,13 +29,13 @@ import torch
 from torch import Tensor
 from torchmetrics import MeanMetric, MinMetric
 
-from vtlearn.geometry.metrics import chamfer_distance, earth_movers_distance, hausdorff_distance
+from vtlearn.geometry.metrics import earth_movers_distance
 from vtlearn.models.components.actor_decoder import ActorDecoder
 from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import lengths_to_mask
 from vtlearn.validation import as_points
 
-__all__ = ["ACTOR", "actor_loss", "load_actor", "reconstruct", "read_lightning_checkpoint", "bn_momentum_at"]
+__all__ = ["ACTOR", "actor_loss", "chamfer_hausdorff", "load_actor", "reconstruct", "read_lightning_checkpoint", "bn_momentum_at"]
 
 
 def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -81,6 +81,21 @@ def actor_loss(pred: Tensor, target: Tensor, alpha: float = 100.0, target_length
         mask = lengths_to_mask(target_lengths, target.shape[1]).to(pred.dtype)
         target_to_pred = (t2p * mask).sum(dim=1) / target_lengths.to(pred.dtype)
     return alpha * (pred_to_target + target_to_pred).mean()
+
+
+@torch.no_grad()
+def chamfer_hausdorff(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
+    """Per-sample Chamfer (eq. 8.1) and Hausdorff (eq. 8.6) distances from one distance matrix.
+
+    Same values as :func:`vtlearn.geometry.metrics.chamfer_distance` / ``hausdorff_distance`` with
+    ``reduction="none"`` (tested), at a quarter of their distance-matrix work; used for logging.
+
+    Shapes:
+        x (B, N, 3), y (B, M, 3) -> cd (B,), hd (B,)
+    """
+    d = torch.cdist(x, y)  # B x N x M
+    dx, dy = d.min(dim=2).values, d.min(dim=1).values
+    return dx.mean(dim=1) + dy.mean(dim=1), torch.maximum(dx.amax(dim=1), dy.amax(dim=1))
 
 
 def bn_momentum_at(samples_seen: int, init: float = 0.5, rate: float = 0.5, step: int = 200_000,
@@ -207,8 +222,7 @@ class ACTOR(L.LightningModule):
     def _distances_mm(self, pred: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
         """Per-sample CD, HD, EMD in millimetres (eq. 8.1, 8.6, 8.7). Shapes: 3 x (B,)."""
         dense = batch["dense"].to(pred.dtype)
-        cd = chamfer_distance(pred, dense, reduction="none")
-        hd = hausdorff_distance(pred, dense, reduction="none")
+        cd, hd = chamfer_hausdorff(pred.detach(), dense)
         emd = []
         gen = torch.Generator().manual_seed(0)
         n_emd = int(self.hparams.emd_points)
