@@ -219,6 +219,12 @@ def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
     assert results["vtloss"] < results["none"], results
 
 
+def test_single_cloud_training_batch_is_skipped():
+    model = XAVTNet(**TINY).train()
+    batch = {"points": torch.randn(1, 5, 3), "lengths": torch.tensor([5]), "label": torch.tensor([0])}
+    assert model.training_step(batch, 0) is None
+
+
 def test_checkpoint_round_trip_weights_only(tmp_path):
     torch.manual_seed(0)
     model = XAVTNet(**TINY, da_method="dann", da_layers=["fc1"], max_points=30)

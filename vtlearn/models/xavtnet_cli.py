@@ -35,14 +35,19 @@ VARIANTS: dict[str, dict] = {
     "vtloss": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"]},
     "dann": {"da_method": "dann"},
 }
+AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
+               "warm_start": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
                     "vtloss": 81.25}
 
 
 def load_config(path: str | None) -> dict:
-    """``{"model": init_args, "data": init_args, "trainer": {...}}`` from a LightningCLI YAML (safe_load)."""
+    """``{"model": init_args, "data": init_args, "trainer": {...}, "active": {...}}`` from a LightningCLI YAML.
+
+    Read with ``yaml.safe_load``; ``active`` is the bench-only section of configs/active_learning.yaml.
+    """
     if path is None:
-        return {"model": {}, "data": {}, "trainer": {}}
+        return {"model": {}, "data": {}, "trainer": {}, "active": {}}
     import yaml
 
     with open(path) as f:
@@ -54,7 +59,8 @@ def load_config(path: str | None) -> dict:
         sec = raw.get(section) or {}
         return dict(sec.get("init_args", {}) or {}) if isinstance(sec, dict) else {}
 
-    return {"model": init_args("model"), "data": init_args("data"), "trainer": dict(raw.get("trainer") or {})}
+    return {"model": init_args("model"), "data": init_args("data"), "trainer": dict(raw.get("trainer") or {}),
+            "active": dict(raw.get("active") or {})}
 
 
 def _quiet_lightning() -> None:
@@ -260,9 +266,14 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
         data_kwargs["modality"] = args.modality
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
-    al = dict(cfg.get("active", {}) or {})
+    al = {**AL_DEFAULTS, **cfg["active"]}
+    for key in AL_DEFAULTS:
+        if getattr(args, key, None) is not None:
+            al[key] = getattr(args, key)
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 10))
-    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    strategies = al["strategies"]
+    if isinstance(strategies, str):
+        strategies = [s.strip() for s in strategies.split(",") if s.strip()]
     seeds = list(range(args.seed, args.seed + args.seeds))
     base = {k: v for k, v in cfg["model"].items() if k != "num_classes"}
     base.setdefault("da_method", "none")
@@ -286,10 +297,10 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     for strategy in strategies:
         runs = []
         for seed in seeds:
-            dm = ActivePoolDataModule(initial_labels=args.n0, seed=seed, **data_kwargs)
-            loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=args.kappa, rounds=args.rounds,
-                                      mc_passes=args.mc_passes, max_epochs=max_epochs,
-                                      warm_start=args.warm_start, seed=seed)
+            dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
+            loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
+                                      mc_passes=al["mc_passes"], max_epochs=max_epochs,
+                                      warm_start=bool(al["warm_start"]), seed=seed)
             runs.append(loop.history_dicts() if loop.run() else [])
         n = [h["n_labels"] for h in runs[0]]
         acc = np.array([[h["accuracy"] for h in r] for r in runs])
@@ -337,9 +348,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     print(f"plot: {plot}")
     write_json(args.json, {
         "bench": "active-learning", "config": args.config, "data": data_kwargs, "pool_size": pool,
-        "n0": args.n0, "kappa": args.kappa, "rounds": args.rounds, "mc_passes": args.mc_passes,
-        "max_epochs": max_epochs, "warm_start": args.warm_start, "seeds": seeds, "full_acc": full,
-        "curves": curves, "table_7_1": rows, "ratio_entropy_random_2pct": ratio, "unused_config_active": al,
+        "active": al, "max_epochs": max_epochs, "seeds": seeds, "full_acc": full,
+        "curves": curves, "table_7_1": rows, "ratio_entropy_random_2pct": ratio,
         "machine": machine_info(),
     })
     print(f"wrote {args.json}")
@@ -365,12 +375,14 @@ def register_bench(sub) -> None:
     q.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/active_learning.yaml)")
     q.add_argument("--data", default=None, help="dataset dir (overrides the config's data_dir)")
     q.add_argument("--modality", default=None, help="visual (thesis) or tactile; default from the config")
-    q.add_argument("--strategies", default="entropy,random", help="comma list of entropy, bald, random")
-    q.add_argument("--n0", type=int, default=24, help="initial random labels")
-    q.add_argument("--kappa", type=int, default=24, help="queries per round")
-    q.add_argument("--rounds", type=int, default=6)
-    q.add_argument("--mc-passes", type=int, default=20, help="T of eq. 7.3")
-    q.add_argument("--warm-start", action="store_true", help="fine-tune between rounds (default: from scratch)")
+    # None = take the config's `active:` section, else AL_DEFAULTS
+    q.add_argument("--strategies", default=None, help="comma list of entropy, bald, random")
+    q.add_argument("--n0", type=int, default=None, help="initial random labels")
+    q.add_argument("--kappa", type=int, default=None, help="queries per round")
+    q.add_argument("--rounds", type=int, default=None)
+    q.add_argument("--mc-passes", dest="mc_passes", type=int, default=None, help="T of eq. 7.3")
+    q.add_argument("--warm-start", dest="warm_start", action="store_const", const=True, default=None,
+                   help="fine-tune between rounds (default: retrain from scratch)")
     q.add_argument("--seeds", type=int, default=2)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--max-epochs", type=int, default=None)

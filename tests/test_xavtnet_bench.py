@@ -1,0 +1,88 @@
+"""Smoke tests of `vtlearn bench crossmodal` / `bench active-learning` on the tiny simulated dataset,
+and consistency of the ablation configs with the bench's variant table."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from vtlearn.models.xavtnet_cli import VARIANTS, load_config
+from vtlearn.models.xavtnet import XAVTNet
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ablation_configs_match_bench_variants():
+    for name, overrides in VARIANTS.items():
+        cfg = yaml.safe_load((ROOT / "configs" / "xavtnet_ablation" / f"{name}.yaml").read_text())
+        assert cfg["model"]["class_path"] == "vtlearn.models.xavtnet.XAVTNet"
+        args = cfg["model"]["init_args"]
+        for key, value in overrides.items():
+            assert args[key] == value, (name, key)
+
+
+@pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "active_learning.yaml",
+                                  "quick/active_learning.yaml"])
+def test_configs_build_the_model(path):
+    cfg = load_config(str(ROOT / "configs" / path))
+    model = XAVTNet(**cfg["model"])
+    assert model.hparams.num_classes == 12
+    assert cfg["trainer"]["max_epochs"] >= 1
+
+
+@pytest.fixture(scope="module")
+def tiny_crossmodal(tmp_path_factory):
+    from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
+
+
+def _tiny_config(tmp_path, data_dir, active=False):
+    cfg = {
+        "model": {"class_path": "vtlearn.models.xavtnet.XAVTNet",
+                  "init_args": {"global_dim": 32, "fc_dims": [16, 8], "max_points": 64}},
+        "data": {"init_args": {"data_dir": str(data_dir), "batch_size": 4}},
+        "trainer": {"max_epochs": 1},
+    }
+    if active:
+        cfg["data"]["init_args"]["modality"] = "visual"
+        cfg["active"] = {"strategies": "entropy,random", "n0": 3, "kappa": 2, "rounds": 1, "mc_passes": 2}
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.mark.slow  # the tiny simulated dataset alone takes ~1 min of pybullet on 2 shared cores
+def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
+    from vtlearn.cli import main
+
+    cfg = _tiny_config(tmp_path, tiny_crossmodal)
+    out = tmp_path / "cm.json"
+    rc = main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
+               "--json", str(out), "--out-dir", str(tmp_path / "fig")])
+    assert rc == 0
+    res = json.loads(out.read_text())
+    assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
+    assert len(res["runs"]) == 4 and all(0 <= r["tactile_acc"] <= 100 for r in res["runs"])
+    assert "vtloss_minus_noda" in res["checks"]
+    assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
+    assert "Table 7.2/7.4 analogue" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
+    from vtlearn.cli import main
+
+    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    out = tmp_path / "al.json"
+    rc = main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out),
+               "--plot", str(tmp_path / "al.png")])
+    assert rc == 0
+    res = json.loads(out.read_text())
+    for strategy in ("entropy", "random"):
+        assert res["curves"][strategy]["n_labels"] == [3, 5]
+        assert set(res["curves"][strategy]["labels_to_reach"]) == {"10%", "5%", "3%", "2%"}
+    assert (tmp_path / "al.png").exists()
