@@ -44,7 +44,7 @@ def test_shrink_lp_matches_naive_minimiser():
     h = rng.normal(size=(6, 3))
     mu, p = 3.0, 0.5
     z = shrink_lp(h, mu, p, n_fixed_point=50)
-    for hi, zi in zip(h, z):
+    for hi, zi in zip(h, z, strict=True):
         # naive: 1-D search along h (the minimiser is a non-negative multiple of h)
         betas = np.linspace(0, 1, 20001)
         f = (betas * np.linalg.norm(hi)) ** p + mu / 2 * ((1 - betas) * np.linalg.norm(hi)) ** 2
@@ -175,8 +175,20 @@ def test_cli_register_json(tmp_path, capsys):
     T = _pose(rng, trans=0.05, rot_scale=0.1)
     write_cloud(tmp_path / "model.ply", model)
     write_cloud(tmp_path / "scene.xyz", model[:200] @ T[:3, :3].T + T[:3, 3])
-    code = main(["register", "--model", str(tmp_path / "model.ply"), "--scene", str(tmp_path / "scene.xyz"),
-                 "--method", "tiqf", "--seed", "1", "--json"])
+    code = main(
+        [
+            "register",
+            "--model",
+            str(tmp_path / "model.ply"),
+            "--scene",
+            str(tmp_path / "scene.xyz"),
+            "--method",
+            "tiqf",
+            "--seed",
+            "1",
+            "--json",
+        ]
+    )
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     np.testing.assert_allclose(np.array(out["T_scene_model"]), T, atol=1e-3)
@@ -187,9 +199,26 @@ def test_bench_registration_tiny(tmp_path, capsys):
     from vtlearn.cli import main
 
     out = tmp_path / "reg.json"
-    code = main(["bench", "registration", "--meshes", "bunny", "--trials", "2", "--sizes", "20",
-                 "--methods", "stiqf,tiqf", "--no-ablation", "--no-time-matched", "--scale-trials", "0",
-                 "--json", str(out)])
+    code = main(
+        [
+            "bench",
+            "registration",
+            "--meshes",
+            "bunny",
+            "--trials",
+            "2",
+            "--sizes",
+            "20",
+            "--methods",
+            "stiqf,tiqf",
+            "--no-ablation",
+            "--no-time-matched",
+            "--scale-trials",
+            "0",
+            "--json",
+            str(out),
+        ]
+    )
     assert code == 0
     res = json.loads(out.read_text())
     s = res["summary"]["20"]

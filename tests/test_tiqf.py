@@ -215,12 +215,12 @@ def test_sequential_new_pairs_cover_all_pairs_once():
     n_old = 0
     for n_new in (1, 2, 1, 3):
         i, j = SequentialTIQF.new_pairs(n_old, n_new)
-        new = set(zip(i.tolist(), j.tolist()))
+        new = set(zip(i.tolist(), j.tolist(), strict=True))
         assert not (new & pairs)
         pairs |= new
         n_old += n_new
     i, j = make_pairs(n_old)
-    assert pairs == set(zip(i.tolist(), j.tolist()))
+    assert pairs == set(zip(i.tolist(), j.tolist(), strict=True))
 
 
 def test_kl_1d_matches_numeric_integral():
@@ -276,3 +276,19 @@ def test_constructor_rejects_bad_parameters():
     with pytest.raises(ValueError, match="T_init"):
         TIQF().register(np.random.rand(10, 3), np.random.rand(5, 3), T_init=np.ones((4, 4)))
     assert "TIQF(" in repr(TIQF())
+
+
+def test_sequential_reassociate_mode_converges_and_validates():
+    rng = np.random.default_rng(11)
+    model = rng.uniform(-0.5, 0.5, size=(500, 3))
+    _, R = _random_rotation(rng)
+    scene = model[rng.choice(500, 30, replace=False)] @ R.T
+    T0 = np.eye(4)
+    T0[:3, :3] = R @ _small_rotation(5.0, rng)
+    seq = SequentialTIQF(model, T_init=T0, mode="reassociate", rho=1e-4, inner_iter=30)
+    for k in range(0, 30, 3):
+        seq.add(scene[k : k + 3])
+    assert _rot_err_deg(seq.R, R) < 0.5
+    assert np.linalg.norm(seq.t) < 5e-3
+    with pytest.raises(ValueError, match="mode"):
+        SequentialTIQF(model, mode="nope")

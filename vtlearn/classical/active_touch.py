@@ -34,8 +34,15 @@ from tqdm import tqdm
 from vtlearn.classical.tiqf import SequentialTIQF, _quat_to_matrix, gaussian_kl, tiqf_update_moment
 from vtlearn.validation import as_transform
 
-__all__ = ["ActionSampler", "MeshRaycaster", "lookahead_information_gain", "select_action", "simulate_touches",
-           "run_active_touch_benchmark", "TouchTrace"]
+__all__ = [
+    "ActionSampler",
+    "MeshRaycaster",
+    "lookahead_information_gain",
+    "select_action",
+    "simulate_touches",
+    "run_active_touch_benchmark",
+    "TouchTrace",
+]
 
 _FACE_AXES = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
 
@@ -54,8 +61,10 @@ class MeshRaycaster:
             raise ValueError("mesh: has no faces")
         self._o3d = o3d
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                                 o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+        self.scene.add_triangles(
+            o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+        )
         self.n_faces = int(len(mesh.faces))
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, T_scene_model: np.ndarray):
@@ -137,8 +146,14 @@ def lookahead_information_gain(x, P, scene_points, model_corr, z_hat, o_hat, rho
     return gaussian_kl(x_post, P_post, x, P)
 
 
-def select_action(filt: SequentialTIQF, raycaster: MeshRaycaster, sampler: ActionSampler, n_candidates: int,
-                  rng, active: bool = True):
+def select_action(
+    filt: SequentialTIQF,
+    raycaster: MeshRaycaster,
+    sampler: ActionSampler,
+    n_candidates: int,
+    rng,
+    active: bool = True,
+):
     """Algorithm 1's action choice: returns ``(origins, directions, order)``, candidates best first.
 
     With ``active`` and at least 3 measured points the order is by decreasing expected information gain of
@@ -154,8 +169,9 @@ def select_action(filt: SequentialTIQF, raycaster: MeshRaycaster, sampler: Actio
     gain = np.full(n_candidates, -np.inf)
     if hit.any():
         o_hat = filt.correspondences(z_hat[hit])
-        gain[hit] = lookahead_information_gain(filt.x, filt.P, filt.scene, filt.correspondences(), z_hat[hit],
-                                               o_hat, filt.rho)
+        gain[hit] = lookahead_information_gain(
+            filt.x, filt.P, filt.scene, filt.correspondences(), z_hat[hit], o_hat, filt.rho
+        )
     # ties and misses in random order
     order = np.lexsort((rng.random(n_candidates), -gain))
     return origins, dirs, order
@@ -175,10 +191,23 @@ def _rot_err_deg(R_a, R_b) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R_a.T @ R_b) - 1) / 2, -1.0, 1.0))))
 
 
-def simulate_touches(mesh: trimesh.Trimesh, T_gt, T_init, *, n_touches: int = 20, active: bool = True,
-                     n_candidates: int = 100, noise: float = 1e-3, n_model: int = 2000, rho: float = 1e-2,
-                     refine: bool = True, n_escapes: int = 3, raycaster: MeshRaycaster | None = None,
-                     seed=None) -> TouchTrace:
+def simulate_touches(
+    mesh: trimesh.Trimesh,
+    T_gt,
+    T_init,
+    *,
+    n_touches: int = 20,
+    active: bool = True,
+    n_candidates: int = 100,
+    noise: float = 1e-3,
+    n_model: int = 2000,
+    rho: float = 1e-2,
+    refine: bool = False,
+    mode: str = "reassociate",
+    n_escapes: int = 3,
+    raycaster: MeshRaycaster | None = None,
+    seed=None,
+) -> TouchTrace:
     """Algorithm 1 in simulation: touch the object at ``T_gt`` starting from the belief ``T_init``.
 
     A chosen ray that misses the real object gives no point (negative information is not used, as in the
@@ -194,8 +223,16 @@ def simulate_touches(mesh: trimesh.Trimesh, T_gt, T_init, *, n_touches: int = 20
     caster = MeshRaycaster(mesh) if raycaster is None else raycaster
     lo, hi = mesh.bounds
     sampler = ActionSampler(np.asarray(lo, float), np.asarray(hi, float))
-    filt = SequentialTIQF(model, T_init=T_init, rho=rho, refine=refine, n_escapes=n_escapes,
-                          seed=int(rng.integers(1 << 31)))
+    filt = SequentialTIQF(
+        model,
+        T_init=T_init,
+        rho=rho,
+        refine=refine,
+        n_escapes=n_escapes,
+        tangent=True,
+        mode=mode,
+        seed=int(rng.integers(1 << 31)),
+    )
     t_err, r_err = [], []
     attempts = 0
     while len(t_err) < n_touches:
@@ -218,7 +255,9 @@ def _mesh_with_faces(base: trimesh.Trimesh, n_faces: int) -> trimesh.Trimesh:
     m = base
     while len(m.faces) < n_faces:
         m = m.subdivide()
-    om = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(m.vertices), o3d.utility.Vector3iVector(m.faces))
+    om = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(m.vertices), o3d.utility.Vector3iVector(m.faces)
+    )
     om = om.simplify_quadric_decimation(target_number_of_triangles=int(n_faces))
     return trimesh.Trimesh(np.asarray(om.vertices), np.asarray(om.triangles), process=False)
 
@@ -238,8 +277,9 @@ def _perturbed(T_gt, rng, trans: float, rot_deg: float) -> np.ndarray:
 THESIS_TABLE_4_1 = {5000: {10: 0.33, 100: 5.06, 1000: 42.56}, 1000: {10: 0.17, 100: 1.75, 1000: 13.70}}
 
 
-def time_lookahead(mesh: trimesh.Trimesh, n_candidates: int, repeats: int = 5, n_points: int = 10,
-                   seed: int = 0) -> list[float]:
+def time_lookahead(
+    mesh: trimesh.Trimesh, n_candidates: int, repeats: int = 5, n_points: int = 10, seed: int = 0
+) -> list[float]:
     """Seconds for one action selection (sampling, ray casting, batched look-ahead, KL, argmax)."""
     rng = np.random.default_rng(seed)
     caster = MeshRaycaster(mesh)
@@ -257,10 +297,19 @@ def time_lookahead(mesh: trimesh.Trimesh, n_candidates: int, repeats: int = 5, n
     return times
 
 
-def run_active_touch_benchmark(candidates=(10, 100, 1000), faces=(1000, 5000), repeats: int = 5,
-                               trials: int = 10, touches: int = 25, seed: int = 0, mesh_spec: str = "bunny",
-                               object_size: float = 0.2, init_trans: float = 0.02, init_rot_deg: float = 30.0,
-                               plot_path=None) -> dict:
+def run_active_touch_benchmark(
+    candidates=(10, 100, 1000),
+    faces=(1000, 5000),
+    repeats: int = 5,
+    trials: int = 10,
+    touches: int = 25,
+    seed: int = 0,
+    mesh_spec: str = "bunny",
+    object_size: float = 0.2,
+    init_trans: float = 0.02,
+    init_rot_deg: float = 30.0,
+    plot_path=None,
+) -> dict:
     """Table 4.1 timing and Fig. 4.5 active-vs-random curves (see module doc)."""
     from vtlearn.classical.registration_bench import load_benchmark_mesh
 
@@ -272,9 +321,16 @@ def run_active_touch_benchmark(candidates=(10, 100, 1000), faces=(1000, 5000), r
         mesh_f = _mesh_with_faces(base, f)
         for c in candidates:
             ts = time_lookahead(mesh_f, c, repeats=repeats, seed=seed)
-            rows.append({"faces": len(mesh_f.faces), "target_faces": f, "candidates": c,
-                         "lookahead_s": float(np.mean(ts)), "lookahead_median_s": float(np.median(ts)),
-                         "thesis_s": THESIS_TABLE_4_1.get(f, {}).get(c)})
+            rows.append(
+                {
+                    "faces": len(mesh_f.faces),
+                    "target_faces": f,
+                    "candidates": c,
+                    "lookahead_s": float(np.mean(ts)),
+                    "lookahead_median_s": float(np.median(ts)),
+                    "thesis_s": THESIS_TABLE_4_1.get(f, {}).get(c),
+                }
+            )
     rng = np.random.default_rng(seed)
     caster = MeshRaycaster(base)
     curves = {"active": {"t": [], "r": []}, "random": {"t": [], "r": []}}
@@ -286,27 +342,41 @@ def run_active_touch_benchmark(candidates=(10, 100, 1000), faces=(1000, 5000), r
         T_init = _perturbed(T_gt, rng, init_trans, init_rot_deg)
         s = int(rng.integers(1 << 31))
         for name in ("active", "random"):
-            tr = simulate_touches(base, T_gt, T_init, n_touches=touches, active=name == "active",
-                                  raycaster=caster, seed=s)
+            tr = simulate_touches(
+                base, T_gt, T_init, n_touches=touches, active=name == "active", raycaster=caster, seed=s
+            )
             curves[name]["t"].append(tr.trans_err)
             curves[name]["r"].append(tr.rot_err_deg)
     curve_rows = []
-    rmse = {k: {"t": np.sqrt(np.mean(np.square(v["t"]), 0)), "r": np.sqrt(np.mean(np.square(v["r"]), 0))}
-            for k, v in curves.items()}
+    rmse = {
+        k: {"t": np.sqrt(np.mean(np.square(v["t"]), 0)), "r": np.sqrt(np.mean(np.square(v["r"]), 0))}
+        for k, v in curves.items()
+    }
     for k in range(touches):
         if k + 1 in (1, 3, 5, 10, 15, 20, 25, 30, 40, 50) or k == touches - 1:
-            curve_rows.append({"touches": k + 1,
-                               "active_trans_rmse_mm": 1e3 * rmse["active"]["t"][k],
-                               "random_trans_rmse_mm": 1e3 * rmse["random"]["t"][k],
-                               "active_rot_rmse_deg": rmse["active"]["r"][k],
-                               "random_rot_rmse_deg": rmse["random"]["r"][k]})
+            curve_rows.append(
+                {
+                    "touches": k + 1,
+                    "active_trans_rmse_mm": 1e3 * rmse["active"]["t"][k],
+                    "random_trans_rmse_mm": 1e3 * rmse["random"]["t"][k],
+                    "active_rot_rmse_deg": rmse["active"]["r"][k],
+                    "random_rot_rmse_deg": rmse["random"]["r"][k],
+                }
+            )
     result = {
         "lookahead_rows": rows,
         "curve_rows": curve_rows,
         "curves_rmse": {k: {"trans_m": v["t"], "rot_deg": v["r"]} for k, v in rmse.items()},
-        "setup": {"mesh": mesh_spec, "object_size_m": object_size, "init_trans_m": init_trans,
-                  "init_rot_deg": init_rot_deg, "trials": trials, "touches": touches, "candidates_per_step": 100,
-                  "noise_m": 1e-3},
+        "setup": {
+            "mesh": mesh_spec,
+            "object_size_m": object_size,
+            "init_trans_m": init_trans,
+            "init_rot_deg": init_rot_deg,
+            "trials": trials,
+            "touches": touches,
+            "candidates_per_step": 100,
+            "noise_m": 1e-3,
+        },
         "thesis_table_4_1": THESIS_TABLE_4_1,
     }
     if plot_path is not None:

@@ -88,19 +88,38 @@ def _diameter(points):
 
 def _run_tiqf(model, scene, rng, opts):
     keys = ("rho", "sigma0", "max_iter", "tol_trans", "tol_rot_deg", "n_escapes", "escape_deg")
-    res = TIQF(seed=int(rng.integers(1 << 31)), **{k: opts[k] for k in keys if k in opts}).register(model, scene)
+    res = TIQF(seed=int(rng.integers(1 << 31)), **{k: opts[k] for k in keys if k in opts}).register(
+        model, scene
+    )
     return res.T_scene_model, np.ones(3), res.iterations
 
 
 def _run_stiqf(model, scene, rng, opts):
-    keys = ("estimate_scale", "t0", "t_min", "zeta", "restarts_sa", "sa_cost", "grid", "n_refine", "best_buddies",
-            "normal_angle_deg", "rho", "max_iter", "tol_trans", "tol_rot_deg", "n_escapes", "scale_iters",
-            "tangent")
+    keys = (
+        "estimate_scale",
+        "t0",
+        "t_min",
+        "zeta",
+        "restarts_sa",
+        "sa_cost",
+        "grid",
+        "n_refine",
+        "best_buddies",
+        "normal_angle_deg",
+        "rho",
+        "max_iter",
+        "tol_trans",
+        "tol_rot_deg",
+        "n_escapes",
+        "scale_iters",
+        "tangent",
+    )
     kw = {k: opts[k] for k in keys if k in opts}
     if "restarts_sa" in kw:
         kw["restarts"] = kw.pop("restarts_sa")
     res = STIQF(seed=int(rng.integers(1 << 31)), **kw).register(
-        model, scene, model_normals=opts.get("model_normals"), scene_normals=opts.get("scene_normals"))
+        model, scene, model_normals=opts.get("model_normals"), scene_normals=opts.get("scene_normals")
+    )
     return res.T_scene_model, res.scale, res.iterations
 
 
@@ -112,16 +131,22 @@ def _run_icp(model, scene, rng, opts, plane=False):
     target = _pcd(model, normals_radius=0.05 * diam if plane else None)
     source = _pcd(scene)
     est = reg.TransformationEstimationPointToPlane() if plane else reg.TransformationEstimationPointToPoint()
-    crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7,
-                                      max_iteration=int(opts.get("max_iter", 100)))
+    crit = reg.ICPConvergenceCriteria(
+        relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=int(opts.get("max_iter", 100))
+    )
     thr = float(opts.get("max_correspondence_distance", 10.0 * diam))
     r = reg.registration_icp(source, target, thr, np.eye(4), est, crit)
     return np.linalg.inv(np.asarray(r.transformation)), np.ones(3), 0
 
 
 def _run_sparse_icp(model, scene, rng, opts):
-    T_model_scene, it = sparse_icp(scene, model, p=float(opts.get("p", 0.4)), mu=float(opts.get("mu", 10.0)),
-                                   max_icp=int(opts.get("max_iter", 100)))
+    T_model_scene, it = sparse_icp(
+        scene,
+        model,
+        p=float(opts.get("p", 0.4)),
+        mu=float(opts.get("mu", 10.0)),
+        max_icp=int(opts.get("max_iter", 100)),
+    )
     return np.linalg.inv(T_model_scene), np.ones(3), it
 
 
@@ -129,7 +154,8 @@ def _fpfh(pc, voxel):
     o3d = _o3d()
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
     return o3d.pipelines.registration.compute_fpfh_feature(
-        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    )
 
 
 def _run_feature(model, scene, rng, opts, fgr=False):
@@ -141,13 +167,22 @@ def _run_feature(model, scene, rng, opts, fgr=False):
     dist = 1.5 * voxel
     if fgr:
         r = reg.registration_fgr_based_on_feature_matching(
-            source, target, fs, ft, reg.FastGlobalRegistrationOption(maximum_correspondence_distance=dist))
+            source, target, fs, ft, reg.FastGlobalRegistrationOption(maximum_correspondence_distance=dist)
+        )
     else:
         o3d.utility.random.seed(int(rng.integers(1 << 31)))
         r = reg.registration_ransac_based_on_feature_matching(
-            source, target, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
+            source,
+            target,
+            fs,
+            ft,
+            True,
+            dist,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
             [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
-            reg.RANSACConvergenceCriteria(int(opts.get("max_iter", 100000)), 0.999))
+            reg.RANSACConvergenceCriteria(int(opts.get("max_iter", 100000)), 0.999),
+        )
     return np.linalg.inv(np.asarray(r.transformation)), np.ones(3), 0
 
 
@@ -205,8 +240,17 @@ def _nn_rmse(tree, scene, T) -> float:
     return float(np.sqrt(np.mean(d**2)))
 
 
-def register(model, scene, method: str = "stiqf", *, T_init=None, restarts: int = 0,
-             time_budget: float | None = None, seed: int | None = 0, **options) -> RegistrationResult:
+def register(
+    model,
+    scene,
+    method: str = "stiqf",
+    *,
+    T_init=None,
+    restarts: int = 0,
+    time_budget: float | None = None,
+    seed: int | None = 0,
+    **options,
+) -> RegistrationResult:
     """Register ``model`` to ``scene`` with any method; see the module doc.
 
     Args:
@@ -218,7 +262,8 @@ def register(model, scene, method: str = "stiqf", *, T_init=None, restarts: int 
         time_budget: if given, keep restarting until this many seconds have passed (``restarts`` is then
             ignored); used for time-matched comparisons.
         seed: seeds every random choice.
-        **options: method options, e.g. ``estimate_scale=True`` for S-TIQF, ``max_iter``, ``rho``, ``p``/``mu``
+        **options: method options, e.g. ``estimate_scale=True`` for S-TIQF, ``max_iter``, ``rho``,
+            ``p``/``mu``
             for sparse ICP, ``voxel_size`` for FPFH, ``model_normals``/``scene_normals`` for S-TIQF.
 
     Shapes:
@@ -268,6 +313,14 @@ def register(model, scene, method: str = "stiqf", *, T_init=None, restarts: int 
         elif k > restarts:
             break
     rmse, T, scale = best
-    return RegistrationResult(R=T[:3, :3].copy(), t=T[:3, 3].copy(), scale=np.asarray(scale, dtype=np.float64),
-                              T_scene_model=T, iterations=iterations, time=time.perf_counter() - start,
-                              rmse=rmse, method=method, restarts=k - 1)
+    return RegistrationResult(
+        R=T[:3, :3].copy(),
+        t=T[:3, 3].copy(),
+        scale=np.asarray(scale, dtype=np.float64),
+        T_scene_model=T,
+        iterations=iterations,
+        time=time.perf_counter() - start,
+        rmse=rmse,
+        method=method,
+        restarts=k - 1,
+    )

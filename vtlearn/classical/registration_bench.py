@@ -13,7 +13,8 @@ Besides the plain methods, ``icp_time_matched`` is Open3D ICP with random restar
 :func:`vtlearn.classical.registration.register`) for as long as S-TIQF took on that trial, and the Table 5.1
 ablation runs the S-TIQF annealing (same schedule) followed by ICP (``sa_icp``) or sparse ICP (``sa_sicp``).
 The scale run scales the scene object by a random factor per axis in [0.5, 2] (in the model axes) and
-registers with ``estimate_scale=True``; it reports the scale error of eq. 5.25 and the ADI of the scaled model.
+registers with ``estimate_scale=True``; it reports the scale error of eq. 5.25 and the ADI of the scaled
+model.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ DEFAULT_METHODS = ("stiqf", "tiqf", "icp", "icp_plane", "sparse_icp", "ransac_fp
 
 
 def normalise_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """Copy of ``mesh`` with its bounding box centred at the origin and its longest side 2 (into [-1, 1]^3)."""
+    """Copy of ``mesh`` with its box centred at the origin and its longest side 2 (into [-1, 1]^3)."""
     m = mesh.copy()
     lo, hi = m.bounds
     side = float((hi - lo).max())
@@ -133,13 +134,26 @@ def _welch(a, b) -> float | None:
 
 def _summary(vals) -> dict:
     v = np.asarray(vals, dtype=float)
-    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-            "median": float(np.median(v)), "n": int(len(v))}
+    return {
+        "mean": float(v.mean()),
+        "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+        "median": float(np.median(v)),
+        "n": int(len(v)),
+    }
 
 
-def run_registration_benchmark(mesh_specs=None, sizes=(20, 40, 80, 120), trials: int = 6, methods=None,
-                               seed: int = 0, time_matched: bool = True, ablation: bool = True,
-                               scale_trials: int | None = None, scale_size: int = 120, progress: bool = True):
+def run_registration_benchmark(
+    mesh_specs=None,
+    sizes=(20, 40, 80, 120),
+    trials: int = 6,
+    methods=None,
+    seed: int = 0,
+    time_matched: bool = True,
+    ablation: bool = True,
+    scale_trials: int | None = None,
+    scale_size: int = 120,
+    progress: bool = True,
+):
     """Run the protocol; returns a JSON-ready dict with per-trial values, summaries and Welch p-values."""
     mesh_specs = default_meshes() if mesh_specs is None else list(mesh_specs)
     methods = [m for m in (methods or DEFAULT_METHODS) if m in available_methods()]
@@ -147,8 +161,11 @@ def run_registration_benchmark(mesh_specs=None, sizes=(20, 40, 80, 120), trials:
         methods = ["stiqf"] + methods
     meshes = [load_benchmark_mesh(s) for s in mesh_specs]
     rng = np.random.default_rng(seed)
-    names = list(methods) + (["icp_time_matched"] if time_matched else []) + (["sa_icp", "sa_sicp"] if ablation
-                                                                              else [])
+    names = (
+        list(methods)
+        + (["icp_time_matched"] if time_matched else [])
+        + (["sa_icp", "sa_sicp"] if ablation else [])
+    )
     adi = {n: {name: [] for name in names} for n in sizes}
     times = {n: {name: [] for name in names} for n in sizes}
     trial_meta = []
@@ -156,7 +173,7 @@ def run_registration_benchmark(mesh_specs=None, sizes=(20, 40, 80, 120), trials:
     bar = tqdm(total=total, desc="bench registration", disable=not progress)
     for mesh_name, mesh in meshes:
         for n in sizes:
-            for k in range(trials):
+            for _ in range(trials):
                 s = int(rng.integers(1 << 31))
                 model = trimesh.sample.sample_surface(mesh, 1024, seed=s)[0].view(np.ndarray)
                 pts = trimesh.sample.sample_surface(mesh, n, seed=s + 1)[0].view(np.ndarray)
@@ -190,7 +207,7 @@ def run_registration_benchmark(mesh_specs=None, sizes=(20, 40, 80, 120), trials:
             summary[n][name] = s
     result = {
         "protocol": "thesis 5.3.3: model 1024 uniform surface points, scene N random surface points, both in "
-                    "[-1,1]^3 m, T_scene_model translation U[-5,5]^3 m, rotation uniform; ADI eq. 5.24 in cm",
+        "[-1,1]^3 m, T_scene_model translation U[-5,5]^3 m, rotation uniform; ADI eq. 5.24 in cm",
         "meshes": [m for m, _ in meshes],
         "sizes": list(sizes),
         "trials_per_mesh_and_size": trials,
@@ -228,8 +245,14 @@ def run_scale_benchmark(meshes, trials: int, n: int, rng, progress: bool = True)
             times.append(r.time)
             bar.update(1)
     bar.close()
-    return {"n_scene": n, "scale_error": _summary(errs), "adi_cm": _summary(adis),
-            "time_mean_s": float(np.mean(times)), "scale_error_values": errs, "adi_values": adis}
+    return {
+        "n_scene": n,
+        "scale_error": _summary(errs),
+        "adi_cm": _summary(adis),
+        "time_mean_s": float(np.mean(times)),
+        "scale_error_values": errs,
+        "adi_values": adis,
+    }
 
 
 def markdown_report(result: dict) -> str:
@@ -253,27 +276,56 @@ def markdown_report(result: dict) -> str:
     rows = []
     for n in result["sizes"]:
         s = result["summary"][n]
-        rows.append({"N": n, **{name: ("-" if s[name]["p_welch_vs_stiqf"] is None
-                                        else f"{s[name]['p_welch_vs_stiqf']:.2g}") for name in names
-                                if name != "stiqf"}})
-    parts.append(format_table(rows, ["N"] + [n for n in names if n != "stiqf"],
-                              "Welch's t-test p-value, S-TIQF vs each method"))
+        rows.append(
+            {
+                "N": n,
+                **{
+                    name: (
+                        "-" if s[name]["p_welch_vs_stiqf"] is None else f"{s[name]['p_welch_vs_stiqf']:.2g}"
+                    )
+                    for name in names
+                    if name != "stiqf"
+                },
+            }
+        )
+    parts.append(
+        format_table(
+            rows, ["N"] + [n for n in names if n != "stiqf"], "Welch's t-test p-value, S-TIQF vs each method"
+        )
+    )
     if "sa_icp" in names:
         rows = []
         for n in result["sizes"]:
             s = result["summary"][n]
             th = THESIS_TABLE_5_1.get(n, {})
-            rows.append({"N": n, **{f"{k}": f"{s[k]['mean']:.2f}±{s[k]['std']:.2f} (thesis {th.get(k, '-')})"
-                                    for k in ("stiqf", "sa_icp", "sa_sicp")}})
+            rows.append(
+                {
+                    "N": n,
+                    **{
+                        f"{k}": f"{s[k]['mean']:.2f}±{s[k]['std']:.2f} (thesis {th.get(k, '-')})"
+                        for k in ("stiqf", "sa_icp", "sa_sicp")
+                    },
+                }
+            )
         parts.append(format_table(rows, ["N", "stiqf", "sa_icp", "sa_sicp"], "Table 5.1 ablation (ADI cm)"))
     if "scale" in result:
         sc = result["scale"]
-        parts.append(format_table([{"N": sc["n_scene"], "scale_err": sc["scale_error"]["mean"],
-                                    "scale_err_median": sc["scale_error"]["median"],
-                                    "adi_cm": sc["adi_cm"]["mean"], "adi_cm_median": sc["adi_cm"]["median"],
-                                    "time_s": sc["time_mean_s"]}],
-                                  ["N", "scale_err", "scale_err_median", "adi_cm", "adi_cm_median", "time_s"],
-                                  "scale estimation (eq. 5.25), scene scaled per axis by U[0.5, 2]"))
+        parts.append(
+            format_table(
+                [
+                    {
+                        "N": sc["n_scene"],
+                        "scale_err": sc["scale_error"]["mean"],
+                        "scale_err_median": sc["scale_error"]["median"],
+                        "adi_cm": sc["adi_cm"]["mean"],
+                        "adi_cm_median": sc["adi_cm"]["median"],
+                        "time_s": sc["time_mean_s"],
+                    }
+                ],
+                ["N", "scale_err", "scale_err_median", "adi_cm", "adi_cm_median", "time_s"],
+                "scale estimation (eq. 5.25), scene scaled per axis by U[0.5, 2]",
+            )
+        )
     return "\n\n".join(parts) + "\n"
 
 

@@ -1,4 +1,4 @@
-"""CLI for registration: ``vtlearn register``, ``vtlearn bench registration``, ``vtlearn bench active-touch``."""
+"""Registration CLI: ``vtlearn register``, ``vtlearn bench registration``, ``vtlearn bench active-touch``."""
 
 from __future__ import annotations
 
@@ -22,7 +22,9 @@ def _cmd_register(args: argparse.Namespace) -> int:
         opts["estimate_scale"] = True
     res = reg(model, scene, args.method, restarts=args.restarts, seed=args.seed, **opts)
     out = res.to_dict()
-    out.update({"model": str(args.model), "scene": str(args.scene), "n_model": len(model), "n_scene": len(scene)})
+    out.update(
+        {"model": str(args.model), "scene": str(args.scene), "n_model": len(model), "n_scene": len(scene)}
+    )
     if args.json:
         print(json.dumps(to_jsonable(out), indent=2))
     else:
@@ -38,10 +40,14 @@ def register(subparsers: Any) -> None:
     from vtlearn.classical.registration import METHODS
 
     p = subparsers.add_parser("register", help="register a model to a scene cloud (TIQF, S-TIQF, baselines)")
-    p.add_argument("--model", required=True, help="model cloud or mesh (.ply .pcd .xyz .txt .npy .npz .obj .stl .off)")
+    p.add_argument(
+        "--model", required=True, help="model cloud or mesh (.ply .pcd .xyz .txt .npy .npz .obj .stl .off)"
+    )
     p.add_argument("--scene", required=True, help="scene cloud or mesh")
     p.add_argument("--method", default="stiqf", choices=sorted(METHODS))
-    p.add_argument("--estimate-scale", action="store_true", help="S-TIQF: estimate a per-axis scale (eq. 5.12)")
+    p.add_argument(
+        "--estimate-scale", action="store_true", help="S-TIQF: estimate a per-axis scale (eq. 5.12)"
+    )
     p.add_argument("--restarts", type=int, default=0, help="extra random restarts (common wrapper)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--model-points", type=int, default=1024, help="points sampled when the model is a mesh")
@@ -56,23 +62,43 @@ def _cmd_bench_registration(args: argparse.Namespace) -> int:
 
     sizes = [int(s) for s in args.sizes.split(",")]
     methods = args.methods.split(",") if args.methods else None
-    result = run_registration_benchmark(args.meshes, sizes=sizes, trials=args.trials, methods=methods,
-                                        seed=args.seed, time_matched=not args.no_time_matched,
-                                        ablation=not args.no_ablation, scale_trials=args.scale_trials)
+    result = run_registration_benchmark(
+        args.meshes,
+        sizes=sizes,
+        trials=args.trials,
+        methods=methods,
+        seed=args.seed,
+        time_matched=not args.no_time_matched,
+        ablation=not args.no_ablation,
+        scale_trials=args.scale_trials,
+    )
     rows = []
     for n in result["sizes"]:
         for name in result["methods"]:
             s = result["summary"][n][name]
-            rows.append({"N": n, "method": name, "adi_mean_cm": s["mean"], "adi_std_cm": s["std"],
-                         "adi_median_cm": s["median"], "time_s": s["time_mean_s"],
-                         "p_vs_stiqf": "-" if s["p_welch_vs_stiqf"] is None else f"{s['p_welch_vs_stiqf']:.2g}"})
-    print_table(rows, ["N", "method", "adi_mean_cm", "adi_std_cm", "adi_median_cm", "time_s", "p_vs_stiqf"],
-                "bench registration (thesis 5.3.3; times on a shared CPU are noisy)")
+            rows.append(
+                {
+                    "N": n,
+                    "method": name,
+                    "adi_mean_cm": s["mean"],
+                    "adi_std_cm": s["std"],
+                    "adi_median_cm": s["median"],
+                    "time_s": s["time_mean_s"],
+                    "p_vs_stiqf": "-" if s["p_welch_vs_stiqf"] is None else f"{s['p_welch_vs_stiqf']:.2g}",
+                }
+            )
+    print_table(
+        rows,
+        ["N", "method", "adi_mean_cm", "adi_std_cm", "adi_median_cm", "time_s", "p_vs_stiqf"],
+        "bench registration (thesis 5.3.3; times on a shared CPU are noisy)",
+    )
     md = markdown_report(result)
     if "scale" in result:
         sc = result["scale"]
-        print(f"scale run (N={sc['n_scene']}): scale error mean {sc['scale_error']['mean']:.3f} "
-              f"median {sc['scale_error']['median']:.3f}; ADI mean {sc['adi_cm']['mean']:.2f} cm")
+        print(
+            f"scale run (N={sc['n_scene']}): scale error mean {sc['scale_error']['mean']:.3f} "
+            f"median {sc['scale_error']['median']:.3f}; ADI mean {sc['adi_cm']['mean']:.2f} cm"
+        )
     out_json = Path(args.json)
     write_json(out_json, result)
     md_path = out_json.with_suffix(".md")
@@ -87,14 +113,31 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
     from vtlearn.classical.active_touch import run_active_touch_benchmark
 
     result = run_active_touch_benchmark(
-        candidates=[int(c) for c in args.candidates.split(",")], faces=[int(f) for f in args.faces.split(",")],
-        repeats=args.repeats, trials=args.trials, touches=args.touches, seed=args.seed, mesh_spec=args.mesh,
-        plot_path=Path(args.json).with_suffix(".png"))
-    print_table(result["lookahead_rows"], ["faces", "candidates", "lookahead_s", "lookahead_median_s",
-                                           "thesis_s"], "one-step look-ahead time (Table 4.1 analogue)")
-    print_table(result["curve_rows"], ["touches", "active_trans_rmse_mm", "random_trans_rmse_mm",
-                                       "active_rot_rmse_deg", "random_rot_rmse_deg"],
-                "active vs random touch (Fig. 4.5 analogue), RMSE over trials")
+        candidates=[int(c) for c in args.candidates.split(",")],
+        faces=[int(f) for f in args.faces.split(",")],
+        repeats=args.repeats,
+        trials=args.trials,
+        touches=args.touches,
+        seed=args.seed,
+        mesh_spec=args.mesh,
+        plot_path=Path(args.json).with_suffix(".png"),
+    )
+    print_table(
+        result["lookahead_rows"],
+        ["faces", "candidates", "lookahead_s", "lookahead_median_s", "thesis_s"],
+        "one-step look-ahead time (Table 4.1 analogue)",
+    )
+    print_table(
+        result["curve_rows"],
+        [
+            "touches",
+            "active_trans_rmse_mm",
+            "random_trans_rmse_mm",
+            "active_rot_rmse_deg",
+            "random_rot_rmse_deg",
+        ],
+        "active vs random touch (Fig. 4.5 analogue), RMSE over trials",
+    )
     write_json(args.json, result)
     print(f"wrote {args.json} and {Path(args.json).with_suffix('.png')}")
     return 0
@@ -102,8 +145,12 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
 
 def register_bench(bench_subparsers: Any) -> None:
     p = bench_subparsers.add_parser("registration", help="S-TIQF vs baselines, thesis 5.3.3 / Table 5.1")
-    p.add_argument("--meshes", nargs="+", default=None,
-                   help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 procedural shapes)")
+    p.add_argument(
+        "--meshes",
+        nargs="+",
+        default=None,
+        help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 procedural shapes)",
+    )
     p.add_argument("--trials", type=int, default=6, help="trials per mesh and scene size")
     p.add_argument("--sizes", default="20,40,80,120", help="scene sizes, comma separated")
     p.add_argument("--methods", default=None, help="comma-separated subset of methods")

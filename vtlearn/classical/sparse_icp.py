@@ -61,8 +61,18 @@ def shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.
     return beta[:, None] * h
 
 
-def sparse_icp(source, target, T_init=None, *, p: float = 0.4, mu: float = 10.0, max_icp: int = 100,
-               max_admm: int = 20, tol: float = 1e-5, target_tree: cKDTree | None = None):
+def sparse_icp(
+    source,
+    target,
+    T_init=None,
+    *,
+    p: float = 0.4,
+    mu: float = 10.0,
+    max_icp: int = 100,
+    max_admm: int = 20,
+    tol: float = 1e-5,
+    target_tree: cKDTree | None = None,
+):
     """Register ``source`` to ``target`` with point-to-point sparse ICP.
 
     Args:
@@ -92,7 +102,7 @@ def sparse_icp(source, target, T_init=None, *, p: float = 0.4, mu: float = 10.0,
     lam = np.zeros_like(X)
     Z = np.zeros_like(X)
     it = 0
-    for it in range(1, max_icp + 1):
+    for it in range(1, max_icp + 1):  # noqa: B007 - the last value is the iteration count returned
         _, idx = tree.query(Xt, k=1)
         Q = Y[idx]
         X_prev = Xt

@@ -42,10 +42,19 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
+from vtlearn.classical.correspondences import TangentPlanes
 from vtlearn.classical.tiqf import TIQF, _matrix_to_quat, _quat_to_matrix
 from vtlearn.validation import as_points, check_not_collinear
 
-__all__ = ["STIQF", "STIQFResult", "aabb_scale", "best_buddy_pairs", "DistanceField", "simulated_annealing"]
+__all__ = [
+    "STIQF",
+    "STIQFResult",
+    "aabb_scale",
+    "best_buddy_pairs",
+    "DistanceField",
+    "simulated_annealing",
+    "TangentPlanes",
+]
 
 
 def aabb_scale(scene, model, R=None) -> np.ndarray:
@@ -76,8 +85,14 @@ def aabb_scale(scene, model, R=None) -> np.ndarray:
     return scale
 
 
-def best_buddy_pairs(scene_in_model, model, model_tree=None, scene_normals_in_model=None, model_normals=None,
-                     normal_angle_deg: float | None = None):
+def best_buddy_pairs(
+    scene_in_model,
+    model,
+    model_tree=None,
+    scene_normals_in_model=None,
+    model_normals=None,
+    normal_angle_deg: float | None = None,
+):
     """Mutual nearest neighbours between a scene (already in the model frame) and a model (eq. 5.15).
 
     Returns:
@@ -139,40 +154,6 @@ class DistanceField:
         return (inside + np.sqrt((d * d).sum(0))).reshape(np.shape(x))
 
 
-class TangentPlanes:
-    """Local tangent planes of a model cloud, for sub-sample correspondences (S-TIQF refinement option).
-
-    A point-to-point correspondence with a sparse model cloud is off by up to half the sample spacing along
-    the surface. With ``tangent=True`` the model point of a pair is moved to the foot of the scene point on
-    the model point's tangent plane (normal from PCA of its ``k`` neighbours), the move capped at the
-    median sample spacing. The pair is still a point pair, so eq. 4.13 applies unchanged.
-
-    Shapes:
-        model: ``(M, 3)``.
-    """
-
-    def __init__(self, model: np.ndarray, tree: cKDTree, k: int = 10):
-        d, nbr = tree.query(model, k=min(k, len(model)))
-        nb = model[nbr] - model[nbr].mean(1, keepdims=True)  # MxKx3
-        _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))
-        self.normals = vecs[:, :, 0]
-        self.model = model
-        self.cap = float(np.median(d[:, 1])) if d.shape[1] > 1 else 0.0
-
-    def project(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """Feet of ``q`` ``(K, 3)`` on the tangent planes of model points ``idx`` ``(K,)`` -> ``(K, 3)``."""
-        o, n = self.model[idx], self.normals[idx]
-        v = q - o
-        tang = v - np.einsum("kd,kd->k", v, n)[:, None] * n
-        norm = np.linalg.norm(tang, axis=1, keepdims=True)
-        return o + tang * np.minimum(1.0, self.cap / np.maximum(norm, 1e-12))
-
-    def distance(self, q: np.ndarray, tree: cKDTree) -> np.ndarray:
-        """Distance of ``q`` ``(K, 3)`` to the tangent-plane patch of its nearest model point."""
-        _, idx = tree.query(q, k=1)
-        return np.linalg.norm(q - self.project(q, idx), axis=1)
-
-
 def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
     """Rodrigues: rotation vectors ``(..., 3)`` -> ``(..., 3, 3)``."""
     theta = np.linalg.norm(w, axis=-1)[..., None, None]
@@ -189,8 +170,18 @@ def _random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     return _quat_to_matrix(q)
 
 
-def simulated_annealing(model, scene, *, cost_fn, t0: float = 1.0, t_min: float = 1e-4, zeta: float = 0.98,
-                        restarts: int = 10, rng=None, scale_ref: float | None = None):
+def simulated_annealing(
+    model,
+    scene,
+    *,
+    cost_fn,
+    t0: float = 1.0,
+    t_min: float = 1e-4,
+    zeta: float = 0.98,
+    restarts: int = 10,
+    rng=None,
+    scale_ref: float | None = None,
+):
     """Simulated-annealing initial alignment (eq. 5.13-5.14, Algorithm 3), ``restarts`` parallel chains.
 
     Args:
@@ -294,11 +285,27 @@ class STIQF:
         seed: makes the whole run reproducible.
     """
 
-    def __init__(self, estimate_scale: bool = False, t0: float = 1.0, t_min: float = 1e-4, zeta: float = 0.98,
-                 restarts: int = 10, sa_cost: str = "field", grid: int = 32, n_refine: int = 3,
-                 best_buddies: bool = True, normal_angle_deg: float | None = None, rho: float = 1e-2,
-                 max_iter: int = 100, tol_trans: float = 1e-4, tol_rot_deg: float = 0.1, n_escapes: int = 0,
-                 scale_iters: int = 2, tangent: bool = True, seed: int | None = 0):
+    def __init__(
+        self,
+        estimate_scale: bool = False,
+        t0: float = 1.0,
+        t_min: float = 1e-4,
+        zeta: float = 0.98,
+        restarts: int = 10,
+        sa_cost: str = "field",
+        grid: int = 32,
+        n_refine: int = 3,
+        best_buddies: bool = True,
+        normal_angle_deg: float | None = None,
+        rho: float = 1e-2,
+        max_iter: int = 100,
+        tol_trans: float = 1e-4,
+        tol_rot_deg: float = 0.1,
+        n_escapes: int = 0,
+        scale_iters: int = 2,
+        tangent: bool = True,
+        seed: int | None = 0,
+    ):
         if sa_cost not in ("field", "kdtree"):
             raise ValueError(f"sa_cost: expected 'field' or 'kdtree', got {sa_cost!r}")
         if restarts < 1:
@@ -313,18 +320,28 @@ class STIQF:
         self.scale_iters = scale_iters
         self.tangent = tangent
         self.seed = seed
-        self.tiqf = TIQF(rho=rho, max_iter=max_iter, tol_trans=tol_trans, tol_rot_deg=tol_rot_deg,
-                         n_escapes=n_escapes, seed=seed)
+        self.tiqf = TIQF(
+            rho=rho,
+            max_iter=max_iter,
+            tol_trans=tol_trans,
+            tol_rot_deg=tol_rot_deg,
+            n_escapes=n_escapes,
+            seed=seed,
+        )
 
     def __repr__(self) -> str:
-        return (f"STIQF(estimate_scale={self.estimate_scale}, zeta={self.zeta}, t0={self.t0}, "
-                f"t_min={self.t_min}, restarts={self.restarts}, sa_cost={self.sa_cost!r})")
+        return (
+            f"STIQF(estimate_scale={self.estimate_scale}, zeta={self.zeta}, t0={self.t0}, "
+            f"t_min={self.t_min}, restarts={self.restarts}, sa_cost={self.sa_cost!r})"
+        )
 
     def _correspondence_fn(self, model, tree, model_normals, scene, scene_normals, tangent):
         def corr(scene_in_model, R, t):
             if self.best_buddies:
                 sn = None if scene_normals is None else scene_normals @ R  # rows R^T n
-                si, mi = best_buddy_pairs(scene_in_model, model, tree, sn, model_normals, self.normal_angle_deg)
+                si, mi = best_buddy_pairs(
+                    scene_in_model, model, tree, sn, model_normals, self.normal_angle_deg
+                )
             else:
                 si = np.arange(0)
             if len(si) < 3:
@@ -343,10 +360,20 @@ class STIQF:
             field = DistanceField(model, grid=self.grid, tree=tree)
             cost_fn = field.lookup
         else:
+
             def cost_fn(x, y, z):
                 return tree.query(np.stack([x, y, z], -1).reshape(-1, 3), k=1)[0].reshape(x.shape)
-        T_sa, c_sa = simulated_annealing(model, scene, cost_fn=cost_fn, t0=self.t0, t_min=self.t_min,
-                                         zeta=self.zeta, restarts=self.restarts, rng=rng)
+
+        T_sa, c_sa = simulated_annealing(
+            model,
+            scene,
+            cost_fn=cost_fn,
+            t0=self.t0,
+            t_min=self.t_min,
+            zeta=self.zeta,
+            restarts=self.restarts,
+            rng=rng,
+        )
         tangent = TangentPlanes(model, tree) if self.tangent else None
         corr = self._correspondence_fn(model, tree, model_normals, scene, scene_normals, tangent)
         best = None
@@ -385,10 +412,17 @@ class STIQF:
             # eq. 5.12 in the model axes of the current rotation, then the whole S-TIQF again with that scale
             for _ in range(self.scale_iters):
                 scale = aabb_scale(scene, model, res.T_scene_model[:3, :3])
-                res, cost, sa_cost = self._register_scaled(model * scale, scene, rng, model_normals,
-                                                           scene_normals)
-        return STIQFResult(T_scene_model=res.T_scene_model, scale=scale, iterations=res.iterations,
-                           rmse=res.rmse, cost=cost, sa_cost=sa_cost)
+                res, cost, sa_cost = self._register_scaled(
+                    model * scale, scene, rng, model_normals, scene_normals
+                )
+        return STIQFResult(
+            T_scene_model=res.T_scene_model,
+            scale=scale,
+            iterations=res.iterations,
+            rmse=res.rmse,
+            cost=cost,
+            sa_cost=sa_cost,
+        )
 
 
 def quat_of(T: np.ndarray) -> np.ndarray:

@@ -24,12 +24,14 @@ Implementation notes (where the thesis text is ambiguous or has a typo):
 * Choice of pairs (i, j) for a batch of N correspondences: all pairs i < j when N <= ``max_all_pairs``
   (the estimate then does not depend on any ordering; as ``H`` is linear in ``(s_ji, o_ji)`` and the sum over
   all pairs of their outer products is N times the centred second moment, this costs O(N), see
-  :func:`tiqf_update_moment`), otherwise ``n_shifts`` random cyclic shifts of a random permutation (``n_shifts * N`` pairs,
+  :func:`tiqf_update_moment`), otherwise ``n_shifts`` random cyclic shifts of a random permutation
+  (``n_shifts * N`` pairs,
   every point used ``2 * n_shifts`` times, long baselines on average).
 * Batch mode: every outer iteration changes the correspondences, so the pseudo-measurements of the previous
   iteration are superseded rather than repeated. The update therefore starts each outer iteration from the
   current mean with the initial covariance ``Sigma_0`` (``reset_covariance=True``); otherwise the information
-  of stale correspondences would accumulate and freeze the filter. In sequential mode (:class:`SequentialTIQF`)
+  of stale correspondences would accumulate and freeze the filter. In sequential mode
+  (:class:`SequentialTIQF`)
   the covariance carries over between touches and each touch only adds the pairs that contain a new point,
   so after all touches the filter has seen every pair exactly once.
 * Local-minimum escape (thesis 4.3.2): after convergence, the rotation is perturbed by angles drawn from
@@ -44,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vtlearn.classical.correspondences import TangentPlanes
 from vtlearn.validation import as_points, as_transform
 
 __all__ = [
@@ -102,9 +105,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
     """``[v]x`` for ``(..., 3)`` -> ``(..., 3, 3)``."""
     x, y, z = np.moveaxis(v, -1, 0)
     o = np.zeros_like(x)
-    return np.stack(
-        [np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2
-    )
+    return np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2)
 
 
 def _rotation_from_euler_small(angles: np.ndarray) -> np.ndarray:
@@ -262,7 +263,9 @@ def tiqf_translation(R, scene_points, model_points) -> np.ndarray:
     return np.mean(scene_points - model_points @ np.asarray(R).T, axis=0)
 
 
-def make_pairs(n: int, *, max_all_pairs: int = 4096, n_shifts: int = 8, rng=None) -> tuple[np.ndarray, np.ndarray]:
+def make_pairs(
+    n: int, *, max_all_pairs: int = 4096, n_shifts: int = 8, rng=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs ``(i, j)`` for a batch of ``n`` correspondences (see module doc for the rule).
 
     Returns:
@@ -433,7 +436,7 @@ class TIQF:
         P = self.sigma0 * np.eye(4)
         it = 0
         R = _quat_to_matrix(x)
-        for it in range(1, self.max_iter + 1):
+        for it in range(1, self.max_iter + 1):  # noqa: B007 - the last value is the count returned
             scene_in_model = (scene - t) @ R  # R^T (s - t)
             if correspondences is None:
                 _, idx = tree.query(scene_in_model, k=1)
@@ -485,8 +488,9 @@ class TIQF:
             # keep the model centroid fixed in the scene while perturbing its rotation
             c = model.mean(0)
             t_pert = t + _quat_to_matrix(x) @ c - R_pert @ c
-            x2, P2, t2, it2, rmse2 = self._run(tree, model, scene, _matrix_to_quat(R_pert), t_pert, rng,
-                                               correspondences)
+            x2, P2, t2, it2, rmse2 = self._run(
+                tree, model, scene, _matrix_to_quat(R_pert), t_pert, rng, correspondences
+            )
             total += it2
             history.append(rmse2)
             if rmse2 < rmse:
@@ -519,11 +523,32 @@ class SequentialTIQF:
             which stalls the filter from a poor initial pose; Algorithm 1 likewise re-estimates the
             correspondences of all points at every touch.
         n_escapes: escape attempts of the refinement (thesis 4.3.2).
+        tangent: pair each point with the foot on the model's local tangent plane
+            (:class:`~vtlearn.classical.correspondences.TangentPlanes`) instead of the nearest sample.
+        mode: ``"carry"`` is the filter as written in 4.2.2: the prior of each touch is the previous
+            posterior and only the pairs with a new point are added. ``"reassociate"`` re-derives the
+            posterior at every touch from the initial belief ``(T_init, P_init)`` with all pairs at the
+            current correspondences (the same information, once each pair, but a pair's correspondence is no
+            longer frozen at the value it had when it was first measured); this is Algorithm 1's
+            "estimate correspondences(O, S); update TIQF(x, Sigma, C)" over all points, without counting a
+            pair twice.
     """
 
-    def __init__(self, model, T_init=None, P_init=None, rho: float = 1e-2, inner_iter: int = 10,
-                 tol_rot_deg: float = 0.1, tol_trans: float = 1e-4, refine: bool = False, n_escapes: int = 0,
-                 seed: int | None = 0):
+    def __init__(
+        self,
+        model,
+        T_init=None,
+        P_init=None,
+        rho: float = 1e-2,
+        inner_iter: int = 10,
+        tol_rot_deg: float = 0.1,
+        tol_trans: float = 1e-4,
+        refine: bool = False,
+        n_escapes: int = 0,
+        tangent: bool = False,
+        mode: str = "carry",
+        seed: int | None = 0,
+    ):
         if not rho > 0:
             raise ValueError(f"rho: must be > 0, got {rho}")
         self.model = as_points(model, "model", min_points=3)
@@ -540,7 +565,14 @@ class SequentialTIQF:
         self.tol_trans = tol_trans
         self.scene = np.zeros((0, 3))
         self.refine = refine
-        self._batch = TIQF(rho=rho, tol_rot_deg=tol_rot_deg, tol_trans=tol_trans, n_escapes=n_escapes, seed=seed)
+        if mode not in ("carry", "reassociate"):
+            raise ValueError(f"mode: expected 'carry' or 'reassociate', got {mode!r}")
+        self.mode = mode
+        self.x0, self.P0 = self.x.copy(), self.P.copy()
+        self._tangent = TangentPlanes(self.model, self.tree) if tangent else None
+        self._batch = TIQF(
+            rho=rho, tol_rot_deg=tol_rot_deg, tol_trans=tol_trans, n_escapes=n_escapes, seed=seed
+        )
 
     @property
     def R(self) -> np.ndarray:
@@ -552,6 +584,12 @@ class SequentialTIQF:
         T[:3, :3] = self.R
         T[:3, 3] = self.t
         return T
+
+    def _corr_points(self, R, t):
+        """Model points paired with all measured points at pose (R, t) (tangent feet when enabled)."""
+        q = (self.scene - t) @ R
+        _, idx = self.tree.query(q, k=1)
+        return self._tangent.project(q, idx) if self._tangent is not None else self.model[idx]
 
     def correspondences(self, scene=None, R=None, t=None):
         """Closest model point for every scene point at pose (R, t). Returns model points ``(N, 3)``."""
@@ -577,22 +615,41 @@ class SequentialTIQF:
         if len(self.scene) < 2:
             self.t = self.scene.mean(0) - self.R @ self.correspondences().mean(0)
             return self.T_scene_model
-        i, j = self.new_pairs(n_old, len(pts))
-        x_prior, P_prior = self.x, self.P
         R, t = self.R, self.t
+        if self.mode == "reassociate":
+            x_prior, P_prior = self.x0, self.P0
+        else:
+            x_prior, P_prior = self.x, self.P
+            i, j = self.new_pairs(n_old, len(pts))
         x, P = x_prior, P_prior
         for _ in range(self.inner_iter):
-            o = self.correspondences(R=R, t=t)
-            x, P = tiqf_update(x_prior, P_prior, self.scene[j] - self.scene[i], o[j] - o[i], self.rho)
+            o = self._corr_points(R, t)
+            if self.mode == "reassociate":
+                x, P = tiqf_update_moment(x_prior, P_prior, all_pairs_moment(self.scene, o), self.rho)
+            else:
+                x, P = tiqf_update(x_prior, P_prior, self.scene[j] - self.scene[i], o[j] - o[i], self.rho)
             R_new = _quat_to_matrix(x)
             t_new = tiqf_translation(R_new, self.scene, o)
-            done = np.linalg.norm(t_new - t) < self.tol_trans and _rotation_angle_deg(R, R_new) < self.tol_rot_deg
+            done = (
+                np.linalg.norm(t_new - t) < self.tol_trans
+                and _rotation_angle_deg(R, R_new) < self.tol_rot_deg
+            )
             R, t = R_new, t_new
             if done:
                 break
         self.x, self.P, self.t = x, P, t
         if self.refine and len(self.scene) >= 3:
-            res = self._batch.register(self.model, self.scene, T_init=self.T_scene_model, model_tree=self.tree)
+            corr = None
+            if self._tangent is not None:
+                scene = self.scene
+
+                def corr(scene_in_model, R, t):
+                    _, idx = self.tree.query(scene_in_model, k=1)
+                    return scene, self._tangent.project(scene_in_model, idx)
+
+            res = self._batch.register(
+                self.model, self.scene, T_init=self.T_scene_model, model_tree=self.tree, correspondences=corr
+            )
             self.x = res.q if res.q @ self.x >= 0 else -res.q
             self.t = res.T_scene_model[:3, 3].copy()
         return self.T_scene_model
