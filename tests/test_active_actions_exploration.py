@@ -66,3 +66,27 @@ def test_bad_input_raises_value_error():
         explore(mesh, "random", n_touches=0)
     with pytest.raises(ValueError, match="compliance"):
         simulate_touch(mesh, TactileArray().rays(np.eye(4)), compliance=-1.0)
+
+
+def test_pinch_pads_stop_independently_and_loop_runs_with_pinches():
+    mesh = trimesh.creation.box(extents=[0.06, 0.04, 0.1])
+    mesh.apply_translation([0.005, 0, 0.05])  # off-centre: the +x pad reaches the surface later
+    from vtlearn.active.sensors import PinchSensor
+
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # approach down, closing along world x
+    T[:3, 3] = [0.0, 0.0, 0.05]
+    rays = PinchSensor("xela_4x4", opening=0.14).rays(T)
+    ranges, hit = simulate_touch(mesh, rays, compliance=0.001, pad_size=16)
+    assert hit.all()
+    assert np.allclose(ranges[:16], 0.07 - 0.035)  # +x pad at x = 0.07 meets the face at x = 0.035
+    assert np.allclose(ranges[16:], 0.07 - 0.025)  # -x pad at x = -0.07 meets the face at x = -0.025
+    with pytest.raises(ValueError, match="pad_size"):
+        simulate_touch(mesh, rays, pad_size=5)
+    cyl = trimesh.creation.cylinder(radius=0.03, height=0.1, sections=24)
+    cyl.apply_translation([0, 0, 0.05])
+    for strategy in ("active", "random", "uniform"):
+        res = explore(cyl, strategy, n_touches=6, n_candidates=20, cells=16, pinch=True, seed=0)
+        assert set(res.chosen_kinds) <= {"touch", "pinch"} and len(res.chosen_kinds) == 6
+        assert res.entropy[-1] < res.entropy[0]
+    assert "pinch" in explore(cyl, "uniform", n_touches=6, cells=16, pinch=True, seed=0).chosen_kinds

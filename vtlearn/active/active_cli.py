@@ -271,6 +271,7 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
                     cells=args.cells,
                     coverage_radius=args.coverage_radius,
                     gain_mode=mode,
+                    pinch=args.pinch,
                     seed=seed,
                 )
                 runs["entropy"].append((res.entropy[0] - res.entropy).tolist())
@@ -294,7 +295,7 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
         rows,
         columns,
         f"Next-best-touch exploration, {len(categories)} categories x {args.seeds} instances, "
-        f"{args.touches} touches "
+        f"{args.touches} {'touches/pinches' if args.pinch else 'touches'} "
         f"(grid-only precursor of the ACTOR experiment)",
     )
     print(
@@ -313,6 +314,7 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
         "candidates": args.candidates,
         "cells_per_axis": args.cells,
         "coverage_radius_m": args.coverage_radius,
+        "action_space": "touch+pinch" if args.pinch else "touch",
         "rows": rows,
         "curves": curves,
         "seconds": elapsed,
@@ -383,6 +385,11 @@ def register_bench(sub) -> None:
     p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo NBT candidates per step")
     p.add_argument("--cells", type=int, default=40, help="grid cells per axis (default 40)")
     p.add_argument("--coverage-radius", type=float, default=0.005, help="metres (default 0.005)")
+    p.add_argument(
+        "--pinch",
+        action="store_true",
+        help="touches and pinches in equal numbers (thesis 8.2.3 action space)",
+    )
     p.add_argument(
         "--json", default="runs/bench/active_exploration.json", help="output JSON (a PNG plot goes beside it)"
     )

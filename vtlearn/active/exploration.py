@@ -11,10 +11,13 @@ The strategies differ only in how the next touch is chosen:
 - ``uniform``: a fixed, evenly spread schedule over the faces (a lattice on every face, visited
   round-robin across faces), independent of what has been measured.
 
+With ``pinch=True`` the action space holds touches and pinches in equal numbers, as in thesis 8.2.3.
+
 The simulated touch uses Open3D's RaycastingScene on the mesh. The pad is rigid: it advances along its
 pressing axis until the first taxel meets the surface; taxels within ``compliance`` of that distance
 report contact (hit rays, contact points), the others report free space up to where the pad stopped.
-A pad that meets nothing sweeps free space over its whole ray length.
+A pad that meets nothing sweeps free space over its whole ray length. Each of the two pads of a pinch
+stops on its own.
 
 Reported after every touch: the grid entropy (eq. 7.9, nats), the surface coverage (fraction of points
 sampled on the mesh surface within ``coverage_radius`` of a contact point) and the number of contact
@@ -30,12 +33,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.active.actions import ActionSet, OrientedBox, sample_touch_actions
+from vtlearn.active.actions import ActionSet, OrientedBox, sample_pinch_actions, sample_touch_actions
 from vtlearn.active.occupancy import OccupancyGrid
-from vtlearn.active.sensors import Rays, TactileArray, cast_rays_on_mesh
+from vtlearn.active.sensors import PinchSensor, Rays, TactileArray, cast_rays_on_mesh
 from vtlearn.geometry.sampling import sample_surface
 
-__all__ = ["ExplorationResult", "STRATEGIES", "explore", "simulate_touch", "uniform_touch_schedule"]
+__all__ = [
+    "ExplorationResult",
+    "STRATEGIES",
+    "explore",
+    "simulate_touch",
+    "uniform_pinch_schedule",
+    "uniform_touch_schedule",
+]
 
 STRATEGIES = ("active", "random", "uniform")
 
@@ -48,21 +58,34 @@ class ExplorationResult:
     n_points: np.ndarray
     contacts: np.ndarray
     chosen_faces: list[int]
+    chosen_kinds: list[str]
 
 
-def simulate_touch(mesh, rays: Rays, compliance: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+def simulate_touch(
+    mesh, rays: Rays, compliance: float = 0.002, pad_size: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Measured ranges and contact flags of rigid-pad touches (see module docstring).
+
+    Args:
+        pad_size: rays per rigid pad, for sensors whose action has several pads (a pinch has two, each
+            stopping on its own); consecutive runs of ``pad_size`` rays form a pad. None: one pad per action.
 
     Shapes:
         rays: ``R`` rays in ``A`` actions -> ranges ``(R,)``, hit ``(R,)`` bool.
     """
     if not (np.isfinite(compliance) and compliance >= 0):
         raise ValueError(f"compliance: need a non-negative distance in metres, got {compliance}")
+    if pad_size is None:
+        pad, n_pads = rays.action_index, rays.n_actions
+    else:
+        if int(pad_size) < 1 or len(rays) % int(pad_size):
+            raise ValueError(f"pad_size: must be >= 1 and divide the {len(rays)} rays, got {pad_size}")
+        pad, n_pads = np.arange(len(rays)) // int(pad_size), len(rays) // int(pad_size)
     ranges, hit = cast_rays_on_mesh(mesh, rays)
-    # Where the rigid pad stops: the nearest contact among the taxels of each action.
-    stop = np.full(rays.n_actions, np.inf)
-    np.minimum.at(stop, rays.action_index[hit], ranges[hit])
-    stop_r = stop[rays.action_index]
+    # Where each rigid pad stops: the nearest contact among its taxels.
+    stop = np.full(n_pads, np.inf)
+    np.minimum.at(stop, pad[hit], ranges[hit])
+    stop_r = stop[pad]
     contact = hit & (ranges <= stop_r + compliance)
     swept = np.where(np.isfinite(stop_r), np.minimum(stop_r + compliance, rays.max_range), rays.max_range)
     return np.where(contact, ranges, swept), contact
@@ -98,6 +121,27 @@ def uniform_touch_schedule(box: OrientedBox, n: int, standoff: float) -> ActionS
     return ActionSet("touch", T_all, T_all[:, :3, 3].copy(), np.array(faces, dtype=np.int64))
 
 
+def uniform_pinch_schedule(box: OrientedBox, n: int) -> ActionSet:
+    """``n`` pinches on a square lattice over the box footprint at mid-height, visited in a spread-out
+    order, with the closing axis alternating between the box x and y axes."""
+    from vtlearn.active.actions import _frames_from_z
+
+    k = int(np.ceil(np.sqrt(n)))
+    u = (np.arange(k) + 0.5) / k * 2 - 1
+    uu, vv = np.meshgrid(u, u, indexing="ij")
+    order = np.argsort(np.array([int(f"{i:08b}"[::-1], 2) for i in range(k * k)]))
+    lattice = np.stack([uu.ravel(), vv.ravel()], axis=1)[order][:n]
+    half = box.extents / 2
+    R_wb, t_wb = box.T_world_box[:3, :3], box.T_world_box[:3, 3]
+    T = np.tile(np.eye(4), (n, 1, 1))
+    closing = np.where((np.arange(n) % 2 == 0)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    T[:, :3, :3] = R_wb @ _frames_from_z(np.tile([0.0, 0.0, -1.0], (n, 1)), closing)
+    centre_b = np.concatenate([lattice * half[:2], np.zeros((n, 1))], axis=1)
+    T[:, :3, 3] = centre_b @ R_wb.T + t_wb
+    start_b = centre_b + [0.0, 0.0, half[2] + 0.1]
+    return ActionSet("pinch", T, start_b @ R_wb.T + t_wb, np.full(n, -1, dtype=np.int64))
+
+
 def _coverage(surface: np.ndarray, contacts: np.ndarray, radius: float) -> float:
     if contacts.shape[0] == 0:
         return 0.0
@@ -120,11 +164,15 @@ def explore(
     coverage_radius: float = 0.005,
     compliance: float = 0.002,
     gain_mode: str = "raycast",
+    pinch: bool = False,
+    pinch_opening: float = 0.14,
     seed: int = 0,
 ) -> ExplorationResult:
     """Run one closed-loop exploration of ``mesh`` (a ``trimesh.Trimesh`` in metres, world frame z-up).
 
     The first ``n_init`` touches are random and identical for every strategy with the same ``seed``.
+    With ``pinch`` the action space holds touches and pinches in equal numbers (thesis 8.2.3): active
+    scores both, random draws either with probability 1/2, uniform alternates the two schedules.
     """
     import trimesh
 
@@ -144,30 +192,43 @@ def explore(
 
     rng_init = np.random.default_rng([seed, 0])
     rng = np.random.default_rng([seed, 1 + STRATEGIES.index(strategy)])
-    schedule = uniform_touch_schedule(box, int(n_touches), standoff) if strategy == "uniform" else None
+    sensors = {"touch": sensor, "pinch": PinchSensor(sensor.layout, opening=pinch_opening)}
+    n = int(n_touches)
+    touch_plan = uniform_touch_schedule(box, n, standoff) if strategy == "uniform" else None
+    pinch_plan = uniform_pinch_schedule(box, n) if strategy == "uniform" and pinch else None
 
     contacts = np.zeros((0, 3))
-    entropy, coverage, npts, faces = [grid.entropy()], [0.0], [0], []
-    for step in range(int(n_touches)):
+    entropy, coverage, npts, faces, kinds = [grid.entropy()], [0.0], [0], [], []
+    for step in range(n):
         if step < n_init:
             chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng_init)
         elif strategy == "uniform":
-            chosen = schedule.subset([step])
+            chosen = pinch_plan.subset([step // 2]) if pinch and step % 2 else touch_plan.subset([step])
         elif strategy == "random":
-            chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng)
+            if pinch and rng.uniform() < 0.5:
+                chosen = sample_pinch_actions(box, 1, seed=rng)
+            else:
+                chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng)
         else:
-            cands = sample_touch_actions(box, n_candidates, standoff=standoff, seed=rng)
-            r = sensor.rays(cands.T_world_sensor)
+            n_touch = n_candidates // 2 if pinch else n_candidates
+            sets = [sample_touch_actions(box, n_touch, standoff=standoff, seed=rng)]
+            if pinch:
+                sets.append(sample_pinch_actions(box, n_candidates - n_touch, seed=rng))
+            r = Rays.concatenate([sensors[a.kind].rays(a.T_world_sensor) for a in sets])
             gains = grid.expected_information_gain(
                 r.origins, r.directions, r.max_range, r.action_index, r.n_actions, mode=gain_mode
             )
-            chosen = cands.subset([int(np.argmax(gains))])
-        rays = sensor.rays(chosen.T_world_sensor)
-        ranges, hit = simulate_touch(mesh, rays, compliance)
+            best = int(np.argmax(gains))
+            chosen = sets[0].subset([best]) if best < len(sets[0]) else sets[1].subset([best - len(sets[0])])
+        rays = sensors[chosen.kind].rays(chosen.T_world_sensor)
+        ranges, hit = simulate_touch(mesh, rays, compliance, pad_size=sensor.layout.num_taxels)
         grid.insert_rays(rays.origins, rays.directions, ranges, hit)
         contacts = np.concatenate([contacts, rays.origins[hit] + ranges[hit, None] * rays.directions[hit]])
         entropy.append(grid.entropy())
         coverage.append(_coverage(surface, contacts, coverage_radius))
         npts.append(contacts.shape[0])
         faces.append(int(chosen.face[0]))
-    return ExplorationResult(strategy, np.array(entropy), np.array(coverage), np.array(npts), contacts, faces)
+        kinds.append(chosen.kind)
+    return ExplorationResult(
+        strategy, np.array(entropy), np.array(coverage), np.array(npts), contacts, faces, kinds
+    )
