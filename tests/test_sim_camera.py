@@ -96,3 +96,31 @@ def test_transparent_object_loses_at_least_half_its_points():
             assert np.median(_dist(mesh_w, pts)) > 0.01
     assert counts[True] <= 0.5 * counts[False]
     assert counts[False] > 500
+
+
+def test_analytic_table_matches_tinyrenderer():
+    """The table top drawn by ray-plane intersection equals TinyRenderer's own drawing of the table."""
+    import pybullet as p
+
+    scene, body, mesh_w = _scene()
+    cam = RGBDCamera(160, 120, noise=DepthNoise.off())
+    for T in sample_hemisphere_views(mesh_w.centroid, 0.6, 3, np.random.default_rng(7)):
+        fast = cam.render(scene, T)
+        p.changeVisualShape(scene.table_id, -1, rgbaColor=[0.5, 0.5, 0.5, 1], physicsClientId=scene.client)
+        _, _, _, zbuf, seg = p.getCameraImage(
+            160,
+            120,
+            viewMatrix=np.linalg.inv(T @ np.diag([1.0, -1.0, -1.0, 1.0])).T.ravel().tolist(),
+            projectionMatrix=cam._proj,
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=scene.client,
+        )
+        p.changeVisualShape(scene.table_id, -1, rgbaColor=[0.5, 0.5, 0.5, 0], physicsClientId=scene.client)
+        seg = np.asarray(seg).reshape(120, 160)
+        depth = cam.far * cam.near / (cam.far - (cam.far - cam.near) * np.asarray(zbuf).reshape(120, 160))
+        table = seg == scene.table_id
+        assert table.sum() > 1000 and (fast.seg == scene.table_id).sum() > 1000
+        assert np.mean((fast.seg == scene.table_id) == table) > 0.995
+        both = table & (fast.seg == scene.table_id)
+        np.testing.assert_allclose(fast.depth[both], depth[both], atol=1e-4)
+        assert np.abs(cam.point_cloud(fast, scene.table_id)[:, 2]).max() < 1e-4  # on the plane z = 0

@@ -122,11 +122,19 @@ class RGBDCamera:
         self._proj = p.computeProjectionMatrixFOV(
             self.fov_y_deg, self.width / self.height, self.near, self.far
         )
+        v, u = np.mgrid[0 : self.height, 0 : self.width]
+        uv1 = np.stack([u + 0.5, v + 0.5, np.ones_like(u, dtype=np.float64)], axis=-1)
+        self._rays = (uv1 @ np.linalg.inv(self.K).T).astype(np.float32)  # (H, W, 3), camera depth 1
 
     def render(
         self, scene: Scene, T_world_camera: np.ndarray, rng: np.random.Generator | None = None
     ) -> RGBDFrame:
-        """Render RGB, metric depth (noise and transparency applied) and the body-id segmentation."""
+        """Render RGB, metric depth (noise and transparency applied) and the body-id segmentation.
+
+        TinyRenderer draws the objects; the scene's table top is added by ray-plane intersection
+        (see :meth:`_draw_table`), which is exact for the flat top and saves TinyRenderer's shading of
+        most of the image. Arrays stay float32 as TinyRenderer returns them.
+        """
         T = np.asarray(T_world_camera, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"T_world_camera: need a finite (4, 4) transform, got shape {T.shape}")
@@ -141,15 +149,52 @@ class RGBDCamera:
             renderer=p.ER_TINY_RENDERER,
             physicsClientId=scene.client,
         )
-        rgb = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[..., :3]
-        zbuf = np.asarray(zbuf, dtype=np.float64).reshape(self.height, self.width)
-        seg = np.asarray(seg, dtype=np.int64).reshape(self.height, self.width)
+        rgba = np.ascontiguousarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
+        zbuf = np.asarray(zbuf, dtype=np.float32).reshape(self.height, self.width)
+        seg = np.asarray(seg, dtype=np.int32).reshape(self.height, self.width)
+        # pybullet packs the link index above bit 24 of the body id; base links (all ours) have 0.
         seg = np.where(seg >= 0, seg & ((1 << 24) - 1), -1).astype(np.int32)
-        depth = self.far * self.near / (self.far - (self.far - self.near) * zbuf)
-        depth[zbuf >= 1.0] = 0.0
+        f, n = np.float32(self.far), np.float32(self.near)
+        background = zbuf >= 1.0
+        depth = f * n / (f - (f - n) * zbuf)
+        depth[background] = np.inf
+        self._draw_table(scene, T, depth, seg, rgba)
+        depth[np.isinf(depth)] = 0.0
+        rgb = rgba[..., :3]  # a view: pybullet returns a fresh array per call
         depth = self._apply_transparency(depth, seg, scene, rng)
         depth = self._apply_noise(depth, rng)
-        return RGBDFrame(rgb, depth.astype(np.float32), seg, self.K.copy(), T.copy())
+        return RGBDFrame(rgb, depth, seg, self.K.copy(), T.copy())
+
+    def _draw_table(self, scene: Scene, T_world_camera, depth, seg, rgba) -> None:
+        """Composite the table face the camera sees into ``depth`` (inf = empty), ``seg`` and ``rgba``.
+
+        Pixel (u, v) looks along ``r = K^-1 [u + 0.5, v + 0.5, 1]`` (camera depth 1), the convention of
+        :func:`backproject`, so table pixels back-project exactly onto the plane. Along ``T r`` the
+        world height is ``o_z + t (R r)_z``; the face at height ``z_f`` is met at camera depth
+        ``t = (z_f - o_z) / (R r)_z``, and kept where it lies within the table, within the clipping
+        planes and in front of what TinyRenderer drew. The 2 cm table sides are not drawn.
+        """
+        if scene.table_id is None:
+            return
+        hx, hy, hz = scene.table_half_extents
+        o, R = T_world_camera[:3, 3], T_world_camera[:3, :3]
+        if o[2] > 0:
+            z_face = 0.0  # the top, seen from above
+        elif o[2] < -2 * hz:
+            z_face = -2 * hz  # the underside
+        else:
+            return  # the camera is level with the slab and sees only its edge
+        rays = self._rays  # (H, W, 3) float32
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.float32(z_face - o[2]) / (rays @ R[2].astype(np.float32))
+            x = np.float32(o[0]) + t * (rays @ R[0].astype(np.float32))
+            y = np.float32(o[1]) + t * (rays @ R[1].astype(np.float32))
+            hit = (t > self.near) & (t < self.far) & (np.abs(x) <= hx) & (np.abs(y) <= hy) & (t < depth)
+        depth[hit] = t[hit]
+        seg[hit] = scene.table_id
+        # one uint32 store per pixel: a masked store of 3 bytes per pixel costs ~5 ms per frame
+        colour = np.round(255 * scene.table_rgba).astype(np.uint8).view(np.uint32)[0]
+        rgba.view(np.uint32)[..., 0][hit] = colour
 
     def _apply_transparency(self, depth, seg, scene, rng):
         clear = [b for b, o in scene.objects.items() if o.transparent]
@@ -159,9 +204,8 @@ class RGBDCamera:
         n = int(mask.sum())
         tm = self.transparency
         missing = rng.uniform(size=n) < tm.p_missing
-        vals = depth[mask] + rng.uniform(tm.deep_min, tm.deep_max, size=n)
+        vals = depth[mask] + rng.uniform(tm.deep_min, tm.deep_max, size=n).astype(np.float32)
         vals[missing] = 0.0
-        depth = depth.copy()
         depth[mask] = vals
         return depth
 
@@ -171,9 +215,8 @@ class RGBDCamera:
             return depth
         valid = depth > 0
         z = depth[valid]
-        sigma = nz.axial_a + nz.axial_b * (z - nz.axial_z0) ** 2
-        depth = depth.copy()
-        depth[valid] = z + rng.normal(size=z.shape) * sigma
+        sigma = np.float32(nz.axial_a) + np.float32(nz.axial_b) * np.square(z - np.float32(nz.axial_z0))
+        depth[valid] = z + rng.standard_normal(z.shape, dtype=np.float32) * sigma
         depth[(depth < nz.min_range) | (depth > nz.max_range)] = 0.0
         return depth
 
