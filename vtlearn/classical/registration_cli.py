@@ -84,12 +84,13 @@ def _cmd_bench_registration(args: argparse.Namespace) -> int:
                     "adi_std_cm": s["std"],
                     "adi_median_cm": s["median"],
                     "time_s": s["time_mean_s"],
+                    "cpu_s": s["cpu_time_mean_s"],
                     "p_vs_stiqf": "-" if s["p_welch_vs_stiqf"] is None else f"{s['p_welch_vs_stiqf']:.2g}",
                 }
             )
     print_table(
         rows,
-        ["N", "method", "adi_mean_cm", "adi_std_cm", "adi_median_cm", "time_s", "p_vs_stiqf"],
+        ["N", "method", "adi_mean_cm", "adi_std_cm", "adi_median_cm", "time_s", "cpu_s", "p_vs_stiqf"],
         "bench registration (thesis 5.3.3; times on a shared CPU are noisy)",
     )
     md = markdown_report(result)
