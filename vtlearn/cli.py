@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "vtlearn.classical.tracking_cli",
     "vtlearn.sim_data.cli",
     "vtlearn.active.active_cli",
+    "vtlearn.models.actor_cli",
 )
 
 
