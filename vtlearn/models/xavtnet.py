@@ -201,16 +201,18 @@ class XAVTNet(L.LightningModule):
             self._log_train(loss, out.logits, y, {"ce": ce.detach()})
             return loss
         src, tgt = batch["source"], batch["target"]
-        out_s = self(src["points"], src.get("lengths"))
         y = src["label"]
+        # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
+        adapts = self.vtloss.adapts or self.discriminator is not None
+        use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
+        if use_target:
+            out_s, out_t = self._joint_forward(src, tgt)
+        else:
+            out_s = self(src["points"], src.get("lengths"))
         parts: dict[str, torch.Tensor] = {}
-        # CORAL and batch norm need >= 2 target clouds; a lone leftover target cloud is skipped.
-        use_target = tgt is not None and tgt["points"].shape[0] >= 2
-        if self.hparams.da_method == "vtloss" and self.vtloss.adapts and use_target:
-            out_t = self(tgt["points"], tgt.get("lengths"))
+        if use_target and self.hparams.da_method == "vtloss":
             loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features)
-        elif self.hparams.da_method == "dann" and use_target:
-            out_t = self(tgt["points"], tgt.get("lengths"))
+        elif use_target and self.hparams.da_method == "dann":
             ce = F.cross_entropy(out_s.logits, y)
             lambd = dann_lambda(self._progress(), self.hparams.dann_gamma)
             dom = domain_adversarial_loss(
@@ -225,6 +227,32 @@ class XAVTNet(L.LightningModule):
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    def _joint_forward(self, src: dict, tgt: dict) -> tuple[XAVTNetOutput, XAVTNetOutput]:
+        """One forward of source and target clouds together, split afterwards.
+
+        Sharing the batch keeps batch-norm statistics pooled over both domains, so training-mode
+        normalisation matches the running statistics used at test time (as in DAN / Deep CORAL, which
+        concatenate the two batches). Padding is harmless: the per-point MLPs see valid points only.
+        """
+        ps, pt = src["points"], tgt["points"]
+        ls = src.get("lengths")
+        lt = tgt.get("lengths")
+        ls = torch.full((ps.shape[0],), ps.shape[1], device=ps.device) if ls is None else ls
+        lt = torch.full((pt.shape[0],), pt.shape[1], device=pt.device) if lt is None else lt
+        n = max(ps.shape[1], pt.shape[1])
+        points = torch.cat([F.pad(ps, (0, 0, 0, n - ps.shape[1])), F.pad(pt, (0, 0, 0, n - pt.shape[1]))])
+        out = self(points, torch.cat([ls, lt]))
+        b = ps.shape[0]
+
+        def part(sl):
+            return XAVTNetOutput(
+                out.logits[sl], {k: v[sl] for k, v in out.features.items()},
+                None if out.trans_input is None else out.trans_input[sl],
+                None if out.trans_feat is None else out.trans_feat[sl],
+            )
+
+        return part(slice(0, b)), part(slice(b, None))
 
     def _progress(self) -> float:
         total = self.trainer.estimated_stepping_batches if self._trainer is not None else 0
