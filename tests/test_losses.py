@@ -51,7 +51,8 @@ def naive_coral(xs, xt):
     def cov(x):
         n = len(x)
         mu = [sum(r[a] for r in x) / n for a in range(d)]
-        return [[sum((r[a] - mu[a]) * (r[b] - mu[b]) for r in x) / (n - 1) for b in range(d)] for a in range(d)]
+        return [[sum((r[a] - mu[a]) * (r[b] - mu[b]) for r in x) / (n - 1) for b in range(d)]
+                for a in range(d)]
 
     cs, ct = cov(xs.tolist()), cov(xt.tolist())
     return sum((cs[a][b] - ct[a][b]) ** 2 for a in range(d) for b in range(d)) / (4 * d * d)

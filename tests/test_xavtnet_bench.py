@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vtlearn.models.xavtnet_cli import VARIANTS, load_config
 from vtlearn.models.xavtnet import XAVTNet
+from vtlearn.models.xavtnet_cli import VARIANTS, load_config
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 ROOT = Path(__file__).resolve().parents[1]

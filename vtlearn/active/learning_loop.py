@@ -170,7 +170,8 @@ def labels_to_reach(
     out: dict[float, int | None] = {}
     for t in thresholds:
         out[t] = next(
-            (int(n) for n, a in zip(n_labels, accuracy, strict=True) if (full_accuracy - a) / full_accuracy <= t),
+            (int(n) for n, a in zip(n_labels, accuracy, strict=True)
+             if (full_accuracy - a) / full_accuracy <= t),
             None,
         )
     return out

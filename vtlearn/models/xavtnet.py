@@ -273,8 +273,9 @@ class XAVTNet(L.LightningModule):
         loss, preds, y = self.model_step(batch)
         self.val_loss(loss)
         self.val_acc(preds, y)
-        self.log("val/loss", self.val_loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
-        self.log("val/acc", self.val_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
+        bs = y.shape[0]
+        self.log("val/loss", self.val_loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
+        self.log("val/acc", self.val_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
         loss, preds, y = self.model_step(batch)

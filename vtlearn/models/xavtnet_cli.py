@@ -42,7 +42,7 @@ THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 7
 
 
 def load_config(path: str | None) -> dict:
-    """``{"model": init_args, "data": init_args, "trainer": {...}, "active": {...}}`` from a LightningCLI YAML.
+    """``{"model", "data", "trainer", "active"}`` sections of a LightningCLI-style YAML.
 
     Read with ``yaml.safe_load``; ``active`` is the bench-only section of configs/active_learning.yaml.
     """
@@ -184,8 +184,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
                "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
         per_run.append(row)
-        tqdm.write(f"{variant} seed {seed}: tactile {row['tactile_acc']:.1f}%  visual {row['visual_acc']:.1f}%  "
-                   f"({fit_s:.0f} s)")
+        tqdm.write(f"{variant} seed {seed}: tactile {row['tactile_acc']:.1f}%  "
+                   f"visual {row['visual_acc']:.1f}%  ({fit_s:.0f} s)")
         if seed == seeds[0] and variant in ("noda", "vtloss") and not args.no_figures:
             fs, ys = _collect_features(model, dm.source_test_dataloader())
             ft, yt = _collect_features(model, dm.test_dataloader())
@@ -357,7 +357,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
 
 
 def register_bench(sub) -> None:
-    p = sub.add_parser("crossmodal", help="Table 7.2/7.4 analogue: V->T accuracy of every DA variant over seeds")
+    p = sub.add_parser("crossmodal", help="Table 7.2/7.4 analogue: V->T accuracy of each DA variant")
     p.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/xavtnet.yaml)")
     p.add_argument("--data", default=None, help="crossmodal dataset dir (overrides the config's data_dir)")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma list of {list(VARIANTS)}")
@@ -371,8 +371,8 @@ def register_bench(sub) -> None:
     p.add_argument("--json", default="runs/bench/crossmodal.json")
     p.set_defaults(func=run_crossmodal_bench)
 
-    q = sub.add_parser("active-learning", help="Table 7.1 analogue: MC-dropout entropy/BALD vs random queries")
-    q.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/active_learning.yaml)")
+    q = sub.add_parser("active-learning", help="Table 7.1 analogue: MC-dropout entropy/BALD vs random")
+    q.add_argument("--config", default=None, help="YAML, e.g. configs/quick/active_learning.yaml")
     q.add_argument("--data", default=None, help="dataset dir (overrides the config's data_dir)")
     q.add_argument("--modality", default=None, help="visual (thesis) or tactile; default from the config")
     # None = take the config's `active:` section, else AL_DEFAULTS

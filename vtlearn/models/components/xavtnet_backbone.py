@@ -95,7 +95,9 @@ class XAVTNetHead(nn.Module):
         global (B, in_dim) -> (logits (B, k), {"fc1": (B, fc_dims[0]), "fc2": (B, fc_dims[1])})
     """
 
-    def __init__(self, in_dim: int, num_classes: int, fc_dims: Sequence[int] = (512, 256), dropout: float = 0.4):
+    def __init__(
+        self, in_dim: int, num_classes: int, fc_dims: Sequence[int] = (512, 256), dropout: float = 0.4
+    ):
         super().__init__()
         if len(fc_dims) != 2:
             raise ValueError(f"fc_dims must give the sizes of fc1 and fc2, got {fc_dims}")
