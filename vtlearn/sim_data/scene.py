@@ -17,6 +17,10 @@ import trimesh
 
 from vtlearn.geometry import matrix_to_quat
 
+# Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
+# the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
+COLLISION_MARGIN = 1e-4
+
 
 @dataclass
 class SceneObject:
@@ -125,6 +129,7 @@ class Scene:
             baseOrientation=_xyzw(T[:3, :3]),
             **kw,
         )
+        p.changeDynamics(body, -1, collisionMargin=COLLISION_MARGIN, **kw)
         self.objects[body] = SceneObject(body, mesh_m, T, fixed, transparent)
         return body
 
@@ -140,6 +145,13 @@ class Scene:
         """Current pose of a body (free objects may have moved)."""
         pos, q = p.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
         return pose_to_matrix(pos, q)
+
+    def step(self, n: int = 1) -> None:
+        """Advance the physics ``n`` steps of pybullet's default 1/240 s (only free objects move)."""
+        if n < 0:
+            raise ValueError(f"n: need >= 0 steps, got {n}")
+        for _ in range(n):
+            p.stepSimulation(physicsClientId=self.client)
 
     def ray_test(
         self, starts: np.ndarray, ends: np.ndarray
