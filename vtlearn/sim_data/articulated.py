@@ -223,17 +223,25 @@ def to_urdf(spec: ArticulatedSpec) -> str:
     return "\n".join(out)
 
 
+def _n_points(mesh: trimesh.Trimesh, n_model_points: int | float) -> int:
+    """An int is a fixed count; a float is a spacing in metres: area / spacing^2 points, in [500, 20000]."""
+    if isinstance(n_model_points, (int, np.integer)):
+        return int(n_model_points)
+    return int(np.clip(mesh.area / float(n_model_points) ** 2, 500, 20000))
+
+
 class ArticulatedObject:
     """An :class:`ArticulatedSpec` loaded into a :class:`Scene` (fixed base, kinematic joints).
 
     Args:
         scene: the pybullet scene.
         spec: the object.
-        n_model_points: points sampled on each link mesh for the link model clouds.
+        n_model_points: points sampled on each link mesh for the link model clouds: an int is a
+            count per link, a float a target spacing in metres (area / spacing^2 points, 500..20000).
         seed: seed of the model sampling.
     """
 
-    def __init__(self, scene: Scene, spec: ArticulatedSpec, n_model_points: int = 1000, seed: int = 0):
+    def __init__(self, scene: Scene, spec: ArticulatedSpec, n_model_points: int | float = 0.005, seed: int = 0):
         self.scene, self.spec = scene, spec
         fd, path = tempfile.mkstemp(suffix=".urdf")
         try:
@@ -242,7 +250,7 @@ class ArticulatedObject:
             self.body = p.loadURDF(path, useFixedBase=True, physicsClientId=scene.client)
         finally:
             os.unlink(path)
-        self.models = [sample_surface(link.mesh(), n_model_points, seed=seed + i)[0]
+        self.models = [sample_surface(link.mesh(), _n_points(link.mesh(), n_model_points), seed=seed + i)[0]
                        for i, link in enumerate(spec.links)]
 
     @property
@@ -346,7 +354,7 @@ def articulation_sequence(
     *,
     width: int = 320,
     height: int = 240,
-    n_model_points: int = 1000,
+    n_model_points: int | float = 0.005,
     noise: bool = True,
 ) -> TrackingSequence:
     """Thesis 6.3.5 analogue: a random instance, random base pose, joints moved from 0 to random q in [0, 1].
@@ -381,7 +389,7 @@ def motion_sequence(
     n_objects: int | None = None,
     width: int = 320,
     height: int = 240,
-    n_model_points: int = 1000,
+    n_model_points: int | float = 0.005,
     noise: bool = True,
     probe_radius: float = 0.01,
 ) -> TrackingSequence:
