@@ -18,3 +18,20 @@ __all__ = [
     "gaussian_kl",
 ]
 # --- end registration block ---------------------------------------------------------------------------------
+
+# --- tracking: manifold UKF, ArtReg, part segmentation, tracking baselines (issue 7; thesis ch.6) ----------
+from vtlearn.classical.artreg import ArtRegTracker
+from vtlearn.classical.segmentation import SegmentationResult, segment_parts
+from vtlearn.classical.tracking_baselines import FilterRegTracker, FrameToFrameICPTracker, ParticleFilterTracker
+from vtlearn.classical.ukf import ManifoldUKF
+
+__all__ += [
+    "ManifoldUKF",
+    "ArtRegTracker",
+    "segment_parts",
+    "SegmentationResult",
+    "ParticleFilterTracker",
+    "FrameToFrameICPTracker",
+    "FilterRegTracker",
+]
+# --- end tracking block -------------------------------------------------------------------------------------
