@@ -47,7 +47,9 @@ def test_action_sampler_on_box_faces_pointing_inwards():
     o, d = sampler.sample(500, np.eye(4), 0)
     on_face = np.isclose(o, hi) | np.isclose(o, lo)
     assert on_face.any(axis=1).all()
-    assert not np.isclose(o[:, 2], lo[2]).any() or np.isclose(o[:, :2], np.stack([lo[:2], hi[:2]])).any()
+    # no action from the bottom face (it would point up, +z)
+    assert not (d[:, 2] > 0.5).any()
+    assert (d[:, 2] < -0.5).any() and (np.abs(d[:, 0]) > 0.5).any()
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
     # inwards: moving along d from the start point goes towards the box centre
     assert np.all(np.einsum("nd,nd->n", d, -o) > 0)
@@ -157,3 +159,17 @@ def test_bench_active_touch_tiny(tmp_path, capsys):
     assert len(res["curves_rmse"]["active"]["trans_m"]) == 4
     assert out.with_suffix(".png").exists()
     assert "look-ahead" in capsys.readouterr().out
+
+
+def test_entropy_criterion_is_half_logdet_ratio():
+    rng = np.random.default_rng(9)
+    s, o = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))
+    x = np.array([1.0, 0, 0, 0])
+    P = 0.3 * np.eye(4)
+    z, oz = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    g = lookahead_information_gain(x, P, s, o, z, oz, 0.1, criterion="entropy")
+    for c in range(3):
+        _, P_c = tiqf_update(x, P, z[c] - s, oz[c] - o, 0.1)
+        np.testing.assert_allclose(g[c], 0.5 * np.log(np.linalg.det(P) / np.linalg.det(P_c)), rtol=1e-6)
+    with pytest.raises(ValueError, match="criterion"):
+        lookahead_information_gain(x, P, s, o, z, oz, 0.1, criterion="nope")

@@ -121,6 +121,8 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
         touches=args.touches,
         seed=args.seed,
         mesh_spec=args.mesh,
+        init_rot_deg=args.init_rot_deg,
+        init_trans=args.init_trans,
         plot_path=Path(args.json).with_suffix(".png"),
     )
     print_table(
@@ -128,15 +130,10 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
         ["faces", "candidates", "lookahead_s", "lookahead_median_s", "thesis_s"],
         "one-step look-ahead time (Table 4.1 analogue)",
     )
+    names = ("active", "active_entropy", "random")
     print_table(
         result["curve_rows"],
-        [
-            "touches",
-            "active_trans_rmse_mm",
-            "random_trans_rmse_mm",
-            "active_rot_rmse_deg",
-            "random_rot_rmse_deg",
-        ],
+        ["touches"] + [f"{n}_trans_rmse_mm" for n in names] + [f"{n}_rot_rmse_deg" for n in names],
         "active vs random touch (Fig. 4.5 analogue), RMSE over trials",
     )
     write_json(args.json, result)
@@ -169,6 +166,12 @@ def register_bench(bench_subparsers: Any) -> None:
     p.add_argument("--trials", type=int, default=10, help="active-vs-random trials")
     p.add_argument("--touches", type=int, default=25, help="touches per trial")
     p.add_argument("--mesh", default="bunny", help="mesh for the active-vs-random curves")
+    p.add_argument(
+        "--init-rot-deg", type=float, default=30.0, help="initial rotation error bound (thesis 30)"
+    )
+    p.add_argument(
+        "--init-trans", type=float, default=0.02, help="initial translation error bound per axis (m)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default="runs/bench/active_touch.json", help="output JSON (.png beside)")
     p.set_defaults(func=_cmd_bench_active_touch)

@@ -591,6 +591,10 @@ class SequentialTIQF:
         _, idx = self.tree.query(q, k=1)
         return self._tangent.project(q, idx) if self._tangent is not None else self.model[idx]
 
+    def paired_model_points(self) -> np.ndarray:
+        """The model points the filter pairs with the measured points at the current pose ``(n, 3)``."""
+        return self._corr_points(self.R, self.t)
+
     def correspondences(self, scene=None, R=None, t=None):
         """Closest model point for every scene point at pose (R, t). Returns model points ``(N, 3)``."""
         scene = self.scene if scene is None else scene
