@@ -106,3 +106,13 @@ def test_write_cloud_rejects_bad_input(tmp_path):
         write_cloud(tmp_path / "a.ply", np.empty((0, 3)))
     with pytest.raises(ValueError, match="unsupported"):
         write_cloud(tmp_path / "a.las", np.ones((3, 3)))
+
+
+def test_atomic_write_npz_is_byte_reproducible(tmp_path):
+    arrays = {"b": np.arange(6.0).reshape(2, 3), "a": np.ones(4, dtype=np.int64)}
+    one = atomic_write_npz(tmp_path / "one.npz", **arrays).read_bytes()
+    two = atomic_write_npz(tmp_path / "two.npz", compress=True, **arrays)
+    assert atomic_write_npz(tmp_path / "again.npz", **arrays).read_bytes() == one
+    with np.load(two, allow_pickle=False) as d:
+        np.testing.assert_array_equal(d["b"], arrays["b"])
+        np.testing.assert_array_equal(d["a"], arrays["a"])

@@ -214,19 +214,37 @@ def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarra
     return read_cloud(p)
 
 
-def atomic_write_npz(path, **arrays) -> Path:
-    """Write an ``.npz`` atomically: to a temporary file in the same folder, then ``os.replace``.
+def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
+    """Write an ``.npz`` atomically and byte-reproducibly.
 
-    Object arrays are refused, so every file loads with ``allow_pickle=False``.
+    The arrays go to a temporary file in the same folder, which is fsync'ed and then renamed over ``path``
+    (``os.replace``), so a reader never sees a partial file. Zip entries carry a fixed timestamp and are
+    written in sorted key order: equal data always gives equal bytes, hence equal sha256 sums in dataset
+    manifests (``np.savez`` stamps the current time instead). Object arrays are refused, so every file
+    loads with ``allow_pickle=False``.
+
+    Args:
+        path: destination file.
+        compress: deflate the entries (deterministic for a given zlib).
+        **arrays: name -> array.
     """
+    import zipfile
+
     p = Path(path)
     for k, v in arrays.items():
         if np.asarray(v).dtype == object:
             raise ValueError(f"{k}: object arrays cannot be stored (files must load with allow_pickle=False)")
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
+        with zipfile.ZipFile(fh, "w", compression=method) as zf:
+            for key in sorted(arrays):
+                info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = method
+                info.external_attr = 0o644 << 16
+                with zf.open(info, "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.ascontiguousarray(arrays[key]), allow_pickle=False)
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, p)

@@ -33,13 +33,13 @@ import hashlib
 import json
 import logging
 import os
-import zipfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from vtlearn.io import atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, generate_shape, instance_seed
 
 log = logging.getLogger(__name__)
@@ -158,31 +158,8 @@ def plan_shards(cfg: GenConfig, plan: dict[str, list[dict]]) -> list[dict]:
 
 # --------------------------------------------------------------------------- deterministic I/O
 def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
-    """Write an uncompressed .npz with fixed zip timestamps via a temporary file; returns its sha256.
-
-    ``np.savez`` (and so ``vtlearn.io.atomic_write_npz``, which uses it) stamps the current time into
-    the zip, so equal data would give different bytes and a resumed run a different manifest. Like
-    the foundation function, the file is fsync'ed before the rename and object arrays are refused.
-    """
-    path = Path(path)
-    for key, arr in arrays.items():
-        if np.asarray(arr).dtype == object:
-            raise ValueError(
-                f"{key}: object arrays cannot be stored (files must load with allow_pickle=False)"
-            )
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_STORED) as zf:
-            for key in sorted(arrays):
-                info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                info.external_attr = 0o644 << 16
-                with zf.open(info, "w", force_zip64=True) as f:
-                    np.lib.format.write_array(f, np.ascontiguousarray(arrays[key]), allow_pickle=False)
-        fh.flush()
-        os.fsync(fh.fileno())
-    digest = sha256_file(tmp)
-    os.replace(tmp, path)
-    return digest
+    """Write a shard with :func:`vtlearn.io.atomic_write_npz` (atomic, reproducible); return its sha256."""
+    return sha256_file(atomic_write_npz(path, **arrays))
 
 
 def write_json_atomic(path: Path, obj) -> None:
