@@ -86,3 +86,21 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
         assert res["curves"][strategy]["n_labels"] == [3, 5]
         assert set(res["curves"][strategy]["labels_to_reach"]) == {"10%", "5%", "3%", "2%"}
     assert (tmp_path / "al.png").exists()
+
+
+@pytest.mark.slow  # a fresh interpreter importing lightning + train.py: tens of seconds on shared cores
+def test_train_py_parses_config_with_ablation_override():
+    import subprocess
+    import sys
+
+    if not (ROOT / "train.py").exists():
+        pytest.skip("train.py not present")
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), "fit", "--config", str(ROOT / "configs" / "xavtnet.yaml"),
+         "--config", str(ROOT / "configs" / "xavtnet_ablation" / "vtloss_fc1.yaml"), "--print_config"],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    printed = yaml.safe_load(proc.stdout)
+    args = printed["model"]["init_args"]
+    assert args["da_layers"] == ["fc1"] and args["global_dim"] == 1024 and args["alpha"] == 10.0
