@@ -32,8 +32,8 @@ down-weighting that keeps partial-view outliers from dragging the estimate).
 Data association. Scene points are assigned to the part whose model, at its predicted pose, is
 closest (thesis 6.2.3); points further than ``max_correspondence_distance`` from every part are
 ignored. At most ``max_points_per_part`` points per part enter the update (a fixed-seed random
-subsample), which bounds the cost per frame; with the defaults two parts with 1000 points each run
-well above 30 Hz on one core (``vtlearn bench tracking`` prints the rate).
+subsample), which bounds the cost per frame; with the defaults (300 points, 2 iterations) two parts
+with 1000 points each run above 30 Hz on one core (``vtlearn bench tracking`` prints the rate).
 
 Frames with no usable point keep the last estimate: the filter only predicts, so the covariance grows.
 """
@@ -179,7 +179,8 @@ class ArtRegTracker:
             predicted pose are not assigned to any part.
         robust_scale: distance (m) beyond which a point's variance is inflated by (d / scale)^2.
         max_points_per_part: cap on the measurement points per part and frame (random subsample with
-            a fixed seed); ``None`` uses every point.
+            a fixed seed); ``None`` uses every point. Scenes with more than ``8 * cap * N`` points are
+            randomly subsampled to that many before the assignment, which bounds its cost too.
         n_iterations: measurement re-linearisations per frame (see :meth:`ManifoldUKF.update`);
             1 is the plain update of eq. 6.6-6.10. Closest-point correspondences are only right near
             the true pose, so a few iterations let the filter follow faster motions.
@@ -197,14 +198,14 @@ class ArtRegTracker:
         models: Sequence[Any],
         T_world_object0: Sequence[Any],
         *,
-        process_std: tuple[float, float] = (0.01, 0.03),
+        process_std: tuple[float, float] = (0.005, 0.015),
         visual_std: float = 0.003,
         tactile_std: float = 0.001,
         init_std: tuple[float, float] = (0.005, 0.02),
         max_correspondence_distance: float = 0.05,
         robust_scale: float = 0.01,
-        max_points_per_part: int | None = 400,
-        n_iterations: int = 3,
+        max_points_per_part: int | None = 300,
+        n_iterations: int = 2,
         alpha: float = 1.0,
         beta: float = 2.0,
         kappa: float = 0.0,
@@ -304,6 +305,8 @@ class ArtRegTracker:
         if len(scene) == 0 and not allow_empty:
             raise ValueError("scene_cloud is empty (pass allow_empty=True to keep the last estimate)")
         tactile = self._cloud(tactile_cloud, "tactile_cloud") if tactile_cloud is not None else np.zeros((0, 3))
+        if self.max_points_per_part is not None and len(scene) > 8 * self.max_points_per_part * self.n_parts:
+            scene = scene[self.rng.choice(len(scene), 8 * self.max_points_per_part * self.n_parts, replace=False)]
         points = np.concatenate([scene, tactile], axis=0)
         var = np.concatenate([np.full(len(scene), self.visual_std**2), np.full(len(tactile), self.tactile_std**2)])
 

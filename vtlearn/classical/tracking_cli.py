@@ -128,9 +128,9 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--tactile", default=None, help="directory of tactile clouds with the frames' file names")
     sp.add_argument("--init-poses", default=None, help=".npy or .json (N, 4, 4) T_world_object at t = 0 (default I)")
     sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
-    sp.add_argument("--process-std", type=float, nargs=2, default=(0.01, 0.03), metavar=("M", "RAD"))
+    sp.add_argument("--process-std", type=float, nargs=2, default=(0.005, 0.015), metavar=("M", "RAD"))
     sp.add_argument("--visual-std", type=float, default=0.003)
-    sp.add_argument("--max-points", type=int, default=400, help="measurement points per part (0: all)")
+    sp.add_argument("--max-points", type=int, default=300, help="measurement points per part (0: all)")
     sp.add_argument("--json", default=None, help="write the per-frame poses here")
     sp.set_defaults(func=_cmd_track)
 
@@ -150,28 +150,39 @@ def _adi(models: list[np.ndarray], est: np.ndarray, gt: np.ndarray) -> np.ndarra
     return np.array([adi(m, e, g) for m, e, g in zip(models, est, gt, strict=True)])
 
 
-def _speed(n_points: int, cap: int | None, n_steps: int = 60) -> float:
-    """ArtReg frames/s for 2 box-shaped parts with ``n_points`` points each, static, noiseless."""
+def _speed(n_points: int, cap: int | None, n_steps: int = 60) -> dict:
+    """ArtReg rate for 2 box-shaped parts with ``n_points`` points each (static, 1 mm noise).
+
+    Returns wall-clock Hz and CPU-time Hz (``time.process_time``, BLAS limited to one thread): on a
+    shared machine the wall-clock rate mostly measures the other processes, the CPU-time rate is the
+    one-core cost. Best of three repeats.
+    """
+    from threadpoolctl import threadpool_limits
+
     from vtlearn.classical.artreg import ArtRegTracker, se3_exp_single
 
     rng = np.random.default_rng(0)
     models, scene = [], []
-    for i, size in enumerate(((0.12, 0.08, 0.05), (0.06, 0.06, 0.1))):
+    Ts = [se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i])) for i in range(2)]
+    for size, T in zip(((0.12, 0.08, 0.05), (0.06, 0.06, 0.1)), Ts, strict=True):
         s = np.asarray(size) / 2
         pts = rng.uniform(-1, 1, size=(n_points, 3)) * s
         ax = rng.integers(0, 3, n_points)
         pts[np.arange(n_points), ax] = np.sign(rng.uniform(-1, 1, n_points)) * s[ax]
-        T = se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i]))
         models.append(pts)
         scene.append(pts @ T[:3, :3].T + T[:3, 3] + rng.normal(scale=0.001, size=pts.shape))
-    Ts = [se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i])) for i in range(2)]
     tracker = ArtRegTracker(models, Ts, max_points_per_part=cap)
     scene = np.concatenate(scene)
-    tracker.step(scene)
-    t0 = time.perf_counter()
-    for _ in range(n_steps):
+    wall, cpu = 0.0, 0.0
+    with threadpool_limits(limits=1):
         tracker.step(scene)
-    return n_steps / (time.perf_counter() - t0)
+        for _ in range(3):
+            t0, c0 = time.perf_counter(), time.process_time()
+            for _ in range(n_steps // 3):
+                tracker.step(scene)
+            wall = max(wall, (n_steps // 3) / (time.perf_counter() - t0))
+            cpu = max(cpu, (n_steps // 3) / max(time.process_time() - c0, 1e-9))
+    return {"wall_hz": wall, "cpu_hz": cpu, "points_per_part": n_points, "cap": cap}
 
 
 def _summary(vals: np.ndarray) -> dict:
@@ -272,11 +283,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     res["sequences"] = out_seq
 
     fps = {m: frames_done[m] / max(time_spent[m], 1e-9) for m in methods}
-    speed = {"artreg_2x1000_all_points_hz": _speed(1000, None), "artreg_2x1000_cap400_hz": _speed(1000, 400)}
+    speed = {"artreg_2x1000_all_points": _speed(1000, None), "artreg_2x1000_cap300": _speed(1000, 300)}
     res["fps"], res["speed"] = fps, speed
     print_table([{"method": m, "frames/s (benchmark frames)": fps[m]} for m in methods],
                 ["method", "frames/s (benchmark frames)"], "Tracking rate (step() only; shared CPU, noisy)")
-    print_table([{"case": k, "Hz": v} for k, v in speed.items()], ["case", "Hz"], "ArtReg speed, 2 parts x 1000 points")
+    print_table([{"case": k, "wall Hz": v["wall_hz"], "CPU-time Hz": v["cpu_hz"]} for k, v in speed.items()],
+                ["case", "wall Hz", "CPU-time Hz"], "ArtReg speed, 2 parts x 1000 points (target >= 30 Hz)")
 
     if args.plots:
         res["plots"] = _plots(Path(args.plots), art_vals, methods, traj_example)
