@@ -101,6 +101,8 @@ class ACTORRecognition(L.LightningModule):
             "dropout_keep": float(dropout_keep), "rotation": rotation, "attention": bool(attention),
             "encoder_channels": [int(c) for c in encoder_channels], "input_scale": float(input_scale),
         })
+        # in the state dict, so that a checkpoint restores it whatever hparams a CLI recorded
+        self.register_buffer("encoder_input_scale", torch.tensor(float(input_scale)))
         self.encoder.requires_grad_(False)
         self.encoder.eval()
         c = self.encoder.out_channels
@@ -142,7 +144,7 @@ class ACTORRecognition(L.LightningModule):
             raise ValueError(f"sparse: expected (B, N, 3), got {tuple(sparse.shape)}")
         if lengths is None:
             lengths = torch.full((sparse.shape[0],), sparse.shape[1], dtype=torch.long, device=sparse.device)
-        x = (sparse - _masked_centre(sparse, lengths)) / self.hparams.input_scale
+        x = (sparse - _masked_centre(sparse, lengths)) / self.encoder_input_scale
         with torch.no_grad():
             z = self.encoder(x, lengths)
         return self.head(z)
@@ -217,6 +219,13 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
         raise ValueError(f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no head.* / encoder.* weights)")
     hp = _plain_hparams(dict(data["hyper_parameters"]), ACTORRecognition)
     hp["actor_ckpt"] = None  # the encoder weights are in the state dict
+    # The encoder architecture is read from the weights: LightningCLI records the config's init args,
+    # not the values copied from the ACTOR checkpoint.
+    convs = sorted((k for k in state if k.startswith("encoder.features.convs.")), key=lambda k: int(k.split(".")[3]))
+    hp["encoder_channels"] = tuple(int(state[k].shape[0]) for k in convs)
+    hp["attention"] = any(k.startswith("encoder.attention.") for k in state)
+    head_out = [k for k in state if k.startswith("head.") and k.endswith(".bias")]
+    hp["num_classes"] = int(state[max(head_out, key=lambda k: int(k.split(".")[1]))].shape[0])
     try:
         model = ACTORRecognition(**hp)
         model.load_state_dict(state, strict=True)

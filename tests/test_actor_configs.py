@@ -1,0 +1,75 @@
+"""configs/quick/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test, and the recognition config on the resulting checkpoint. Tiny dataset and tiny layer sizes."""
+
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+torch.set_num_threads(1)
+
+TINY_ARGS = [
+    "--model.init_args.num_points=64",
+    "--model.init_args.encoder_channels=[8,8,16,32]",
+    "--model.init_args.fc_channels=32",
+    "--model.init_args.deconv_channels=[16,16,8,8]",
+    "--model.init_args.deconv_strides=[2,2,2,2,4]",
+    "--model.init_args.emd_points=32",
+]
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+    return str(make_tiny_dataset("reconstruction", tmp_path_factory.mktemp("data")))
+
+
+def _common(data: str) -> list[str]:
+    # the configs' runs/... paths are relative, so with the working directory in tmp_path every
+    # checkpoint and log lands there
+    return [f"--data.init_args.data_dir={data}", "--data.init_args.batch_size=3",
+            "--trainer.enable_progress_bar=false"]
+
+
+@pytest.mark.parametrize(
+    "config", ["configs/quick/actor.yaml", pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow)]
+)
+def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeypatch):
+    from train import cli_main
+
+    monkeypatch.chdir(tmp_path)
+    ckpt_dir = tmp_path / ("runs/actor_quick_noattn" if "noattn" in config else "runs/actor_quick") / "checkpoints"
+    base = _common(tiny_data) + TINY_ARGS
+    cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=1", *base])
+    last = ckpt_dir / "last.ckpt"
+    assert last.is_file() and list(ckpt_dir.glob("best-*.ckpt"))
+    assert torch.load(last, map_location="cpu", weights_only=True)["epoch"] == 0
+    cli = cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=2", "--ckpt_path=last", *base])
+    assert cli.trainer.current_epoch == 2 and cli.trainer.global_step == 2  # resumed: one more step only
+    assert torch.load(last, map_location="cpu", weights_only=True)["epoch"] == 1
+    cli = cli_main(["test", f"--config={ROOT / config}", f"--ckpt_path={last}", *base])
+    assert "test/cd_mm" in cli.trainer.callback_metrics
+    assert cli.model.hparams.attention == ("noattn" not in config)
+
+
+def test_quick_recognition_config(tiny_data, tmp_path, monkeypatch):
+    from train import cli_main
+
+    monkeypatch.chdir(tmp_path)
+    cli_main(["fit", f"--config={ROOT / 'configs/quick/actor.yaml'}", "--trainer.max_epochs=1",
+              *_common(tiny_data), *TINY_ARGS])
+    assert (tmp_path / "runs/actor_quick/checkpoints/last.ckpt").is_file()  # the recognition config's actor_ckpt
+    rec_dir = tmp_path / "runs/actor_recognition_quick/checkpoints"
+    cli = cli_main(["fit", f"--config={ROOT / 'configs/quick/actor_recognition.yaml'}", "--trainer.max_epochs=1",
+                    "--model.init_args.num_classes=3", *_common(tiny_data)])
+    assert "val/acc" in cli.trainer.callback_metrics
+    from vtlearn.models.actor_recognition import load_recognition
+
+    assert load_recognition(rec_dir / "last.ckpt").hparams.num_classes == 3
