@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "vtlearn.sim_data.cli",
     "vtlearn.active.active_cli",
     "vtlearn.models.actor_cli",
+    "vtlearn.active.experiments_cli",
 )
 
 

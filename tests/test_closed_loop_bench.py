@@ -1,0 +1,136 @@
+"""The closed-loop benchmark commands on tiny budgets with small untrained networks (outputs, not quality)."""
+
+import json
+
+import pytest
+import torch
+
+from vtlearn.cli import main
+
+TINY = ["--objects-per-category", "1", "--candidates", "6", "--cells", "12"]
+
+
+def _save(model, path):
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def ckpts(tmp_path_factory):
+    from vtlearn.models.actor import ACTOR
+    from vtlearn.models.xavtnet import XAVTNet
+
+    torch.manual_seed(0)
+    d = tmp_path_factory.mktemp("ckpt")
+    actor = ACTOR(
+        num_points=64,
+        encoder_channels=(16, 16, 32, 32),
+        fc_channels=32,
+        deconv_channels=(16, 16, 8, 8),
+        deconv_strides=(2, 2, 2, 2, 4),
+    )
+    xav = XAVTNet(num_classes=12, global_dim=32, fc_dims=[16, 8], da_method="none")
+    return {"actor": _save(actor, d / "actor.ckpt"), "xavtnet": _save(xav, d / "xavtnet.ckpt")}
+
+
+def test_active_reconstruction_bench(ckpts, tmp_path):
+    out = tmp_path / "rec.json"
+    rc = main(
+        [
+            "bench",
+            "active-reconstruction",
+            "--ckpt",
+            ckpts["actor"],
+            "--categories",
+            "wineglass",
+            "--actions",
+            "3",
+            "--json",
+            str(out),
+            *TINY,
+        ]
+    )
+    assert rc == 0 and out.with_suffix(".png").is_file()
+    r = json.loads(out.read_text())
+    assert set(r["summary"]) == {"active", "active_raycast", "random", "uniform"}
+    for s in r["summary"].values():
+        assert len(s["cd_mm_mean"]) == 3
+    assert r["actions"] == [1, 2, 3] and r["thesis"]["cd_mm_at_20"]["active"] == 20.0
+    assert len(r["per_object"]) == 1 and len(r["per_object"][0]["random"]["cd_mm"]) == 3
+
+
+def test_active_recognition_bench(ckpts, tmp_path):
+    out = tmp_path / "recog.json"
+    rc = main(
+        [
+            "bench",
+            "active-recognition",
+            "--ckpt",
+            ckpts["xavtnet"],
+            "--categories",
+            "mug",
+            "--max-actions",
+            "10",
+            "--gain-mode",
+            "raycast",
+            "--json",
+            str(out),
+            *TINY,
+        ]
+    )
+    assert rc == 0 and out.with_suffix(".png").is_file()
+    r = json.loads(out.read_text())
+    assert set(r["summary"]) == {"active", "random", "uniform"}
+    for s in r["summary"].values():
+        assert 1 <= s["actions_mean"] <= 10 and 0 <= s["accuracy_after_10"] <= 1
+    assert len(r["per_object"][0]["active"]["confidence"]) == 10
+
+
+def test_shared_exploration_bench(ckpts, tmp_path):
+    out = tmp_path / "shared.json"
+    rc = main(
+        [
+            "bench",
+            "shared-exploration",
+            "--ckpt",
+            ckpts["actor"],
+            "--opaque",
+            "mug",
+            "--transparent",
+            "wineglass",
+            "--views",
+            "1",
+            "--touches-opaque",
+            "1",
+            "--touches-transparent",
+            "3",
+            "--strategies",
+            "active,uniform",
+            "--gain-mode",
+            "probabilistic",
+            "--restarts",
+            "0",
+            "--json",
+            str(out),
+            *TINY,
+        ]
+    )
+    assert rc == 0 and out.with_suffix(".png").is_file()
+    r = json.loads(out.read_text())
+    s = r["summary"]["active"]
+    assert s["opaque_cd_mm_vision"]["n"] == 1 and s["opaque_cd_mm_visuotactile"]["n"] == 1
+    assert s["touch_gain_percent"] is not None and len(s["transparent_cd_mm_curve"]) == 3
+
+
+def test_bench_bad_input(ckpts, tmp_path, capsys):
+    assert main(["bench", "active-reconstruction", "--ckpt", ckpts["actor"], "--strategies", "greedy"]) == 2
+    assert "strategies" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--zeta", "1.5"]) == 2
+    assert "zeta" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--categories", "teapot"]) == 2
+    assert "categories" in capsys.readouterr().err
+    assert main(["bench", "active-reconstruction", "--ckpt", ckpts["xavtnet"]]) == 2  # not an ACTOR
+    assert "ckpt" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["actor"]]) == 2  # not an xAVTNet
+    assert "ckpt" in capsys.readouterr().err
+    assert main(["bench", "active-reconstruction", "--ckpt", str(tmp_path / "none.ckpt")]) == 2

@@ -1,0 +1,603 @@
+"""Closed-loop active-perception benchmarks with the networks in the loop, and the quickstart command.
+
+- ``vtlearn bench active-reconstruction --ckpt ACTOR.ckpt``: thesis Fig. 8.7 analogue. Held-out
+  transparent objects are explored with touches and pinches (8.2.3) chosen ``active`` / ``random`` /
+  ``uniform``; after every action ACTOR reconstructs the object from the contacts so far, and the
+  Chamfer distance (eq. 8.1, mm) to the true surface is recorded.
+- ``vtlearn bench active-recognition --ckpt XAVTNET.ckpt``: thesis Fig. 7.5b analogue (7.2.4,
+  eq. 7.9-7.12, Algorithm 5). Touches are chosen by the grid's expected information gain; xAVTNet
+  classifies the tactile cloud once it holds ``--min-points`` points and stops at confidence ``zeta``.
+  The action selection does not depend on the classifier, so one episode of ``--max-actions`` is run
+  per object and strategy and the stopping rule is applied to its prefixes (the same actions a
+  stopping loop would take). Reports actions to the stop (censored at ``--max-actions``), accuracy at
+  the stop and accuracy after 10 touches.
+- ``vtlearn bench shared-exploration --ckpt ACTOR.ckpt``: thesis Fig. 5.13 and 5.18 analogue (5.2.3,
+  eq. 5.10). Opaque objects get 3 views and 5 touches, transparent ones 20 touches; CD of ACTOR from
+  vision only and from vision + touch (the thesis' +17 % from touch), and the ADI (eq. 5.24, cm) of
+  S-TIQF registering the reconstruction (model) to the touched scene under a random pose.
+
+Every benchmark prints a table and writes JSON and a PNG (default under ``runs/bench/``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vtlearn.active.closed_loop import STRATEGIES
+
+THESIS = {
+    "active-reconstruction": {
+        "cd_mm_at_20": {"active": 20.0, "random": 65.0, "uniform": 192.0},
+        "figure": "8.7",
+    },
+    "active-recognition": {
+        "actions_to_recognition": {"active": 14, "random": 19, "uniform": 27},
+        "figure": "7.5b",
+    },
+    "shared-exploration": {"touch_gain_percent": 17.0, "figure": "5.13, 5.18"},
+}
+
+
+def _csv(s: str) -> list[str]:
+    return [x.strip() for x in s.split(",") if x.strip()]
+
+
+def _strategies(args) -> list[tuple[str, str, str]]:
+    """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row."""
+    modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
+    rows = []
+    for s in _csv(args.strategies):
+        if s not in STRATEGIES:
+            raise ValueError(f"strategies: unknown {s!r}, expected some of {STRATEGIES}")
+        if s == "active":
+            rows += [("active" if i == 0 else f"active_{m}", s, m) for i, m in enumerate(modes)]
+        else:
+            rows.append((s, s, modes[0]))
+    return rows
+
+
+def _setup(args):
+    import torch
+
+    torch.set_num_threads(max(1, int(args.threads)))
+    if args.objects_per_category < 1:
+        raise ValueError(f"objects-per-category: need >= 1, got {args.objects_per_category}")
+
+
+def _write(args, name: str, result: dict, plot) -> None:
+    out = Path(args.json or f"runs/bench/{name.replace('-', '_')}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    png = out.with_suffix(".png")
+    plot(result, png)
+    print(f"wrote {out} and {png}")
+
+
+def _stats(x: np.ndarray) -> dict:
+    x = np.asarray(x, dtype=float)
+    ok = np.isfinite(x)
+    return {
+        "mean": float(np.mean(x[ok])) if ok.any() else None,
+        "std": float(np.std(x[ok])) if ok.any() else None,
+        "n": int(ok.sum()),
+    }
+
+
+# ------------------------------------------------------------------------------ active reconstruction
+def run_active_reconstruction(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from vtlearn.active.closed_loop import TouchWorld, held_out_objects, reconstruct_prefixes, run_episode
+    from vtlearn.models.actor import load_actor
+
+    _setup(args)
+    model = load_actor(args.ckpt)
+    objs = held_out_objects(_csv(args.categories), args.objects_per_category, transparent=True)
+    rows = _strategies(args)
+    ks = list(range(1, args.actions + 1))
+    curves = {label: [] for label, _, _ in rows}
+    per_object = []
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(objs) * len(rows), desc="active-reconstruction")
+    for oi, obj in enumerate(objs):
+        rec = {"category": obj.category, "seed": obj.seed}
+        with TouchWorld(obj) as world:
+            for label, strategy, mode in rows:
+                ep = run_episode(
+                    world,
+                    strategy,
+                    args.actions,
+                    pinch=not args.no_pinch,
+                    n_candidates=args.candidates,
+                    cells=args.cells,
+                    gain_mode=mode,
+                    seed=args.seed + oi,
+                )
+                _, cd = reconstruct_prefixes(model, obj, ep, ks, max_points=args.max_input)
+                curves[label].append(cd)
+                rec[label] = {"cd_mm": [None if not np.isfinite(c) else float(c) for c in cd], **ep.to_dict()}
+                bar.update()
+        per_object.append(rec)
+    bar.close()
+    summary = {}
+    for label in curves:
+        c = np.array(curves[label])  # objects x actions
+        summary[label] = {
+            "cd_mm_mean": [
+                None if not np.isfinite(c[:, i]).any() else float(np.nanmean(c[:, i])) for i in range(len(ks))
+            ],
+            "cd_mm_std": [
+                None if not np.isfinite(c[:, i]).any() else float(np.nanstd(c[:, i])) for i in range(len(ks))
+            ],
+            "at_max_actions": _stats(c[:, -1]),
+        }
+    wins = {}
+    for base in ("random", "uniform"):
+        if "active" in curves and base in curves:
+            a, b = np.array(curves["active"])[:, -1], np.array(curves[base])[:, -1]
+            wins[f"active_beats_{base}"] = int(np.sum(a < b))
+    result = {
+        "benchmark": "active-reconstruction",
+        "ckpt": str(args.ckpt),
+        "actions": ks,
+        "objects": [{"category": o.category, "seed": o.seed} for o in objs],
+        "pinch": not args.no_pinch,
+        "candidates": args.candidates,
+        "cells": args.cells,
+        "max_input_points": args.max_input,
+        "summary": summary,
+        "per_object_wins_at_max_actions": wins,
+        "thesis": THESIS["active-reconstruction"],
+        "per_object": per_object,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    print(f"\nACTOR Chamfer distance (mm) vs actions, {len(objs)} held-out transparent objects")
+    marks = [k for k in (1, 5, 10, 15, 20, args.actions) if k <= args.actions]
+    marks = sorted(set(marks))
+    print(f"{'strategy':<16}" + "".join(f"{k:>10d}" for k in marks))
+    for label, s in summary.items():
+        print(
+            f"{label:<16}"
+            + "".join(
+                f"{s['cd_mm_mean'][k - 1]:>10.1f}" if s["cd_mm_mean"][k - 1] is not None else f"{'-':>10}"
+                for k in marks
+            )
+        )
+    print(f"per-object wins of active at {args.actions} actions (of {len(objs)}): {wins}")
+    _write(args, "active-reconstruction", result, _plot_reconstruction)
+    return 0
+
+
+def _plot_reconstruction(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ks = np.array(result["actions"])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, s in result["summary"].items():
+        m = np.array([np.nan if v is None else v for v in s["cd_mm_mean"]])
+        sd = np.array([np.nan if v is None else v for v in s["cd_mm_std"]])
+        ax.plot(ks, m, label=label)
+        ax.fill_between(ks, m - sd, m + sd, alpha=0.15)
+    ax.set_xlabel("actions (touches and pinches)")
+    ax.set_ylabel("Chamfer distance (mm)")
+    ax.set_title(f"ACTOR on {len(result['objects'])} held-out transparent objects (cf. thesis Fig. 8.7)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ active recognition
+def run_active_recognition(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from vtlearn.active.closed_loop import (
+        TouchWorld,
+        classify_prefixes,
+        held_out_objects,
+        load_xavtnet,
+        run_episode,
+    )
+
+    _setup(args)
+    if not 0 < args.zeta <= 1:
+        raise ValueError(f"zeta: need a confidence in (0, 1], got {args.zeta}")
+    if args.min_points < 1 or args.max_actions < 10:
+        raise ValueError(
+            f"min-points, max-actions: need >= 1 and >= 10, got {args.min_points}, {args.max_actions}"
+        )
+    model = load_xavtnet(args.ckpt)
+    class_names = _class_names(args, int(model.hparams.num_classes))
+    cats = _csv(args.categories) if args.categories else class_names
+    unknown = [c for c in cats if c not in class_names]
+    if unknown:
+        raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
+    objs = held_out_objects(cats, args.objects_per_category, transparent=None)
+    rows = _strategies(args)
+    ks = list(range(1, args.max_actions + 1))
+    res = {
+        label: {"actions": [], "correct_at_stop": [], "correct_at_10": [], "stopped": []}
+        for label, _, _ in rows
+    }
+    per_object = []
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(objs) * len(rows), desc="active-recognition")
+    for oi, obj in enumerate(objs):
+        truth = class_names.index(obj.category)
+        rec = {"category": obj.category, "seed": obj.seed, "transparent": obj.transparent}
+        with TouchWorld(obj) as world:
+            for label, strategy, mode in rows:
+                ep = run_episode(
+                    world,
+                    strategy,
+                    args.max_actions,
+                    pinch=False,
+                    n_candidates=args.candidates,
+                    cells=args.cells,
+                    gain_mode=mode,
+                    n_init=1,
+                    seed=args.seed + oi,
+                )
+                probs = classify_prefixes(model, obj, ep, ks, max_points=args.max_input)
+                npts = ep.n_points()[1:]
+                conf = np.nan_to_num(np.nanmax(np.where(np.isfinite(probs), probs, -1), axis=1), nan=-1)
+                ready = (npts >= args.min_points) & (conf >= args.zeta)
+                stop = int(np.argmax(ready)) if ready.any() else len(ks) - 1
+                pred = (
+                    probs.argmax(1)
+                    if np.isfinite(probs).all()
+                    else np.where(np.isfinite(probs).all(1), np.nan_to_num(probs, nan=-1).argmax(1), -1)
+                )
+                r = res[label]
+                r["actions"].append(ks[stop])
+                r["stopped"].append(bool(ready.any()))
+                r["correct_at_stop"].append(bool(pred[stop] == truth))
+                r["correct_at_10"].append(bool(pred[9] == truth))
+                rec[label] = {
+                    "actions": ks[stop],
+                    "stopped": bool(ready.any()),
+                    "pred_at_stop": int(pred[stop]),
+                    "confidence": [float(c) for c in conf],
+                    "n_points": npts.tolist(),
+                }
+                bar.update()
+        per_object.append(rec)
+    bar.close()
+    summary = {
+        label: {
+            "actions_mean": float(np.mean(r["actions"])),
+            "actions_std": float(np.std(r["actions"])),
+            "reached_zeta": float(np.mean(r["stopped"])),
+            "accuracy_at_stop": float(np.mean(r["correct_at_stop"])),
+            "accuracy_after_10": float(np.mean(r["correct_at_10"])),
+        }
+        for label, r in res.items()
+    }
+    result = {
+        "benchmark": "active-recognition",
+        "ckpt": str(args.ckpt),
+        "class_names": class_names,
+        "zeta": args.zeta,
+        "min_points": args.min_points,
+        "max_actions": args.max_actions,
+        "candidates": args.candidates,
+        "objects": [{"category": o.category, "seed": o.seed, "transparent": o.transparent} for o in objs],
+        "summary": summary,
+        "thesis": THESIS["active-recognition"],
+        "per_object": per_object,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    print(
+        f"\nxAVTNet tactile recognition, zeta {args.zeta}, >= {args.min_points} points, "
+        f"{len(objs)} held-out objects"
+    )
+    print(f"{'strategy':<16}{'actions':>10}{'std':>8}{'reached ζ':>11}{'acc@stop':>10}{'acc@10':>9}")
+    for label, s in summary.items():
+        print(
+            f"{label:<16}{s['actions_mean']:>10.1f}{s['actions_std']:>8.1f}{s['reached_zeta']:>11.2f}"
+            f"{s['accuracy_at_stop']:>10.2f}{s['accuracy_after_10']:>9.2f}"
+        )
+    print(f"(objects that never reach zeta count as {args.max_actions} actions)")
+    _write(args, "active-recognition", result, _plot_recognition)
+    return 0
+
+
+def _class_names(args, num_classes: int) -> list[str]:
+    from vtlearn.sim_data.shapes import CATEGORIES
+
+    if args.data:
+        names = json.loads((Path(args.data) / "manifest.json").read_text())["class_names"]
+    elif num_classes == len(CATEGORIES):
+        names = list(CATEGORIES)
+    else:
+        raise ValueError(
+            f"data: the checkpoint has {num_classes} classes; pass --data with the crossmodal "
+            "dataset it was trained on (for its class names)"
+        )
+    if len(names) != num_classes:
+        raise ValueError(f"data: {len(names)} class names but the checkpoint has {num_classes} classes")
+    return list(names)
+
+
+def _plot_recognition(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(result["summary"])
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+    m = [result["summary"][s]["actions_mean"] for s in labels]
+    sd = [result["summary"][s]["actions_std"] for s in labels]
+    axes[0].bar(labels, m, yerr=sd, color="tab:blue", alpha=0.7, capsize=4)
+    thesis = result["thesis"]["actions_to_recognition"]
+    axes[0].scatter(
+        [s for s in labels if s in thesis],
+        [thesis[s] for s in labels if s in thesis],
+        c="k",
+        marker="x",
+        label="thesis Fig. 7.5b",
+        zorder=3,
+    )
+    axes[0].set_ylabel(f"actions to confidence {result['zeta']}")
+    axes[0].legend()
+    axes[1].bar(
+        labels, [result["summary"][s]["accuracy_after_10"] for s in labels], color="tab:green", alpha=0.7
+    )
+    axes[1].set_ylabel("accuracy after 10 touches")
+    axes[1].set_ylim(0, 1)
+    fig.suptitle(f"xAVTNet active tactile recognition, {len(result['objects'])} held-out objects")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ shared exploration
+def run_shared_exploration(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from vtlearn.active.closed_loop import TouchWorld, held_out_objects, reconstruct_prefixes, run_episode
+    from vtlearn.classical.registration import register
+    from vtlearn.geometry.metrics import adi
+    from vtlearn.models.actor import load_actor
+
+    _setup(args)
+    model = load_actor(args.ckpt)
+    opaque = held_out_objects(_csv(args.opaque), args.objects_per_category, transparent=False)
+    transparent = held_out_objects(_csv(args.transparent), args.objects_per_category, transparent=True)
+    rows = _strategies(args)
+    per = {
+        label: {"opaque_vision": [], "opaque_visuotactile": [], "transparent_curve": [], "adi_cm": []}
+        for label, _, _ in rows
+    }
+    per_object = []
+    t0 = time.perf_counter()
+    bar = tqdm(total=(len(opaque) + len(transparent)) * len(rows), desc="shared-exploration")
+    for oi, obj in enumerate(opaque + transparent):
+        is_t = obj.transparent
+        rec = {"category": obj.category, "seed": obj.seed, "transparent": is_t}
+        n_views, n_tac = (0, args.touches_transparent) if is_t else (args.views, args.touches_opaque)
+        with TouchWorld(obj) as world:
+            for label, strategy, mode in rows:
+                ep = run_episode(
+                    world,
+                    strategy,
+                    n_tac,
+                    n_views=n_views,
+                    pinch=False,
+                    n_candidates=args.candidates,
+                    cells=args.cells,
+                    gain_mode=mode,
+                    n_init=1 if is_t else 0,
+                    seed=args.seed + oi,
+                )
+                n = ep.n_steps
+                r = {**ep.to_dict()}
+                if is_t:
+                    recon, cd = reconstruct_prefixes(
+                        model, obj, ep, list(range(1, n + 1)), max_points=args.max_input
+                    )
+                    per[label]["transparent_curve"].append(cd)
+                    r["cd_mm"] = [None if not np.isfinite(c) else float(c) for c in cd]
+                    scene_pts, model_cloud = ep.prefix(n, "tactile"), recon[-1]
+                else:
+                    (_, cd_v) = reconstruct_prefixes(
+                        model, obj, ep, [n], modality="visual", max_points=args.max_input
+                    )
+                    recon, cd_vt = reconstruct_prefixes(model, obj, ep, [n], max_points=args.max_input)
+                    per[label]["opaque_vision"].append(cd_v[0])
+                    per[label]["opaque_visuotactile"].append(cd_vt[0])
+                    r["cd_mm_vision"], r["cd_mm_visuotactile"] = float(cd_v[0]), float(cd_vt[0])
+                    scene_pts, model_cloud = ep.prefix(n, "all"), recon[0]
+                r["adi_cm"] = _pose_adi(obj, model_cloud, scene_pts, args, oi, register, adi)
+                per[label]["adi_cm"].append(r["adi_cm"] if r["adi_cm"] is not None else np.nan)
+                rec[label] = r
+                bar.update()
+        per_object.append(rec)
+    bar.close()
+    summary = {}
+    for label, p in per.items():
+        v, vt = np.array(p["opaque_vision"], float), np.array(p["opaque_visuotactile"], float)
+        ok = np.isfinite(v) & np.isfinite(vt)
+        curve = np.array(p["transparent_curve"], float) if p["transparent_curve"] else np.zeros((0, 1))
+        summary[label] = {
+            "opaque_cd_mm_vision": _stats(v),
+            "opaque_cd_mm_visuotactile": _stats(vt),
+            "touch_gain_percent": float(100 * (v[ok].mean() - vt[ok].mean()) / v[ok].mean())
+            if ok.any()
+            else None,
+            "transparent_cd_mm_curve": [
+                None if not np.isfinite(curve[:, i]).any() else float(np.nanmean(curve[:, i]))
+                for i in range(curve.shape[1])
+            ]
+            if len(curve)
+            else [],
+            "transparent_cd_mm_at_max": _stats(curve[:, -1]) if len(curve) else None,
+            "adi_cm": _stats(np.array(p["adi_cm"], float)),
+        }
+    result = {
+        "benchmark": "shared-exploration",
+        "ckpt": str(args.ckpt),
+        "views": args.views,
+        "touches_opaque": args.touches_opaque,
+        "touches_transparent": args.touches_transparent,
+        "objects": [
+            {"category": o.category, "seed": o.seed, "transparent": o.transparent}
+            for o in opaque + transparent
+        ],
+        "summary": summary,
+        "thesis": THESIS["shared-exploration"],
+        "per_object": per_object,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    print(
+        f"\nShared exploration: {len(opaque)} opaque ({args.views} views + {args.touches_opaque} touches), "
+        f"{len(transparent)} transparent ({args.touches_transparent} touches)"
+    )
+    print(
+        f"{'strategy':<16}{'CD vis mm':>11}{'CD vis+tac':>12}{'touch gain':>12}"
+        f"{'CD transp.':>12}{'ADI cm':>9}"
+    )
+    for label, s in summary.items():
+
+        def f(d):
+            return f"{d['mean']:.1f}" if d and d["mean"] is not None else "-"
+
+        g = f"{s['touch_gain_percent']:.1f} %" if s["touch_gain_percent"] is not None else "-"
+        print(
+            f"{label:<16}{f(s['opaque_cd_mm_vision']):>11}{f(s['opaque_cd_mm_visuotactile']):>12}{g:>12}"
+            f"{f(s['transparent_cd_mm_at_max']):>12}{f(s['adi_cm']):>9}"
+        )
+    _write(args, "shared-exploration", result, _plot_shared)
+    return 0
+
+
+def _pose_adi(obj, model_cloud, scene_pts, args, oi: int, register, adi) -> float | None:
+    """S-TIQF of the reconstruction (model, metric frame centred on the box) to the measured points moved by
+    a random rigid motion (yaw in [-180, 180] deg, +-5 cm); ADI (eq. 5.24) with the true surface, cm."""
+    if model_cloud is None or len(scene_pts) < 3:
+        return None
+    rng = np.random.default_rng([args.seed, oi, 77])
+    yaw = rng.uniform(-np.pi, np.pi)
+    T_sw = np.eye(4)
+    T_sw[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+    T_sw[:3, 3] = rng.uniform(-0.05, 0.05, 3) * [1, 1, 0]
+    centre = obj.bounds.mean(0)
+    T_wm = np.eye(4)
+    T_wm[:3, 3] = centre
+    scene = np.asarray(scene_pts) @ T_sw[:3, :3].T + T_sw[:3, 3]
+    if len(scene) > args.max_scene:
+        scene = scene[rng.choice(len(scene), args.max_scene, replace=False)]
+    try:
+        res = register(model_cloud - centre, scene, "stiqf", restarts=args.restarts, seed=args.seed)
+    except ValueError:  # a collinear or degenerate scene (e.g. one flat touch)
+        return None
+    return 100.0 * adi(obj.surface_world - centre, res.T_scene_model, T_sw @ T_wm)
+
+
+def _plot_shared(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(result["summary"])
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    x = np.arange(len(labels))
+    for off, key, name in (
+        (-0.2, "opaque_cd_mm_vision", "vision"),
+        (0.2, "opaque_cd_mm_visuotactile", "vision + touch"),
+    ):
+        m = [result["summary"][s][key]["mean"] or np.nan for s in labels]
+        sd = [result["summary"][s][key]["std"] or 0 for s in labels]
+        axes[0].bar(x + off, m, 0.4, yerr=sd, capsize=3, label=name)
+    axes[0].set_xticks(x, labels)
+    axes[0].set_ylabel("Chamfer distance (mm)")
+    axes[0].set_title(f"opaque: {result['views']} views + {result['touches_opaque']} touches (Fig. 5.13a)")
+    axes[0].legend()
+    for s in labels:
+        c = np.array([np.nan if v is None else v for v in result["summary"][s]["transparent_cd_mm_curve"]])
+        axes[1].plot(np.arange(1, len(c) + 1), c, label=s)
+    axes[1].set_xlabel("touches")
+    axes[1].set_ylabel("Chamfer distance (mm)")
+    axes[1].set_title("transparent: touch only (Fig. 5.13b)")
+    axes[1].legend()
+    m = [result["summary"][s]["adi_cm"]["mean"] or np.nan for s in labels]
+    sd = [result["summary"][s]["adi_cm"]["std"] or 0 for s in labels]
+    axes[2].bar(labels, m, yerr=sd, capsize=3, color="tab:purple", alpha=0.7)
+    axes[2].set_ylabel("ADI (cm)")
+    axes[2].set_title("S-TIQF, model = reconstruction (Fig. 5.18)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ registration
+def _common(p, actions_default: int | None = None) -> None:
+    p.add_argument("--objects-per-category", type=int, default=2)
+    p.add_argument("--strategies", default="active,random,uniform")
+    p.add_argument(
+        "--gain-mode",
+        choices=("probabilistic", "raycast", "both"),
+        default="both",
+        help="active criterion; 'both' reports the thesis raycast criterion as active_raycast",
+    )
+    p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo candidates per active step")
+    p.add_argument("--cells", type=int, default=40, help="occupancy grid cells per axis")
+    p.add_argument("--max-input", type=int, default=120, help="network input points (voxel subsampling)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--json", default=None, help="output JSON (PNG beside it)")
+
+
+def register_bench(sub) -> None:
+    p = sub.add_parser(
+        "active-reconstruction", help="ACTOR CD vs touch/pinch actions: active/random/uniform (Fig. 8.7)"
+    )
+    p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint")
+    p.add_argument("--categories", default="wineglass,bottle", help="categories with transparent instances")
+    p.add_argument("--actions", type=int, default=20)
+    p.add_argument("--no-pinch", action="store_true", help="touches only")
+    _common(p)
+    p.set_defaults(func=run_active_reconstruction)
+
+    p = sub.add_parser(
+        "active-recognition", help="xAVTNet touches to confidence zeta: active/random/uniform (Fig. 7.5b)"
+    )
+    p.add_argument("--ckpt", required=True, help="xAVTNet Lightning checkpoint")
+    p.add_argument(
+        "--data", default=None, help="crossmodal dataset the checkpoint was trained on (class names)"
+    )
+    p.add_argument("--categories", default=None, help="object categories (default: every class)")
+    p.add_argument("--zeta", type=float, default=0.8)
+    p.add_argument("--min-points", type=int, default=10)
+    p.add_argument("--max-actions", type=int, default=30)
+    _common(p)
+    p.set_defaults(func=run_active_recognition, max_input=256)
+
+    p = sub.add_parser("shared-exploration", help="views + touches, touch gain, S-TIQF ADI (Fig. 5.13, 5.18)")
+    p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint")
+    p.add_argument("--opaque", default="mug,can", help="opaque categories")
+    p.add_argument("--transparent", default="wineglass", help="categories with transparent instances")
+    p.add_argument("--views", type=int, default=3)
+    p.add_argument("--touches-opaque", type=int, default=5)
+    p.add_argument("--touches-transparent", type=int, default=20)
+    p.add_argument("--restarts", type=int, default=4, help="S-TIQF random restarts")
+    p.add_argument("--max-scene", type=int, default=400, help="scene points given to S-TIQF")
+    _common(p)
+    p.set_defaults(func=run_shared_exploration)
+
+
+def register(sub) -> None:
+    from vtlearn.pipeline import register as register_quickstart
+
+    register_quickstart(sub)
