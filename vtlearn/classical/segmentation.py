@@ -132,6 +132,7 @@ def region_growing(
     curvature_threshold: float = 0.05,
     merge_colour_threshold: float = 0.1,
     min_region_size: int = 30,
+    colour_space: str = "chromaticity",
 ) -> np.ndarray:
     """Region growing on normals and colour with similar-colour merging (thesis 6.2.2).
 
@@ -146,12 +147,19 @@ def region_growing(
         curvature_threshold: points flatter than this continue the growth as seeds.
         merge_colour_threshold: adjacent regions with mean colours closer than this are merged.
         min_region_size: regions with fewer points get label -1.
+        colour_space: ``"chromaticity"`` compares ``rgb / (r + g + b)`` (times 3, so grey is
+            (1, 1, 1)), which ignores the brightness changes that shading puts on the faces of one
+            part; ``"rgb"`` compares raw colours.
 
     Shapes:
         return: (N,) int64 labels 0..L-1, -1 for points in no region; labels ordered by region size.
     """
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
+    if colour_space not in ("chromaticity", "rgb"):
+        raise ValueError(f"colour_space must be 'chromaticity' or 'rgb', got {colour_space!r}")
+    if col is not None and colour_space == "chromaticity":
+        col = 3.0 * col / np.maximum(col.sum(1, keepdims=True), 1e-3)
     n = len(pts)
     if normals is None:
         nrm, curv = estimate_normals_and_curvature(pts, knn)
@@ -259,9 +267,13 @@ def segment_parts(
     nb_neighbors: int = 20,
     std_ratio: float = 2.0,
     seed: int | None = 0,
+    min_region_fraction: float = 0.01,
     **region_growing_kwargs: Any,
 ) -> SegmentationResult:
     """Plane removal, outlier removal, region growing and colour merging (thesis 6.2.2).
+
+    Regions smaller than ``min_region_fraction`` of the remaining points (at least 30) are dropped,
+    unless ``min_region_size`` is passed through ``region_growing_kwargs``.
 
     Shapes:
         points: (N, 3); colors: (N, 3) RGB in [0, 1] or None. See :class:`SegmentationResult`.
@@ -274,6 +286,7 @@ def segment_parts(
     if len(pts) < 3:
         return SegmentationResult(0, [], [] if col is not None else None, pts, np.full(len(pts), -1), plane)
     pts, col = remove_statistical_outliers(pts, col, nb_neighbors=nb_neighbors, std_ratio=std_ratio)
+    region_growing_kwargs.setdefault("min_region_size", max(30, int(min_region_fraction * len(pts))))
     labels = region_growing(pts, col, **region_growing_kwargs)
     n_parts = int(labels.max() + 1) if len(labels) else 0
     parts = [pts[labels == i] for i in range(n_parts)]
