@@ -103,7 +103,9 @@ def test_masked_batchnorm_matches_batchnorm_on_valid_points():
 def test_padding_invariance(train_mode, attention):
     """The same clouds padded differently (size and fill value) reconstruct identically."""
     torch.manual_seed(0)
-    model = ACTOR(attention=attention, **TINY).double().train(train_mode)  # float64: only summation order differs
+    model = (
+        ACTOR(attention=attention, **TINY).double().train(train_mode)
+    )  # float64: only summation order differs
     a, b = torch.randn(25, 3, dtype=torch.float64), torch.randn(60, 3, dtype=torch.float64)
     lengths = torch.tensor([25, 60])
     batch1 = torch.stack([_pad(a, 60, 0.0), b])
@@ -170,8 +172,9 @@ def _dm(num_dense: int = 64) -> PrimitiveDataModule:
 @pytest.mark.parametrize("attention", [True, False])
 def test_fast_dev_run(attention):
     model = ACTOR(attention=attention, **TINY)
-    trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", enable_progress_bar=False,
-                        enable_model_summary=False)
+    trainer = L.Trainer(
+        fast_dev_run=True, accelerator="cpu", enable_progress_bar=False, enable_model_summary=False
+    )
     trainer.fit(model, datamodule=_dm())
     trainer.test(model, datamodule=_dm())
     preds = trainer.predict(model, datamodule=_dm())
@@ -185,8 +188,15 @@ def test_train_logs_metrics_figure_and_checkpoint_round_trip(tmp_path):
     # Lightning refreshes last.ckpt only when its callback saves, so "last" has its own unmonitored callback.
     last_cb = ModelCheckpoint(dirpath=tmp_path / "ckpt", save_last=True, filename="latest")
     logger = CSVLogger(tmp_path, name="actor")
-    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=logger, callbacks=[best_cb, last_cb],
-                        enable_progress_bar=False, enable_model_summary=False, log_every_n_steps=1)
+    trainer = L.Trainer(
+        max_epochs=2,
+        accelerator="cpu",
+        logger=logger,
+        callbacks=[best_cb, last_cb],
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        log_every_n_steps=1,
+    )
     trainer.fit(model, datamodule=_dm())
     metrics = trainer.callback_metrics
     for key in ("val/loss", "val/cd_mm", "val/hd_mm", "val/emd_mm", "train/loss"):

@@ -18,13 +18,25 @@ from vtlearn.models.actor_synthetic import primitive_surface
 
 torch.set_num_threads(1)
 
-TINY = dict(num_points=256, encoder_channels=(8, 8, 16, 32), fc_channels=32, deconv_channels=(16, 16, 8, 8),
-            deconv_strides=(2, 2, 4, 4, 4), emd_points=32)
+TINY = dict(
+    num_points=256,
+    encoder_channels=(8, 8, 16, 32),
+    fc_channels=32,
+    deconv_channels=(16, 16, 8, 8),
+    deconv_strides=(2, 2, 4, 4, 4),
+    emd_points=32,
+)
 
 
 def _save(model: L.LightningModule, path) -> str:
-    trainer = L.Trainer(max_steps=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, accelerator="cpu")
+    trainer = L.Trainer(
+        max_steps=0,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
     trainer.strategy.connect(model)
     trainer.save_checkpoint(path)
     return str(path)
@@ -40,14 +52,36 @@ def ckpts(tmp_path_factory):
     return {"actor": actor, "noattn": noattn, "rec": rec}
 
 
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+    return make_tiny_dataset("reconstruction", tmp_path_factory.mktemp("data"))
+
+
 def test_reconstruct_command(ckpts, tmp_path, capsys):
     rng = np.random.default_rng(0)
     sparse, gt = tmp_path / "sparse.ply", tmp_path / "gt.ply"
     write_cloud(sparse, primitive_surface("sphere", 80, rng))
     write_cloud(gt, primitive_surface("sphere", 256, rng))
     out, mesh, fig = tmp_path / "dense.ply", tmp_path / "mesh.obj", tmp_path / "fig.png"
-    rc = main(["reconstruct", "--ckpt", ckpts["actor"], "--input", str(sparse), "--out", str(out),
-               "--mesh", str(mesh), "--gt", str(gt), "--figure", str(fig)])
+    rc = main(
+        [
+            "reconstruct",
+            "--ckpt",
+            ckpts["actor"],
+            "--input",
+            str(sparse),
+            "--out",
+            str(out),
+            "--mesh",
+            str(mesh),
+            "--gt",
+            str(gt),
+            "--figure",
+            str(fig),
+        ]
+    )
     assert rc == 0
     assert read_cloud(out).shape == (256, 3)
     assert len(read_mesh(mesh).faces) > 0
@@ -58,7 +92,9 @@ def test_reconstruct_command(ckpts, tmp_path, capsys):
 def test_reconstruct_rejects_foreign_checkpoint(ckpts, tmp_path, capsys):
     sparse = tmp_path / "sparse.xyz"
     write_cloud(sparse, np.random.default_rng(1).normal(size=(30, 3)))
-    rc = main(["reconstruct", "--ckpt", ckpts["rec"], "--input", str(sparse), "--out", str(tmp_path / "o.ply")])
+    rc = main(
+        ["reconstruct", "--ckpt", ckpts["rec"], "--input", str(sparse), "--out", str(tmp_path / "o.ply")]
+    )
     assert rc != 0 and "not an ACTOR checkpoint" in capsys.readouterr().err
     bad = tmp_path / "bad.ckpt"
     bad.write_bytes(b"PK\x03\x04 truncated")
@@ -67,15 +103,39 @@ def test_reconstruct_rejects_foreign_checkpoint(ckpts, tmp_path, capsys):
     assert not (tmp_path / "o.ply").exists()
 
 
-def test_bench_actor_tiny(ckpts, tmp_path, capsys):
-    from vtlearn.sim_data.fixtures import make_tiny_dataset
-
-    data = make_tiny_dataset("reconstruction", tmp_path / "data")
+def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
+    data = tiny_data
     out = tmp_path / "bench"
-    rc = main(["bench", "actor", "--ckpt", ckpts["actor"], "--ckpt-noattn", ckpts["noattn"],
-               "--recognition-ckpt", ckpts["rec"], "--data", str(data), "--max-clouds", "2",
-               "--min-points", "20", "--max-points", "40", "--emd-points", "64", "--gpis-resolution", "12",
-               "--json", str(out / "a.json"), "--markdown", str(out / "a.md"), "--figure", str(out / "a.png")])
+    rc = main(
+        [
+            "bench",
+            "actor",
+            "--ckpt",
+            ckpts["actor"],
+            "--ckpt-noattn",
+            ckpts["noattn"],
+            "--recognition-ckpt",
+            ckpts["rec"],
+            "--data",
+            str(data),
+            "--max-clouds",
+            "2",
+            "--min-points",
+            "20",
+            "--max-points",
+            "40",
+            "--emd-points",
+            "64",
+            "--gpis-resolution",
+            "12",
+            "--json",
+            str(out / "a.json"),
+            "--markdown",
+            str(out / "a.md"),
+            "--figure",
+            str(out / "a.png"),
+        ]
+    )
     assert rc == 0
     res = json.loads((out / "a.json").read_text())
     methods = {r["method"] for r in res["summary"] if r["group"] == "all"}
@@ -89,3 +149,29 @@ def test_bench_actor_tiny(ckpts, tmp_path, capsys):
     assert (out / "a.md").read_text().count("|") > 10
     assert (out / "a.png").is_file() and (out / "a_confusion.png").is_file()
     assert "targets:" in capsys.readouterr().out
+
+
+def test_reconstruct_from_generated_data(ckpts, tiny_data, tmp_path, capsys):
+    data = tiny_data
+    out, fig = tmp_path / "dense.ply", tmp_path / "fig.png"
+    rc = main(
+        [
+            "reconstruct",
+            "--ckpt",
+            ckpts["actor"],
+            "--data",
+            str(data),
+            "--index",
+            "1",
+            "--out",
+            str(out),
+            "--figure",
+            str(fig),
+        ]
+    )
+    assert rc == 0 and fig.is_file()
+    text = capsys.readouterr().out
+    assert "test instance" in text and "mm at" in text
+    assert (
+        main(["reconstruct", "--ckpt", ckpts["actor"], "--out", str(out)]) != 0
+    )  # neither --input nor --data

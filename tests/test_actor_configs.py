@@ -1,4 +1,5 @@
-"""configs/quick/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test, and the recognition config on the resulting checkpoint. Tiny dataset and tiny layer sizes."""
+"""configs/quick/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test,
+and the recognition config on the resulting checkpoint. Tiny dataset and tiny layer sizes."""
 
 import os
 import sys
@@ -34,18 +35,24 @@ def tiny_data(tmp_path_factory):
 def _common(data: str) -> list[str]:
     # the configs' runs/... paths are relative, so with the working directory in tmp_path every
     # checkpoint and log lands there
-    return [f"--data.init_args.data_dir={data}", "--data.init_args.batch_size=3",
-            "--trainer.enable_progress_bar=false"]
+    return [
+        f"--data.init_args.data_dir={data}",
+        "--data.init_args.batch_size=3",
+        "--trainer.enable_progress_bar=false",
+    ]
 
 
 @pytest.mark.parametrize(
-    "config", ["configs/quick/actor.yaml", pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow)]
+    "config",
+    ["configs/quick/actor.yaml", pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow)],
 )
 def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
     monkeypatch.chdir(tmp_path)
-    ckpt_dir = tmp_path / ("runs/actor_quick_noattn" if "noattn" in config else "runs/actor_quick") / "checkpoints"
+    ckpt_dir = (
+        tmp_path / ("runs/actor_quick_noattn" if "noattn" in config else "runs/actor_quick") / "checkpoints"
+    )
     base = _common(tiny_data) + TINY_ARGS
     cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=1", *base])
     last = ckpt_dir / "last.ckpt"
@@ -63,12 +70,28 @@ def test_quick_recognition_config(tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
     monkeypatch.chdir(tmp_path)
-    cli_main(["fit", f"--config={ROOT / 'configs/quick/actor.yaml'}", "--trainer.max_epochs=1",
-              *_common(tiny_data), *TINY_ARGS])
-    assert (tmp_path / "runs/actor_quick/checkpoints/last.ckpt").is_file()  # the recognition config's actor_ckpt
+    cli_main(
+        [
+            "fit",
+            f"--config={ROOT / 'configs/quick/actor.yaml'}",
+            "--trainer.max_epochs=1",
+            *_common(tiny_data),
+            *TINY_ARGS,
+        ]
+    )
+    assert (
+        tmp_path / "runs/actor_quick/checkpoints/last.ckpt"
+    ).is_file()  # the recognition config's actor_ckpt
     rec_dir = tmp_path / "runs/actor_recognition_quick/checkpoints"
-    cli = cli_main(["fit", f"--config={ROOT / 'configs/quick/actor_recognition.yaml'}", "--trainer.max_epochs=1",
-                    "--model.init_args.num_classes=3", *_common(tiny_data)])
+    cli = cli_main(
+        [
+            "fit",
+            f"--config={ROOT / 'configs/quick/actor_recognition.yaml'}",
+            "--trainer.max_epochs=1",
+            "--model.init_args.num_classes=3",
+            *_common(tiny_data),
+        ]
+    )
     assert "val/acc" in cli.trainer.callback_metrics
     from vtlearn.models.actor_recognition import load_recognition
 

@@ -16,8 +16,14 @@ from vtlearn.models.actor_synthetic import PrimitiveDataModule
 
 torch.set_num_threads(1)
 
-TINY = dict(num_points=64, encoder_channels=(8, 8, 16, 32), fc_channels=32, deconv_channels=(16, 16, 8, 8),
-            deconv_strides=(2, 2, 2, 2, 4), emd_points=32)
+TINY = dict(
+    num_points=64,
+    encoder_channels=(8, 8, 16, 32),
+    fc_channels=32,
+    deconv_channels=(16, 16, 8, 8),
+    deconv_strides=(2, 2, 2, 2, 4),
+    emd_points=32,
+)
 
 
 def _dm() -> PrimitiveDataModule:
@@ -30,8 +36,15 @@ def actor_ckpt(tmp_path_factory):
     torch.manual_seed(0)
     path = tmp_path_factory.mktemp("actor") / "actor.ckpt"
     model = ACTOR(**TINY)
-    trainer = L.Trainer(max_steps=2, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer = L.Trainer(
+        max_steps=2,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+    )
     trainer.fit(model, datamodule=_dm())
     trainer.save_checkpoint(path)
     return path
@@ -86,16 +99,18 @@ def test_encoder_is_frozen(actor_ckpt):
 
 def test_fast_dev_run(actor_ckpt):
     rec = ACTORRecognition(actor_ckpt=str(actor_ckpt), num_classes=3)
-    trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", enable_progress_bar=False,
-                        enable_model_summary=False)
+    trainer = L.Trainer(
+        fast_dev_run=True, accelerator="cpu", enable_progress_bar=False, enable_model_summary=False
+    )
     trainer.fit(rec, datamodule=_dm())
     trainer.test(rec, datamodule=_dm())
 
 
 def test_num_classes_mismatch_is_reported(actor_ckpt):
     rec = ACTORRecognition(actor_ckpt=str(actor_ckpt), num_classes=5)
-    trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", enable_progress_bar=False,
-                        enable_model_summary=False)
+    trainer = L.Trainer(
+        fast_dev_run=True, accelerator="cpu", enable_progress_bar=False, enable_model_summary=False
+    )
     with pytest.raises(ValueError, match="num_classes"):
         trainer.fit(rec, datamodule=_dm())
 
@@ -104,8 +119,15 @@ def test_logs_and_checkpoint_round_trip(actor_ckpt, tmp_path):
     torch.manual_seed(0)
     rec = ACTORRecognition(actor_ckpt=str(actor_ckpt), num_classes=3, lr=1e-2)
     cb = ModelCheckpoint(dirpath=tmp_path, save_last=True)
-    trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=CSVLogger(tmp_path, name="rec"), callbacks=[cb],
-                        enable_progress_bar=False, enable_model_summary=False, log_every_n_steps=1)
+    trainer = L.Trainer(
+        max_epochs=1,
+        accelerator="cpu",
+        logger=CSVLogger(tmp_path, name="rec"),
+        callbacks=[cb],
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        log_every_n_steps=1,
+    )
     trainer.fit(rec, datamodule=_dm())
     assert {"val/acc", "val/loss", "val/acc_best", "train/acc"} <= set(trainer.callback_metrics)
     assert 0.0 <= float(trainer.callback_metrics["val/acc"]) <= 1.0

@@ -35,7 +35,15 @@ from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import lengths_to_mask
 from vtlearn.validation import as_points
 
-__all__ = ["ACTOR", "actor_loss", "chamfer_hausdorff", "load_actor", "reconstruct", "read_lightning_checkpoint", "bn_momentum_at"]
+__all__ = [
+    "ACTOR",
+    "actor_loss",
+    "chamfer_hausdorff",
+    "load_actor",
+    "reconstruct",
+    "read_lightning_checkpoint",
+    "bn_momentum_at",
+]
 
 
 def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -44,8 +52,9 @@ def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Te
     Shapes: x (B, N, 3), y (B, M, 3) -> idx_xy (B, N) into y (valid y only), idx_yx (B, M) into x.
     """
     with torch.no_grad():
-        d2 = torch.baddbmm((x * x).sum(-1)[:, :, None] + (y * y).sum(-1)[:, None, :], x, y.transpose(1, 2),
-                           alpha=-2.0)  # B x N x M
+        d2 = torch.baddbmm(
+            (x * x).sum(-1)[:, :, None] + (y * y).sum(-1)[:, None, :], x, y.transpose(1, 2), alpha=-2.0
+        )  # B x N x M
         idx_yx = d2.argmin(dim=1)
         if y_lengths is not None:
             d2 = d2.masked_fill(~lengths_to_mask(y_lengths, y.shape[1])[:, None, :], float("inf"))
@@ -57,7 +66,9 @@ def _gather_points(points: Tensor, idx: Tensor) -> Tensor:
     return torch.gather(points, 1, idx[..., None].expand(-1, -1, points.shape[-1]))
 
 
-def actor_loss(pred: Tensor, target: Tensor, alpha: float = 100.0, target_lengths: Tensor | None = None) -> Tensor:
+def actor_loss(
+    pred: Tensor, target: Tensor, alpha: float = 100.0, target_lengths: Tensor | None = None
+) -> Tensor:
     """Reconstruction loss ``L_rec = alpha * L_CD(P_in, P_out)`` (thesis eq. 8.1), mean over the batch.
 
     ``L_CD`` is the symmetric mean nearest-neighbour Euclidean distance, the same value as
@@ -70,7 +81,9 @@ def actor_loss(pred: Tensor, target: Tensor, alpha: float = 100.0, target_length
         pred: (B, M, 3); target: (B, N, 3) (padded, with ``target_lengths`` (B,)); returns a scalar.
     """
     if pred.dim() != 3 or target.dim() != 3 or pred.shape[0] != target.shape[0]:
-        raise ValueError(f"pred, target: expected (B, M, 3) and (B, N, 3), got {tuple(pred.shape)}, {tuple(target.shape)}")
+        raise ValueError(
+            f"pred, target: expected (B, M, 3) and (B, N, 3), got {tuple(pred.shape)}, {tuple(target.shape)}"
+        )
     target = target.to(pred.dtype)
     idx_pt, idx_tp = _nearest_indices(pred, target, target_lengths)
     pred_to_target = (pred - _gather_points(target, idx_pt)).norm(dim=-1).mean(dim=1)
@@ -98,8 +111,9 @@ def chamfer_hausdorff(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
     return dx.mean(dim=1) + dy.mean(dim=1), torch.maximum(dx.amax(dim=1), dy.amax(dim=1))
 
 
-def bn_momentum_at(samples_seen: int, init: float = 0.5, rate: float = 0.5, step: int = 200_000,
-                   decay_max: float = 0.99) -> float:
+def bn_momentum_at(
+    samples_seen: int, init: float = 0.5, rate: float = 0.5, step: int = 200_000, decay_max: float = 0.99
+) -> float:
     """PyTorch batch-norm momentum of the thesis schedule (Sec. 8.3.1, staircase as in PointNet).
 
     TensorFlow decay = 1 - momentum starts at ``1 - init`` = 0.5 and rises to ``decay_max`` = 0.99:
@@ -163,13 +177,16 @@ class ACTOR(L.LightningModule):
     ) -> None:
         super().__init__()
         if math.prod(deconv_strides) != num_points:
-            raise ValueError(f"deconv_strides: product {math.prod(deconv_strides)} != num_points {num_points}")
+            raise ValueError(
+                f"deconv_strides: product {math.prod(deconv_strides)} != num_points {num_points}"
+            )
         if input_scale <= 0:
             raise ValueError(f"input_scale: must be positive, got {input_scale}")
         self.save_hyperparameters()
         self.encoder = ActorEncoder(tuple(encoder_channels), attention=attention)
-        self.decoder = ActorDecoder(self.encoder.out_channels, fc_channels, tuple(deconv_channels),
-                                    tuple(deconv_strides))
+        self.decoder = ActorDecoder(
+            self.encoder.out_channels, fc_channels, tuple(deconv_channels), tuple(deconv_strides)
+        )
         self.train_loss = MeanMetric()
         self.val_loss = MeanMetric()
         self.test_loss = MeanMetric()
@@ -206,8 +223,13 @@ class ACTOR(L.LightningModule):
 
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
         samples = self.global_step * int(batch["sparse"].shape[0])
-        momentum = bn_momentum_at(samples, self.hparams.bn_momentum_init, self.hparams.bn_decay_rate,
-                                  self.hparams.bn_decay_step, self.hparams.bn_decay_max)
+        momentum = bn_momentum_at(
+            samples,
+            self.hparams.bn_momentum_init,
+            self.hparams.bn_decay_rate,
+            self.hparams.bn_decay_step,
+            self.hparams.bn_decay_max,
+        )
         for m in self.modules():
             if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
                 m.momentum = momentum
@@ -215,8 +237,14 @@ class ACTOR(L.LightningModule):
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         loss, _ = self.model_step(batch)
         self.train_loss(loss)
-        self.log("train/loss", self.train_loss, on_step=False, on_epoch=True, prog_bar=True,
-                 batch_size=batch["sparse"].shape[0])
+        self.log(
+            "train/loss",
+            self.train_loss,
+            on_step=False,
+            on_epoch=True,
+            prog_bar=True,
+            batch_size=batch["sparse"].shape[0],
+        )
         return loss
 
     def _distances_mm(self, pred: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -265,8 +293,12 @@ class ACTOR(L.LightningModule):
         cd = self.val_cd.compute()
         self.val_cd_best(cd)
         self.log("val/cd_mm_best", self.val_cd_best.compute(), sync_dist=True, prog_bar=True)
-        if (self.hparams.log_figures and self._figure_batch is not None and not self.trainer.sanity_checking
-                and self.logger is not None):
+        if (
+            self.hparams.log_figures
+            and self._figure_batch is not None
+            and not self.trainer.sanity_checking
+            and self.logger is not None
+        ):
             from vtlearn.models.actor_figures import log_figure, reconstruction_figure
 
             fb = self._figure_batch
@@ -290,8 +322,9 @@ class ACTOR(L.LightningModule):
         return self(batch["sparse"], batch.get("lengths"))
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999),
-                                weight_decay=self.hparams.weight_decay)
+        return torch.optim.Adam(
+            self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999), weight_decay=self.hparams.weight_decay
+        )
 
 
 # -------------------------------------------------------------------- checkpoint inference API
@@ -303,10 +336,14 @@ def read_lightning_checkpoint(ckpt: str | Path) -> dict[str, Any]:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # corrupted, truncated, or pickles that weights_only refuses
-        raise ValueError(f"ckpt: {path} is not a readable PyTorch checkpoint ({type(exc).__name__}: "
-                         f"{str(exc).splitlines()[0] if str(exc) else ''})") from exc
+        raise ValueError(
+            f"ckpt: {path} is not a readable PyTorch checkpoint ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''})"
+        ) from exc
     if not isinstance(data, dict) or "state_dict" not in data or "hyper_parameters" not in data:
-        raise ValueError(f"ckpt: {path} is not a Lightning checkpoint (needs 'state_dict' and 'hyper_parameters')")
+        raise ValueError(
+            f"ckpt: {path} is not a Lightning checkpoint (needs 'state_dict' and 'hyper_parameters')"
+        )
     return data
 
 
@@ -330,13 +367,19 @@ def load_actor(ckpt: str | Path, map_location: str | torch.device = "cpu") -> AC
     """
     data = read_lightning_checkpoint(ckpt)
     state = data["state_dict"]
-    if not any(k.startswith("encoder.features.") for k in state) or not any(k.startswith("decoder.") for k in state):
-        raise ValueError(f"ckpt: {ckpt} is not an ACTOR checkpoint (no encoder.features.* / decoder.* weights)")
+    if not any(k.startswith("encoder.features.") for k in state) or not any(
+        k.startswith("decoder.") for k in state
+    ):
+        raise ValueError(
+            f"ckpt: {ckpt} is not an ACTOR checkpoint (no encoder.features.* / decoder.* weights)"
+        )
     try:
         model = ACTOR(**_plain_hparams(dict(data["hyper_parameters"]), ACTOR))
         model.load_state_dict(state, strict=True)
     except (RuntimeError, TypeError, ValueError) as exc:
-        raise ValueError(f"ckpt: {ckpt} does not match the ACTOR architecture: {str(exc).splitlines()[0]}") from exc
+        raise ValueError(
+            f"ckpt: {ckpt} does not match the ACTOR architecture: {str(exc).splitlines()[0]}"
+        ) from exc
     return model.to(map_location).eval()
 
 
@@ -354,8 +397,15 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
     """
     model.eval()
     device = next(model.parameters()).device
-    if isinstance(points, Tensor) and points.dim() == 3 or isinstance(points, np.ndarray) and points.ndim == 3:
-        x = torch.as_tensor(np.asarray(points) if isinstance(points, np.ndarray) else points, dtype=torch.float32)
+    if (
+        isinstance(points, Tensor)
+        and points.dim() == 3
+        or isinstance(points, np.ndarray)
+        and points.ndim == 3
+    ):
+        x = torch.as_tensor(
+            np.asarray(points) if isinstance(points, np.ndarray) else points, dtype=torch.float32
+        )
         if not torch.isfinite(x).all():
             raise ValueError("points: contains NaN or inf")
         lt = None if lengths is None else torch.as_tensor(lengths, dtype=torch.long).to(device)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +30,36 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     from vtlearn.io import read_cloud, read_geometry, write_cloud, write_mesh
     from vtlearn.models.actor import load_actor, reconstruct
 
-    torch.set_num_threads(args.threads) if args.threads else None
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if (args.input is None) == (args.data is None):
+        raise ValueError("input: give exactly one of --input FILE or --data DIR")
     model = load_actor(args.ckpt)
-    sparse = read_cloud(args.input)
+    gt = None
+    if args.input is not None:
+        sparse = read_cloud(args.input)
+    else:
+        # an unseen simulated object: its stored tactile cloud and ground truth (canonical frame)
+        from vtlearn.datamodules.shards import load_manifest, load_split, split_clouds
+
+        d = load_split(args.data, args.split, verify=True)
+        clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
+        if not 0 <= args.index < len(clouds):
+            raise ValueError(
+                f"index: {args.index} out of range, split {args.split!r} has {len(clouds)} tactile clouds"
+            )
+        inst = int(d["tactile_instance"][args.index])
+        row = int(np.flatnonzero(d["instance"] == inst)[0])
+        sparse = clouds[args.index].astype(np.float64)
+        if len(sparse) > args.max_points:
+            sparse = _subsample_tactile(sparse, args.max_points, args.max_points, np.random.default_rng(0))
+        gt = d["dense"][row].astype(np.float64)
+        args.mm_per_unit = float(d["scale_m"][row]) * 1000.0
+        name = load_manifest(args.data)["class_names"][int(d["label"][row])]
+        print(
+            f"{args.split} instance {inst} ({name}, {'transparent' if d['transparent'][row] else 'opaque'}): "
+            f"{len(sparse)} tactile points"
+        )
     t0 = time.perf_counter()
     dense = reconstruct(model, sparse)
     ms = 1000 * (time.perf_counter() - t0)
@@ -42,13 +70,17 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
         mesh = ball_pivot_mesh(dense)
         write_mesh(args.mesh, mesh)
-        print(f"ball-pivoting mesh: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces; wrote {args.mesh}")
-    gt = None
+        print(
+            f"ball-pivoting mesh: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces; wrote {args.mesh}"
+        )
     if args.gt:
         gt = read_geometry(args.gt, n_points=len(dense), seed=0)
+    if gt is not None:
         cd = chamfer_distance(dense, gt)
-        print(f"Chamfer distance to {args.gt}: {cd:.6f} input units ({cd * args.mm_per_unit:.2f} mm at "
-              f"{args.mm_per_unit:g} mm per unit)")
+        print(
+            f"Chamfer distance to the ground truth: {cd:.6f} input units ({cd * args.mm_per_unit:.2f} mm at "
+            f"{args.mm_per_unit:g} mm per unit)"
+        )
     if args.figure:
         from vtlearn.models.actor_figures import reconstruction_figure
 
@@ -87,8 +119,9 @@ def _distances_mm(pred: np.ndarray, gt: np.ndarray, mm: float, emd_points: int, 
     from vtlearn.geometry.metrics import earth_movers_distance
     from vtlearn.models.actor import chamfer_hausdorff
 
-    cd, hd = chamfer_hausdorff(torch.as_tensor(pred, dtype=torch.float64)[None],
-                               torch.as_tensor(gt, dtype=torch.float64)[None])
+    cd, hd = chamfer_hausdorff(
+        torch.as_tensor(pred, dtype=torch.float64)[None], torch.as_tensor(gt, dtype=torch.float64)[None]
+    )
     p, g = pred, gt
     if 0 < emd_points < min(len(p), len(g)):
         p = p[rng.choice(len(p), emd_points, replace=False)]
@@ -111,6 +144,10 @@ def _inference_ms(model, n_points: int, repeats: int = 100) -> float:
             model(x)
             times.append(time.perf_counter() - t0)
     return 1000 * float(np.median(times))
+
+
+def _in_category(row: dict, category: str) -> bool:
+    return row["category"] == category
 
 
 def _summary(rows: list[dict], methods: list[str], key: str, groups) -> list[dict]:
@@ -152,11 +189,20 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     for i, inst in enumerate(d["instance"]):
         if int(inst) not in first:
             continue
-        items.append({"index": i, "instance": int(inst), "label": int(d["label"][i]),
-                      "category": class_names[int(d["label"][i])], "transparent": bool(d["transparent"][i]),
-                      "scale_m": float(d["scale_m"][i]), "dense": d["dense"][i].astype(np.float64),
-                      "sparse": _subsample_tactile(clouds[first[int(inst)]].astype(np.float64),
-                                                   args.min_points, args.max_points, rng)})
+        items.append(
+            {
+                "index": i,
+                "instance": int(inst),
+                "label": int(d["label"][i]),
+                "category": class_names[int(d["label"][i])],
+                "transparent": bool(d["transparent"][i]),
+                "scale_m": float(d["scale_m"][i]),
+                "dense": d["dense"][i].astype(np.float64),
+                "sparse": _subsample_tactile(
+                    clouds[first[int(inst)]].astype(np.float64), args.min_points, args.max_points, rng
+                ),
+            }
+        )
     if args.max_clouds:
         items = items[: args.max_clouds]
     if not items:
@@ -171,27 +217,43 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
         mm = it["scale_m"] * 1000.0
         preds = {name: reconstruct(m, it["sparse"]) for name, m in models.items()}
         if not args.no_gpis:
-            normals = (_dense_normals(it["sparse"], it["dense"]) if args.gpis_normals == "dense" else None)
+            normals = _dense_normals(it["sparse"], it["dense"]) if args.gpis_normals == "dense" else None
             try:
-                preds["GPIS"] = gpis_reconstruct(it["sparse"], normals, num_points=2048,
-                                                 resolution=args.gpis_resolution, seed=args.seed).points
+                preds["GPIS"] = gpis_reconstruct(
+                    it["sparse"], normals, num_points=2048, resolution=args.gpis_resolution, seed=args.seed
+                ).points
             except ValueError as exc:
                 gpis_failures += 1
                 log.warning("GPIS failed on instance %d: %s", it["instance"], exc)
         for name, pred in preds.items():
-            row = {"instance": it["instance"], "category": it["category"], "transparent": it["transparent"],
-                   "n_input": len(it["sparse"]), "method": name}
+            row = {
+                "instance": it["instance"],
+                "category": it["category"],
+                "transparent": it["transparent"],
+                "n_input": len(it["sparse"]),
+                "method": name,
+            }
             row.update(_distances_mm(pred, it["dense"], mm, args.emd_points, rng))
             rows.append(row)
         if it["category"] not in examples:
             examples[it["category"]] = (it["sparse"], preds, it["dense"])
 
-    groups = [("all", lambda r: True), ("opaque", lambda r: not r["transparent"]),
-              ("transparent", lambda r: r["transparent"])]
-    groups += [(c, (lambda c: lambda r: r["category"] == c)(c)) for c in class_names
-               if any(it["category"] == c for it in items)]
+    groups = [
+        ("all", lambda r: True),
+        ("opaque", lambda r: not r["transparent"]),
+        ("transparent", lambda r: r["transparent"]),
+    ]
+    groups += [
+        (c, partial(_in_category, category=c))
+        for c in class_names
+        if any(it["category"] == c for it in items)
+    ]
     summary = _summary(rows, methods, "group", groups)
-    text = [print_table(summary, CATEGORY_COLUMNS, title="ACTOR vs GPIS on simulated tactile clouds (mm, mean ± std)")]
+    text = [
+        print_table(
+            summary, CATEGORY_COLUMNS, title="ACTOR vs GPIS on simulated tactile clouds (mm, mean ± std)"
+        )
+    ]
 
     overall = {r["method"]: r for r in summary if r["group"] == "all"}
     targets = {}
@@ -200,15 +262,21 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
         targets["actor_cd_reduction_vs_gpis"] = red
         targets["target_cd_reduction_0.40_met"] = bool(red >= 0.40)
     if "ACTOR (no attention)" in overall:
-        targets["attention_improves_cd"] = bool(overall["ACTOR"]["CD_mm_mean"]
-                                                < overall["ACTOR (no attention)"]["CD_mm_mean"])
+        targets["attention_improves_cd"] = bool(
+            overall["ACTOR"]["CD_mm_mean"] < overall["ACTOR (no attention)"]["CD_mm_mean"]
+        )
     timing = {name: _inference_ms(m, 110) for name, m in models.items()}
     targets["inference_ms_batch1"] = timing["ACTOR"]
     targets["target_inference_under_10ms_met"] = bool(timing["ACTOR"] < 10.0)
     trows = [{"method": k, "ms_per_cloud_batch1": round(v, 2)} for k, v in timing.items()]
-    text.append(print_table(trows, ["method", "ms_per_cloud_batch1"],
-                            title=f"CPU inference, 110-point cloud, batch 1, median of 100 after warm-up "
-                                  f"({torch.get_num_threads()} threads)"))
+    text.append(
+        print_table(
+            trows,
+            ["method", "ms_per_cloud_batch1"],
+            title=f"CPU inference, 110-point cloud, batch 1, median of 100 after warm-up "
+            f"({torch.get_num_threads()} threads)",
+        )
+    )
 
     recognition = None
     if args.recognition_ckpt:
@@ -216,7 +284,9 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
 
         rec = load_recognition(args.recognition_ckpt)
         if rec.hparams.num_classes != len(class_names):
-            raise ValueError(f"recognition_ckpt: {rec.hparams.num_classes} classes, data has {len(class_names)}")
+            raise ValueError(
+                f"recognition_ckpt: {rec.hparams.num_classes} classes, data has {len(class_names)}"
+            )
         k = len(class_names)
         conf = np.zeros((k, k), dtype=np.int64)
         with torch.no_grad():
@@ -226,10 +296,17 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
         acc = float(np.trace(conf) / conf.sum())
         recognition = {"accuracy": acc, "confusion": conf.tolist(), "class_names": class_names}
         norm = conf / np.clip(conf.sum(1, keepdims=True), 1, None)
-        crow = [{"true": c, **{p[:8]: f"{norm[i, j]:.2f}" for j, p in enumerate(class_names)}}
-                for i, c in enumerate(class_names)]
-        text.append(print_table(crow, ["true"] + [p[:8] for p in class_names],
-                                title=f"Recognition on the same tactile clouds: accuracy {acc:.3f} (Table 8.1 style)"))
+        crow = [
+            {"true": c, **{p[:8]: f"{norm[i, j]:.2f}" for j, p in enumerate(class_names)}}
+            for i, c in enumerate(class_names)
+        ]
+        text.append(
+            print_table(
+                crow,
+                ["true"] + [p[:8] for p in class_names],
+                title=f"Recognition on the same tactile clouds: accuracy {acc:.3f} (Table 8.1 style)",
+            )
+        )
         if args.figure:
             from vtlearn.models.actor_figures import confusion_figure
 
@@ -241,18 +318,31 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
 
     ttext = ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in targets.items())
     print(f"targets: {ttext}; GPIS failures: {gpis_failures}/{len(items)}")
-    result = {"data": args.data, "split": args.split, "clouds": len(items), "ckpt": args.ckpt,
-              "ckpt_noattn": args.ckpt_noattn, "recognition_ckpt": args.recognition_ckpt,
-              "input_points": [args.min_points, args.max_points], "emd_points": args.emd_points,
-              "gpis_normals": args.gpis_normals, "gpis_failures": gpis_failures, "summary": summary,
-              "targets": targets, "inference_ms": timing, "recognition": recognition, "rows": rows,
-              "machine": machine_info()}
+    result = {
+        "data": args.data,
+        "split": args.split,
+        "clouds": len(items),
+        "ckpt": args.ckpt,
+        "ckpt_noattn": args.ckpt_noattn,
+        "recognition_ckpt": args.recognition_ckpt,
+        "input_points": [args.min_points, args.max_points],
+        "emd_points": args.emd_points,
+        "gpis_normals": args.gpis_normals,
+        "gpis_failures": gpis_failures,
+        "summary": summary,
+        "targets": targets,
+        "inference_ms": timing,
+        "recognition": recognition,
+        "rows": rows,
+        "machine": machine_info(),
+    }
     write_json(args.json, result)
     print(f"wrote {args.json}")
     if args.markdown:
         Path(args.markdown).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.markdown).write_text("\n\n".join(text) + f"\n\ntargets: {ttext}; GPIS failures: "
-                                       f"{gpis_failures}/{len(items)}\n")
+        Path(args.markdown).write_text(
+            "\n\n".join(text) + f"\n\ntargets: {ttext}; GPIS failures: {gpis_failures}/{len(items)}\n"
+        )
         print(f"wrote {args.markdown}")
     if args.figure:
         from vtlearn.models.actor_figures import reconstruction_figure
@@ -268,9 +358,21 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- registration
 def register(subparsers) -> None:
-    p = subparsers.add_parser("reconstruct", help="ACTOR: dense 2048-point cloud (and mesh) from a sparse cloud (ch.8)")
+    p = subparsers.add_parser(
+        "reconstruct", help="ACTOR: dense 2048-point cloud (and mesh) from a sparse cloud (ch.8)"
+    )
     p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint (loaded with weights_only=True)")
-    p.add_argument("--input", required=True, help="sparse cloud (.ply .pcd .xyz .txt .npy .npz)")
+    p.add_argument("--input", help="sparse cloud (.ply .pcd .xyz .txt .npy .npz)")
+    p.add_argument(
+        "--data",
+        help="instead of --input: a `vtlearn gen-data reconstruction` directory; uses the "
+        "stored tactile cloud --index of --split and prints CD to its ground truth in mm",
+    )
+    p.add_argument("--split", default="test")
+    p.add_argument("--index", type=int, default=0)
+    p.add_argument(
+        "--max-points", type=int, default=120, help="--data: subsample the tactile cloud to at most this"
+    )
     p.add_argument("--out", required=True, help="dense cloud to write")
     p.add_argument("--mesh", help="also write a ball-pivoting mesh (.obj .ply .stl .off)")
     p.add_argument("--gt", help="ground-truth cloud or mesh: print the Chamfer distance to it")
@@ -281,7 +383,9 @@ def register(subparsers) -> None:
 
 
 def register_bench(bench_subparsers) -> None:
-    p = bench_subparsers.add_parser("actor", help="ACTOR vs no-attention vs GPIS on simulated tactile clouds (ch.8)")
+    p = bench_subparsers.add_parser(
+        "actor", help="ACTOR vs no-attention vs GPIS on simulated tactile clouds (ch.8)"
+    )
     p.add_argument("--ckpt", required=True, help="ACTOR checkpoint")
     p.add_argument("--ckpt-noattn", help="ACTOR checkpoint trained with attention: false (Table 8.2)")
     p.add_argument("--recognition-ckpt", help="ACTORRecognition checkpoint (Table 8.1)")
@@ -290,9 +394,15 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--min-points", type=int, default=100)
     p.add_argument("--max-points", type=int, default=120)
     p.add_argument("--max-clouds", type=int, default=0, help="use only the first N clouds (0: all)")
-    p.add_argument("--emd-points", type=int, default=1024, help="EMD on this many random points per cloud (0: all)")
-    p.add_argument("--gpis-normals", choices=["dense", "estimated"], default="dense",
-                   help="GPIS contact normals: from the true surface (as a force sensor measures), or PCA-estimated")
+    p.add_argument(
+        "--emd-points", type=int, default=1024, help="EMD on this many random points per cloud (0: all)"
+    )
+    p.add_argument(
+        "--gpis-normals",
+        choices=["dense", "estimated"],
+        default="dense",
+        help="GPIS contact normals: from the true surface (as a force sensor measures), or PCA-estimated",
+    )
     p.add_argument("--gpis-resolution", type=int, default=32)
     p.add_argument("--no-gpis", action="store_true")
     p.add_argument("--seed", type=int, default=0)

@@ -62,7 +62,9 @@ def reconstruction_figure(
     return fig
 
 
-def confusion_figure(matrix: np.ndarray, class_names: Sequence[str], title: str = "confusion (row-normalised)"):
+def confusion_figure(
+    matrix: np.ndarray, class_names: Sequence[str], title: str = "confusion (row-normalised)"
+):
     """Row-normalised confusion matrix like thesis Table 8.1 (rows: true, columns: predicted).
 
     Shapes:
@@ -79,8 +81,15 @@ def confusion_figure(matrix: np.ndarray, class_names: Sequence[str], title: str 
     ax.set_ylabel("true")
     for i in range(k):
         for j in range(k):
-            ax.text(j, i, f"{norm[i, j]:.2f}", ha="center", va="center", fontsize=7,
-                    color="white" if norm[i, j] > 0.5 else "black")
+            ax.text(
+                j,
+                i,
+                f"{norm[i, j]:.2f}",
+                ha="center",
+                va="center",
+                fontsize=7,
+                color="white" if norm[i, j] > 0.5 else "black",
+            )
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
     return fig

@@ -40,11 +40,20 @@ def random_rotation_matrices(n: int, mode: str = "z", generator: torch.Generator
     if mode == "so3":
         q = torch.randn(n, 4, generator=generator)
         w, x, y, z = (q / q.norm(dim=1, keepdim=True)).unbind(1)
-        return torch.stack([
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ], dim=1).reshape(n, 3, 3)
+        return torch.stack(
+            [
+                1 - 2 * (y * y + z * z),
+                2 * (x * y - w * z),
+                2 * (x * z + w * y),
+                2 * (x * y + w * z),
+                1 - 2 * (x * x + z * z),
+                2 * (y * z - w * x),
+                2 * (x * z - w * y),
+                2 * (y * z + w * x),
+                1 - 2 * (x * x + y * y),
+            ],
+            dim=1,
+        ).reshape(n, 3, 3)
     raise ValueError(f"mode: expected 'z' or 'so3', got {mode!r}")
 
 
@@ -95,20 +104,31 @@ class ACTORRecognition(L.LightningModule):
             self.encoder = actor.encoder
         else:
             self.encoder = ActorEncoder(tuple(encoder_channels), attention=attention)
-        self.save_hyperparameters({
-            "actor_ckpt": None if actor_ckpt is None else str(actor_ckpt), "num_classes": int(num_classes),
-            "class_names": None if class_names is None else [str(c) for c in class_names], "lr": float(lr),
-            "dropout_keep": float(dropout_keep), "rotation": rotation, "attention": bool(attention),
-            "encoder_channels": [int(c) for c in encoder_channels], "input_scale": float(input_scale),
-        })
+        self.save_hyperparameters(
+            {
+                "actor_ckpt": None if actor_ckpt is None else str(actor_ckpt),
+                "num_classes": int(num_classes),
+                "class_names": None if class_names is None else [str(c) for c in class_names],
+                "lr": float(lr),
+                "dropout_keep": float(dropout_keep),
+                "rotation": rotation,
+                "attention": bool(attention),
+                "encoder_channels": [int(c) for c in encoder_channels],
+                "input_scale": float(input_scale),
+            }
+        )
         # in the state dict, so that a checkpoint restores it whatever hparams a CLI recorded
         self.register_buffer("encoder_input_scale", torch.tensor(float(input_scale)))
         self.encoder.requires_grad_(False)
         self.encoder.eval()
         c = self.encoder.out_channels
         self.head = nn.Sequential(
-            nn.Linear(c, 512, bias=False), nn.BatchNorm1d(512), nn.ReLU(),
-            nn.Linear(512, 256, bias=False), nn.BatchNorm1d(256), nn.ReLU(),
+            nn.Linear(c, 512, bias=False),
+            nn.BatchNorm1d(512),
+            nn.ReLU(),
+            nn.Linear(512, 256, bias=False),
+            nn.BatchNorm1d(256),
+            nn.ReLU(),
             nn.Dropout(p=1.0 - dropout_keep),
             nn.Linear(256, num_classes),
         )
@@ -216,12 +236,16 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
     data = read_lightning_checkpoint(ckpt)
     state = data["state_dict"]
     if not any(k.startswith("head.") for k in state) or not any(k.startswith("encoder.") for k in state):
-        raise ValueError(f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no head.* / encoder.* weights)")
+        raise ValueError(
+            f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no head.* / encoder.* weights)"
+        )
     hp = _plain_hparams(dict(data["hyper_parameters"]), ACTORRecognition)
     hp["actor_ckpt"] = None  # the encoder weights are in the state dict
     # The encoder architecture is read from the weights: LightningCLI records the config's init args,
     # not the values copied from the ACTOR checkpoint.
-    convs = sorted((k for k in state if k.startswith("encoder.features.convs.")), key=lambda k: int(k.split(".")[3]))
+    convs = sorted(
+        (k for k in state if k.startswith("encoder.features.convs.")), key=lambda k: int(k.split(".")[3])
+    )
     hp["encoder_channels"] = tuple(int(state[k].shape[0]) for k in convs)
     hp["attention"] = any(k.startswith("encoder.attention.") for k in state)
     head_out = [k for k in state if k.startswith("head.") and k.endswith(".bias")]

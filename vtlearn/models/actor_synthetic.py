@@ -45,9 +45,21 @@ def primitive_surface(kind: str, n: int, rng: np.random.Generator, size: float =
 class PrimitiveClouds(Dataset):
     """Randomly scaled primitives; sparse clouds of ``min_points..max_points`` points of the dense one."""
 
-    def __init__(self, size: int = 16, num_dense: int = 2048, min_points: int = 20, max_points: int = 120,
-                 seed: int = 0) -> None:
-        self.size, self.num_dense, self.min_points, self.max_points, self.seed = size, num_dense, min_points, max_points, seed
+    def __init__(
+        self,
+        size: int = 16,
+        num_dense: int = 2048,
+        min_points: int = 20,
+        max_points: int = 120,
+        seed: int = 0,
+    ) -> None:
+        self.size, self.num_dense, self.min_points, self.max_points, self.seed = (
+            size,
+            num_dense,
+            min_points,
+            max_points,
+            seed,
+        )
 
     def __len__(self) -> int:
         return self.size
@@ -58,9 +70,11 @@ class PrimitiveClouds(Dataset):
         dense = primitive_surface(CLASS_NAMES[label], self.num_dense, rng, size=rng.uniform(0.03, 0.06))
         n = int(rng.integers(self.min_points, self.max_points + 1))
         sparse = dense[rng.choice(self.num_dense, size=n, replace=False)]
-        return {"sparse": torch.as_tensor(sparse, dtype=torch.float32),
-                "dense": torch.as_tensor(dense, dtype=torch.float32),
-                "label": torch.tensor(label, dtype=torch.long)}
+        return {
+            "sparse": torch.as_tensor(sparse, dtype=torch.float32),
+            "dense": torch.as_tensor(dense, dtype=torch.float32),
+            "label": torch.tensor(label, dtype=torch.long),
+        }
 
 
 def collate_padded(samples: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
@@ -69,15 +83,25 @@ def collate_padded(samples: list[dict[str, torch.Tensor]]) -> dict[str, torch.Te
     sparse = torch.zeros(len(samples), int(lengths.max()), 3)
     for b, s in enumerate(samples):
         sparse[b, : len(s["sparse"])] = s["sparse"]
-    return {"sparse": sparse, "lengths": lengths, "dense": torch.stack([s["dense"] for s in samples]),
-            "label": torch.stack([s["label"] for s in samples])}
+    return {
+        "sparse": sparse,
+        "lengths": lengths,
+        "dense": torch.stack([s["dense"] for s in samples]),
+        "label": torch.stack([s["label"] for s in samples]),
+    }
 
 
 class PrimitiveDataModule(L.LightningDataModule):
     """Train / val / test / predict loaders of :class:`PrimitiveClouds` (different seeds per split)."""
 
-    def __init__(self, batch_size: int = 4, size: int = 16, num_dense: int = 2048, min_points: int = 20,
-                 max_points: int = 120) -> None:
+    def __init__(
+        self,
+        batch_size: int = 4,
+        size: int = 16,
+        num_dense: int = 2048,
+        min_points: int = 20,
+        max_points: int = 120,
+    ) -> None:
         super().__init__()
         self.batch_size, self.size, self.num_dense = batch_size, size, num_dense
         self.min_points, self.max_points = min_points, max_points
@@ -86,8 +110,9 @@ class PrimitiveDataModule(L.LightningDataModule):
 
     def _loader(self, seed: int, shuffle: bool) -> DataLoader:
         ds = PrimitiveClouds(self.size, self.num_dense, self.min_points, self.max_points, seed)
-        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, collate_fn=collate_padded,
-                          drop_last=shuffle)
+        return DataLoader(
+            ds, batch_size=self.batch_size, shuffle=shuffle, collate_fn=collate_padded, drop_last=shuffle
+        )
 
     def train_dataloader(self) -> DataLoader:
         return self._loader(0, True)

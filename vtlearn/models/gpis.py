@@ -68,14 +68,21 @@ def estimate_normals(points, k: int = 10) -> np.ndarray:
 
 
 def _bounded_lbfgs(obj_func, initial_theta, bounds):
-    """sklearn's L-BFGS-B marginal-likelihood optimiser with an iteration cap (bench runtime stays bounded)."""
-    res = minimize(obj_func, initial_theta, method="L-BFGS-B", jac=True, bounds=bounds,
-                   options={"maxiter": 40})
+    """sklearn's L-BFGS-B marginal-likelihood optimiser, capped at 40 iterations (bounded bench runtime)."""
+    res = minimize(
+        obj_func, initial_theta, method="L-BFGS-B", jac=True, bounds=bounds, options={"maxiter": 40}
+    )
     return res.x, res.fun
 
 
-def fit_gpis(points, normals, offset: float | None = None, nu: float = 1.5,
-             length_scale: float | None = None, optimize: bool = True) -> tuple[GaussianProcessRegressor, float]:
+def fit_gpis(
+    points,
+    normals,
+    offset: float | None = None,
+    nu: float = 1.5,
+    length_scale: float | None = None,
+    optimize: bool = True,
+) -> tuple[GaussianProcessRegressor, float]:
     """Fit the implicit-surface GP. Returns the regressor (on f - d) and the offset d.
 
     Args:
@@ -105,11 +112,12 @@ def fit_gpis(points, normals, offset: float | None = None, nu: float = 1.5,
     ls = 0.3 * extent if length_scale is None else float(length_scale)
     X = np.concatenate([pts, pts + d * nrm, pts - d * nrm])
     y = np.concatenate([np.zeros(len(pts)), np.full(len(pts), d), np.full(len(pts), -d)])
-    kernel = (ConstantKernel(d**2, (1e-4 * d**2, 1e4 * d**2))
-              * Matern(length_scale=ls, length_scale_bounds=(0.02 * extent, 5 * extent), nu=nu)
-              + WhiteKernel(1e-4 * d**2, (1e-8 * d**2, 1e-1 * d**2)))
-    gp = GaussianProcessRegressor(kernel=kernel, alpha=1e-10, optimizer=_bounded_lbfgs if optimize else None,
-                                  normalize_y=False)
+    kernel = ConstantKernel(d**2, (1e-4 * d**2, 1e4 * d**2)) * Matern(
+        length_scale=ls, length_scale_bounds=(0.02 * extent, 5 * extent), nu=nu
+    ) + WhiteKernel(1e-4 * d**2, (1e-8 * d**2, 1e-1 * d**2))
+    gp = GaussianProcessRegressor(
+        kernel=kernel, alpha=1e-10, optimizer=_bounded_lbfgs if optimize else None, normalize_y=False
+    )
     with warnings.catch_warnings():
         # hyper-parameters at their bounds (e.g. a very smooth sphere) are expected, not an error
         warnings.simplefilter("ignore", ConvergenceWarning)
@@ -117,8 +125,16 @@ def fit_gpis(points, normals, offset: float | None = None, nu: float = 1.5,
     return gp, d
 
 
-def gpis_reconstruct(points, normals=None, num_points: int = 2048, resolution: int = 32, margin: float = 0.25,
-                     nu: float = 1.5, offset: float | None = None, seed: int | None = 0) -> GPISResult:
+def gpis_reconstruct(
+    points,
+    normals=None,
+    num_points: int = 2048,
+    resolution: int = 32,
+    margin: float = 0.25,
+    nu: float = 1.5,
+    offset: float | None = None,
+    seed: int | None = 0,
+) -> GPISResult:
     """GPIS reconstruction resampled to ``num_points`` surface points (thesis Sec. 8.3.2 baseline).
 
     Args:
@@ -149,7 +165,9 @@ def gpis_reconstruct(points, normals=None, num_points: int = 2048, resolution: i
     step = float(np.max(hi - lo)) / resolution
     axes = [np.arange(lo[i], hi[i] + step, step) for i in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    values = np.concatenate([gp.predict(chunk) for chunk in np.array_split(grid, max(1, len(grid) // 20000))]) + d
+    values = (
+        np.concatenate([gp.predict(chunk) for chunk in np.array_split(grid, max(1, len(grid) // 20000))]) + d
+    )
     values = values.reshape(len(axes[0]), len(axes[1]), len(axes[2]))
     if not (values.min() < 0 < values.max()):
         raise ValueError("points: the GP implicit surface has no zero level set inside the evaluation box")

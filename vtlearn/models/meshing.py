@@ -23,8 +23,9 @@ from vtlearn.validation import as_points
 __all__ = ["ball_pivot_mesh"]
 
 
-def ball_pivot_mesh(points, normals=None, radii: Sequence[float] | None = None, radius_factors=(1.0, 2.0, 4.0),
-                    knn: int = 12) -> trimesh.Trimesh:
+def ball_pivot_mesh(
+    points, normals=None, radii: Sequence[float] | None = None, radius_factors=(1.0, 2.0, 4.0), knn: int = 12
+) -> trimesh.Trimesh:
     """Triangle mesh through the points by ball pivoting.
 
     Args:
@@ -61,7 +62,9 @@ def ball_pivot_mesh(points, normals=None, radii: Sequence[float] | None = None, 
         radii = [f * spacing for f in radius_factors]
     if any(r <= 0 for r in radii):
         raise ValueError(f"radii: must be positive, got {list(radii)}")
-    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pcd, o3d.utility.DoubleVector(list(radii)))
+    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
+        pcd, o3d.utility.DoubleVector(list(radii))
+    )
     faces = np.asarray(mesh.triangles)
     if len(faces) == 0:
         raise ValueError("points: ball pivoting built no triangles (try larger radii)")

@@ -65,7 +65,8 @@ class ActorDecoder(nn.Module):
         super().__init__()
         if len(strides) != len(deconv_channels) + 1:
             raise ValueError(
-                f"strides: need one more entry than deconv_channels, got {len(strides)} and {len(deconv_channels)}"
+                f"strides: need one more entry than deconv_channels, "
+                f"got {len(strides)} and {len(deconv_channels)}"
             )
         if any(s < 1 for s in strides):
             raise ValueError(f"strides: must be positive, got {strides}")

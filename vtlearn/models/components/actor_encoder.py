@@ -11,7 +11,6 @@ does not depend on how much padding it carries.
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor, nn
 
 from vtlearn.models.components.actor_attention import SelfAttentionUnit
@@ -52,7 +51,9 @@ class ActorEncoder(nn.Module):
     ) -> None:
         super().__init__()
         self.features = PointNetFeatures(channels)
-        self.attention = SelfAttentionUnit(self.features.out_channels, attention_reduction) if attention else None
+        self.attention = (
+            SelfAttentionUnit(self.features.out_channels, attention_reduction) if attention else None
+        )
 
     @property
     def out_channels(self) -> int:
