@@ -11,7 +11,8 @@ Each class is built as ``Tracker(models, T_world_object0, ...)`` and tracks with
   part's scene points and its model at the particle pose (one KD-tree query for all particles);
   the estimate is the weighted tangent-space mean around the best particle; systematic resampling.
 - :class:`FrameToFrameICPTracker` -- Open3D point-to-point ICP of each part's points in the previous
-  frame onto its points in the current frame, composed over time (drifts, by construction).
+  frame onto its points in the current frame (at most ``max_points_per_part`` = 2000, random
+  subsample), composed over time (drifts, by construction).
 - :class:`FilterRegTracker` -- FilterReg (Gao and Tedrake, 2019) through ``probreg``, model-to-frame,
   only when the optional extra ``vtlearn[probreg]`` is installed (:data:`HAS_PROBREG`).
 
@@ -28,7 +29,8 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from vtlearn.classical.artreg import _inv, _translation, se3_exp_single, se3_log_single
+from vtlearn.classical.artreg import _inv, _translation
+from vtlearn.geometry import se3_exp, se3_log
 from vtlearn.validation import as_points, as_transform
 
 try:  # optional extra
@@ -140,7 +142,7 @@ class ParticleFilterTracker(_TrackerBase):
 
     def _diffuse(self, P: np.ndarray) -> np.ndarray:
         w = self.rng.normal(size=(len(P), 6)) * np.repeat(self.process_std, 3)
-        return np.stack([T @ se3_exp_single(wi) for T, wi in zip(P, w, strict=True)])
+        return P @ np.asarray(se3_exp(w))  # batched over particles
 
     def step(self, scene_cloud: Any, tactile_cloud: Any = None) -> list[np.ndarray]:
         """Track one frame; empty frames keep the last estimate. Returns N (4, 4) T_world_object."""
@@ -159,8 +161,8 @@ class ParticleFilterTracker(_TrackerBase):
             w = np.exp(logw - logw.max())
             w /= w.sum()
             best = P[int(np.argmax(w))]
-            xis = np.stack([se3_log_single(_inv(best) @ T) for T in P])
-            self._T[i] = best @ se3_exp_single(w @ xis)
+            xis = np.asarray(se3_log(_inv(best)[None] @ P))  # batched over particles
+            self._T[i] = best @ np.asarray(se3_exp(w @ xis))
             # systematic resampling
             pos = (self.rng.uniform() + np.arange(len(P))) / len(P)
             self.particles[i] = P[np.minimum(np.searchsorted(np.cumsum(w), pos), len(P) - 1)]
@@ -185,9 +187,13 @@ class FrameToFrameICPTracker(_TrackerBase):
         max_correspondence_distance: float = 0.05,
         icp_distance: float = 0.02,
         max_iterations: int = 30,
+        max_points_per_part: int = 2000,
+        seed: int = 0,
     ) -> None:
         super().__init__(models, T_world_object0, max_correspondence_distance)
         self.icp_distance, self.max_iterations = float(icp_distance), int(max_iterations)
+        self.max_points_per_part = int(max_points_per_part)
+        self.rng = np.random.default_rng(seed)
         self.prev = [m @ T[:3, :3].T + T[:3, 3] for m, T in zip(self.models_c, self._T, strict=True)]
 
     def step(self, scene_cloud: Any, tactile_cloud: Any = None) -> list[np.ndarray]:
@@ -196,6 +202,8 @@ class FrameToFrameICPTracker(_TrackerBase):
         for i, s in enumerate(parts):
             if len(s) < 3:
                 continue
+            if len(s) > self.max_points_per_part:
+                s = s[self.rng.choice(len(s), self.max_points_per_part, replace=False)]
             src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.prev[i]))
             dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s))
             res = o3d.pipelines.registration.registration_icp(
