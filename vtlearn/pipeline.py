@@ -336,7 +336,7 @@ def _summary_figure(path: Path, obj, ep, recon, scene, model_pts, T_est, T_gt, s
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(15, 5))
+    fig = plt.figure(figsize=(16, 6))
     surf = obj.surface_world[::4]
 
     def panel(i, title):
@@ -352,34 +352,35 @@ def _summary_figure(path: Path, obj, ep, recon, scene, model_pts, T_est, T_gt, s
         f"{len(ep.kinds)} active actions on an unseen transparent {obj.category}\n"
         f"({s['contact_points']} contact points, colour = action order)",
     )
-    ax.scatter(*surf.T, s=1, c="0.75", alpha=0.4, label="true surface")
+    ax.scatter(*surf.T, s=2, c="0.55", alpha=0.35, label="true surface")
     sc = ax.scatter(*ep.points.T, s=6, c=ep.step, cmap="viridis", label="contacts")
-    for T, k in zip(ep.T_world_sensor, ep.kinds, strict=True):
-        ax.scatter(*T[:3, 3], marker="^" if k == "pinch" else "o", c="tab:red", s=14)
-    fig.colorbar(sc, ax=ax, shrink=0.5, label="action")
+    starts = np.array([T[:3, 3] for T in ep.T_world_sensor])
+    pinch = np.array([k == "pinch" for k in ep.kinds])
+    if (~pinch).any():
+        ax.scatter(*starts[~pinch].T, marker="o", c="tab:red", s=14, label="touch pad start")
+    if pinch.any():
+        ax.scatter(*starts[pinch].T, marker="^", c="tab:red", s=18, label="pinch grip centre")
+    fig.colorbar(sc, ax=ax, shrink=0.5, pad=0.12, label="action (0 = first)")
     ax.legend(loc="upper left", fontsize=7)
     ax = panel(
         2,
         f"ACTOR reconstruction: CD {s['chamfer_mm']:.1f} mm\n"
         f"xAVTNet: {s['predicted_category']} (true {s['true_category']})",
     )
-    ax.scatter(*surf.T, s=1, c="0.6", alpha=0.5, label="true surface")
+    ax.scatter(*surf.T, s=2, c="0.55", alpha=0.35, label="true surface")
     ax.scatter(*recon[::2].T, s=1, c="tab:blue", alpha=0.6, label="reconstruction")
     ax.legend(loc="upper left", fontsize=7)
     ax = panel(3, f"S-TIQF pose, ADI {s['adi_cm']:.2f} cm\n(scene: touched points at an unknown pose)")
     est = model_pts @ np.asarray(T_est)[:3, :3].T + np.asarray(T_est)[:3, 3]
     true = (obj.surface_world[::4] - obj.bounds.mean(0)) @ T_gt[:3, :3].T + T_gt[:3, 3]
-    ax.scatter(*true.T, s=1, c="0.6", alpha=0.4, label="true object pose")
+    ax.scatter(*true.T, s=2, c="0.55", alpha=0.35, label="object at its true pose")
     ax.scatter(*est[::2].T, s=1, c="tab:orange", alpha=0.6, label="model at estimated pose")
     ax.scatter(*scene.T, s=6, c="k", label="scene (touches)")
     ax.legend(loc="upper left", fontsize=7)
     for ax in fig.axes:
-        if hasattr(ax, "set_box_aspect"):
-            try:
-                ax.set_box_aspect((1, 1, 1))
-            except Exception:  # noqa: BLE001 - colorbar axes are 2-D
-                pass
-    fig.tight_layout()
+        if ax.name == "3d":
+            ax.set_box_aspect((1, 1, 1))
+    fig.subplots_adjust(left=0.02, right=0.98, top=0.86, bottom=0.04, wspace=0.2)
     tmp = path.with_suffix(".tmp.png")
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
