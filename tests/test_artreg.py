@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from vtlearn.classical.artreg import ArtRegTracker, se3_exp_single, se3_log_single
+from vtlearn.classical.artreg import ArtRegTracker, se3_exp_single, se3_log_single, se3_phi, se3_phi_inv
 from vtlearn.classical.ukf import ManifoldUKF
-from vtlearn.classical.artreg import se3_phi, se3_phi_inv
 from vtlearn.geometry import se3_exp, se3_log
 
 
@@ -47,8 +46,12 @@ def test_static_pose_converges_to_sample_mean_with_1_over_n_covariance():
     ukf = ManifoldUKF(
         f=lambda T, u, w: T @ se3_exp_single(w),
         h=lambda states: np.stack([se3_log_single(T) for T in states]),
-        phi=se3_phi, phi_inv=se3_phi_inv, Q=np.zeros((6, 6)), R=np.diag(sig**2),
-        state0=np.eye(4), P0=np.eye(6) * 1.0,
+        phi=se3_phi,
+        phi_inv=se3_phi_inv,
+        Q=np.zeros((6, 6)),
+        R=np.diag(sig**2),
+        state0=np.eye(4),
+        P0=np.eye(6) * 1.0,
     )
     traces = {}
     for k, z in enumerate(zs, start=1):
@@ -62,7 +65,9 @@ def test_static_pose_converges_to_sample_mean_with_1_over_n_covariance():
 
 
 def _ade(model, T_est, T_gt):
-    return np.linalg.norm((model @ T_est[:3, :3].T + T_est[:3, 3]) - (model @ T_gt[:3, :3].T + T_gt[:3, 3]), axis=1).mean()
+    return np.linalg.norm(
+        (model @ T_est[:3, :3].T + T_est[:3, 3]) - (model @ T_gt[:3, :3].T + T_gt[:3, 3]), axis=1
+    ).mean()
 
 
 def test_noiseless_static_object_is_exact():
@@ -70,7 +75,9 @@ def test_noiseless_static_object_is_exact():
     T0 = _pose([0.4, 0.1, 0.05], [0.0, 0.0, 0.3])
     scene = model @ T0[:3, :3].T + T0[:3, 3]
     # start 1 cm / 2 deg off; on noiseless data the filter must converge onto the true pose
-    tracker = ArtRegTracker([model], [T0 @ _pose([0.01, -0.005, 0.0], [0.0, 0.0, 0.035])], max_points_per_part=None)
+    tracker = ArtRegTracker(
+        [model], [T0 @ _pose([0.01, -0.005, 0.0], [0.0, 0.0, 0.035])], max_points_per_part=None
+    )
     for _ in range(30):
         (T_est,) = tracker.step(scene)
     assert _ade(model, T_est, T0) < 1e-6
@@ -103,7 +110,7 @@ def test_two_parts_with_tactile_points_and_empty_frames():
         Tb_k = Tb @ _pose([0.002 * k, 0.0, 0.0], [0, 0, 0])
         scene = np.concatenate([a @ Ta[:3, :3].T + Ta[:3, 3], b @ Tb_k[:3, :3].T + Tb_k[:3, 3]])
         scene += rng.normal(scale=0.001, size=scene.shape)
-        tactile = (b[:5] @ Tb_k[:3, :3].T + Tb_k[:3, 3])
+        tactile = b[:5] @ Tb_k[:3, :3].T + Tb_k[:3, 3]
         poses = tracker.step(scene, tactile_cloud=tactile)
     assert np.linalg.norm(poses[0][:3, 3] - Ta[:3, 3]) < 0.003
     assert np.linalg.norm(poses[1][:3, 3] - Tb_k[:3, 3]) < 0.005
@@ -111,7 +118,7 @@ def test_two_parts_with_tactile_points_and_empty_frames():
     before = [p.copy() for p in tracker.poses]
     P_before = tracker.covariances[1]
     after = tracker.step(np.zeros((0, 3)))
-    for p0, p1 in zip(before, after):
+    for p0, p1 in zip(before, after, strict=True):
         np.testing.assert_allclose(p0, p1)
     assert np.trace(tracker.covariances[1]) > np.trace(P_before)  # only predicted: uncertainty grows
 

@@ -1,4 +1,4 @@
-"""Tests for the procedural articulated objects, tracking sequences and the tracking CLI (thesis 6.3.4-6.3.5)."""
+"""Tests for the procedural articulated objects, sequences and the tracking CLI (thesis 6.3.4-6.3.5)."""
 
 import json
 
@@ -21,8 +21,12 @@ from vtlearn.sim_data.articulated import (
 def test_urdf_has_the_thesis_joints(category):
     spec = make_articulated(category, 0)
     urdf = to_urdf(spec)
-    expected = {"dishwasher": ("revolute", 1), "glasses": ("revolute", 2), "drawer": ("prismatic", 1),
-                "blade": ("prismatic", 1)}[category]
+    expected = {
+        "dishwasher": ("revolute", 1),
+        "glasses": ("revolute", 2),
+        "drawer": ("prismatic", 1),
+        "blade": ("prismatic", 1),
+    }[category]
     assert urdf.count(f'type="{expected[0]}"') == expected[1] == spec.n_joints
     with pytest.raises(ValueError, match="category"):
         make_articulated("fridge", 0)
@@ -47,7 +51,9 @@ def test_articulation_sequence_clouds_lie_on_the_parts():
     assert np.linalg.norm(moved) > 0.0
     from scipy.spatial import cKDTree
 
-    model = np.concatenate([m @ T[:3, :3].T + T[:3, 3] for m, T in zip(seq.models, seq.T_world_part[-1])])
+    model = np.concatenate(
+        [m @ T[:3, :3].T + T[:3, 3] for m, T in zip(seq.models, seq.T_world_part[-1], strict=True)]
+    )
     d, _ = cKDTree(model).query(seq.scenes[-1])
     assert np.median(d) < 0.005  # noiseless depth lies on the link surfaces (model spacing 5 mm)
     assert seq.scenes[-1][:, 2].min() > -1e-3  # the table is removed

@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from vtlearn.classical.segmentation import region_growing, remove_plane, remove_statistical_outliers, segment_parts
+from vtlearn.classical.segmentation import (
+    region_growing,
+    remove_plane,
+    remove_statistical_outliers,
+    segment_parts,
+)
 
 
 def _box_surface(center, size, spacing=0.005, skip_bottom=True):
@@ -40,9 +45,9 @@ def test_region_growing_separates_two_touching_boxes_of_different_colours():
     assert labels.max() + 1 == 2
     # each box is (almost entirely) one label, and the two labels differ
     la = np.bincount(labels[: len(a)][labels[: len(a)] >= 0]).argmax()
-    lb = np.bincount(labels[len(a):][labels[len(a):] >= 0]).argmax()
+    lb = np.bincount(labels[len(a) :][labels[len(a) :] >= 0]).argmax()
     assert la != lb
-    assert np.mean(labels[: len(a)] == la) > 0.95 and np.mean(labels[len(a):] == lb) > 0.95
+    assert np.mean(labels[: len(a)] == la) > 0.95 and np.mean(labels[len(a) :] == lb) > 0.95
 
 
 def test_same_colour_faces_merge_but_normals_alone_split_them():
@@ -60,11 +65,17 @@ def test_segment_parts_removes_table_and_outliers():
     table = _table()
     table = table[~((np.abs(table[:, 0]) < 0.035) & (np.abs(table[:, 1]) < 0.035))]
     outliers = rng.uniform([-0.2, -0.2, 0.2], [0.2, 0.2, 0.4], size=(15, 3))
-    pts = np.concatenate([a, b, table, outliers]) + rng.normal(scale=0.0005, size=(len(a) + len(b) + len(table) + 15, 3))
-    col = np.concatenate([
-        np.tile([0.9, 0.1, 0.1], (len(a), 1)), np.tile([0.1, 0.1, 0.9], (len(b), 1)),
-        np.tile([0.5, 0.5, 0.5], (len(table), 1)), rng.uniform(size=(15, 3)),
-    ])
+    pts = np.concatenate([a, b, table, outliers]) + rng.normal(
+        scale=0.0005, size=(len(a) + len(b) + len(table) + 15, 3)
+    )
+    col = np.concatenate(
+        [
+            np.tile([0.9, 0.1, 0.1], (len(a), 1)),
+            np.tile([0.1, 0.1, 0.9], (len(b), 1)),
+            np.tile([0.5, 0.5, 0.5], (len(table), 1)),
+            rng.uniform(size=(15, 3)),
+        ]
+    )
     res = segment_parts(pts, col)
     assert res.n_parts == 2
     sizes = sorted(len(p) for p in res.parts)

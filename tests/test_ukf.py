@@ -42,13 +42,37 @@ def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="kappa"):
         sigma_weights(3, alpha=1.0, kappa=-5.0)
     with pytest.raises(ValueError, match="P0"):
-        ManifoldUKF(lambda x, u, w: x, lambda s: np.zeros((len(s), 1)), _euclid_phi, _euclid_phi_inv,
-                    Q=np.eye(2), R=1.0, state0=np.zeros(2), P0=np.eye(3)[:2])
+        ManifoldUKF(
+            lambda x, u, w: x,
+            lambda s: np.zeros((len(s), 1)),
+            _euclid_phi,
+            _euclid_phi_inv,
+            Q=np.eye(2),
+            R=1.0,
+            state0=np.zeros(2),
+            P0=np.eye(3)[:2],
+        )
     with pytest.raises(ValueError, match="h"):
-        ManifoldUKF(lambda x, u, w: x, None, _euclid_phi, _euclid_phi_inv,
-                    Q=np.eye(2), R=1.0, state0=np.zeros(2), P0=np.eye(2))
-    ukf = ManifoldUKF(lambda x, u, w: x + w, lambda s: np.stack(s), _euclid_phi, _euclid_phi_inv,
-                      Q=np.eye(2), R=1.0, state0=np.zeros(2), P0=np.eye(2))
+        ManifoldUKF(
+            lambda x, u, w: x,
+            None,
+            _euclid_phi,
+            _euclid_phi_inv,
+            Q=np.eye(2),
+            R=1.0,
+            state0=np.zeros(2),
+            P0=np.eye(2),
+        )
+    ukf = ManifoldUKF(
+        lambda x, u, w: x + w,
+        lambda s: np.stack(s),
+        _euclid_phi,
+        _euclid_phi_inv,
+        Q=np.eye(2),
+        R=1.0,
+        state0=np.zeros(2),
+        P0=np.eye(2),
+    )
     with pytest.raises(ValueError, match="z"):
         ukf.update([np.nan, 0.0])
     with pytest.raises(ValueError, match="R"):
@@ -91,9 +115,14 @@ def test_linear_gaussian_matches_kalman_filter(alpha, kappa, woodbury, n_iterati
     ukf = ManifoldUKF(
         f=lambda x, u, w: A @ x + G @ w,
         h=lambda states: np.stack([H @ s for s in states]),
-        phi=_euclid_phi, phi_inv=_euclid_phi_inv,
-        Q=Qw, R=r_diag if woodbury else np.diag(r_diag), state0=x0.copy(), P0=P0,
-        alpha=alpha, kappa=kappa,
+        phi=_euclid_phi,
+        phi_inv=_euclid_phi_inv,
+        Q=Qw,
+        R=r_diag if woodbury else np.diag(r_diag),
+        state0=x0.copy(),
+        P0=P0,
+        alpha=alpha,
+        kappa=kappa,
     )
     ref = _kalman(A, H, G @ Qw @ G.T, np.diag(r_diag), x0.copy(), P0.copy(), zs)
     for z, (x_ref, P_ref) in zip(zs, ref, strict=True):

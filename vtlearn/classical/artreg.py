@@ -215,7 +215,8 @@ class ArtRegTracker:
             raise ValueError("models is empty: give at least one model cloud")
         if len(models) != len(T_world_object0):
             raise ValueError(
-                f"T_world_object0 must have one pose per model: {len(T_world_object0)} poses, {len(models)} models"
+                f"T_world_object0 must have one pose per model: {len(T_world_object0)} poses, "
+                f"{len(models)} models"
             )
         for name, pair in (("process_std", process_std), ("init_std", init_std)):
             if len(pair) != 2 or not all(np.isfinite(v) and v > 0 for v in pair):
@@ -254,8 +255,17 @@ class ArtRegTracker:
             self._meas.append(meas)
             self.filters.append(
                 ManifoldUKF(
-                    f=random_walk_se3, h=meas, phi=se3_phi, phi_inv=se3_phi_inv, Q=self.Q,
-                    R=self.visual_std**2, state0=T0 @ T_oc, P0=P0, alpha=alpha, beta=beta, kappa=kappa,
+                    f=random_walk_se3,
+                    h=meas,
+                    phi=se3_phi,
+                    phi_inv=se3_phi_inv,
+                    Q=self.Q,
+                    R=self.visual_std**2,
+                    state0=T0 @ T_oc,
+                    P0=P0,
+                    alpha=alpha,
+                    beta=beta,
+                    kappa=kappa,
                 )
             )
         self.n_frames = 0
@@ -286,7 +296,9 @@ class ArtRegTracker:
         owner = np.argmin(dists, axis=0)
         return owner, dists[owner, np.arange(len(points))]
 
-    def step(self, scene_cloud: Any, tactile_cloud: Any = None, *, allow_empty: bool = True) -> list[np.ndarray]:
+    def step(
+        self, scene_cloud: Any, tactile_cloud: Any = None, *, allow_empty: bool = True
+    ) -> list[np.ndarray]:
         """Track one frame (Algorithm 4 for every part). Returns the N ``T_world_object`` (4, 4).
 
         Args:
@@ -304,11 +316,17 @@ class ArtRegTracker:
         scene = self._cloud(scene_cloud, "scene_cloud")
         if len(scene) == 0 and not allow_empty:
             raise ValueError("scene_cloud is empty (pass allow_empty=True to keep the last estimate)")
-        tactile = self._cloud(tactile_cloud, "tactile_cloud") if tactile_cloud is not None else np.zeros((0, 3))
+        tactile = (
+            self._cloud(tactile_cloud, "tactile_cloud") if tactile_cloud is not None else np.zeros((0, 3))
+        )
         if self.max_points_per_part is not None and len(scene) > 8 * self.max_points_per_part * self.n_parts:
-            scene = scene[self.rng.choice(len(scene), 8 * self.max_points_per_part * self.n_parts, replace=False)]
+            scene = scene[
+                self.rng.choice(len(scene), 8 * self.max_points_per_part * self.n_parts, replace=False)
+            ]
         points = np.concatenate([scene, tactile], axis=0)
-        var = np.concatenate([np.full(len(scene), self.visual_std**2), np.full(len(tactile), self.tactile_std**2)])
+        var = np.concatenate(
+            [np.full(len(scene), self.visual_std**2), np.full(len(tactile), self.tactile_std**2)]
+        )
 
         for f in self.filters:
             f.predict()  # random walk: the mean stays, the covariance grows by Q (eq. 6.2-6.5)

@@ -47,12 +47,15 @@ __all__ = ["ParticleFilterTracker", "FrameToFrameICPTracker", "FilterRegTracker"
 class _TrackerBase:
     """Validation, centroid frames and proximity assignment shared by the baselines."""
 
-    def __init__(self, models: Sequence[Any], T_world_object0: Sequence[Any], max_correspondence_distance: float):
+    def __init__(
+        self, models: Sequence[Any], T_world_object0: Sequence[Any], max_correspondence_distance: float
+    ):
         if len(models) == 0:
             raise ValueError("models is empty: give at least one model cloud")
         if len(models) != len(T_world_object0):
             raise ValueError(
-                f"T_world_object0 must have one pose per model: {len(T_world_object0)} poses, {len(models)} models"
+                f"T_world_object0 must have one pose per model: {len(T_world_object0)} poses, "
+                f"{len(models)} models"
             )
         if not (np.isfinite(max_correspondence_distance) and max_correspondence_distance > 0):
             raise ValueError(f"max_correspondence_distance must be > 0, got {max_correspondence_distance!r}")
@@ -207,7 +210,10 @@ class FrameToFrameICPTracker(_TrackerBase):
             src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.prev[i]))
             dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s))
             res = o3d.pipelines.registration.registration_icp(
-                src, dst, self.icp_distance, np.eye(4),
+                src,
+                dst,
+                self.icp_distance,
+                np.eye(4),
                 o3d.pipelines.registration.TransformationEstimationPointToPoint(),
                 o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.max_iterations),
             )

@@ -49,8 +49,14 @@ def _trackers() -> dict[str, Any]:
 TRACKERS = ("artreg", "pf", "icp", "filterreg")
 
 
-def run_tracker(cls: Any, models: list[np.ndarray], T0: np.ndarray, scenes: list[np.ndarray],
-                tactile: list[np.ndarray | None] | None = None, **kwargs: Any) -> tuple[np.ndarray, float]:
+def run_tracker(
+    cls: Any,
+    models: list[np.ndarray],
+    T0: np.ndarray,
+    scenes: list[np.ndarray],
+    tactile: list[np.ndarray | None] | None = None,
+    **kwargs: Any,
+) -> tuple[np.ndarray, float]:
     """Track a sequence frame by frame. Returns ((F, N, 4, 4) estimates, seconds spent in ``step``).
 
     Frame 0 initialises the trackers at the ground truth ``T0`` (N, 4, 4); frames 1.. are tracked.
@@ -76,20 +82,30 @@ def _cmd_track(args: argparse.Namespace) -> int:
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
         raise ValueError(f"--frames must be a directory of point clouds, got {args.frames}")
-    files = sorted(f for f in frames_dir.iterdir() if f.suffix.lower() in (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz"))
+    files = sorted(
+        f
+        for f in frames_dir.iterdir()
+        if f.suffix.lower() in (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz")
+    )
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
     if args.init_poses:
-        T0 = np.load(args.init_poses, allow_pickle=False) if args.init_poses.endswith(".npy") else \
-            np.asarray(json.loads(Path(args.init_poses).read_text()), dtype=np.float64)
+        T0 = (
+            np.load(args.init_poses, allow_pickle=False)
+            if args.init_poses.endswith(".npy")
+            else np.asarray(json.loads(Path(args.init_poses).read_text()), dtype=np.float64)
+        )
         T0 = T0.reshape(-1, 4, 4)
     else:
         T0 = np.repeat(np.eye(4)[None], len(models), 0)  # models are the t = 0 segmented clouds
     cls = _trackers()[args.method]
     kwargs = {}
     if args.method == "artreg":
-        kwargs = {"process_std": tuple(args.process_std), "visual_std": args.visual_std,
-                  "max_points_per_part": args.max_points or None}
+        kwargs = {
+            "process_std": tuple(args.process_std),
+            "visual_std": args.visual_std,
+            "max_points_per_part": args.max_points or None,
+        }
     tracker = cls(models, list(T0), **kwargs)
     from tqdm import tqdm
 
@@ -108,8 +124,13 @@ def _cmd_track(args: argparse.Namespace) -> int:
         if hasattr(tracker, "covariances"):
             entry["covariance"] = [np.asarray(P).tolist() for P in tracker.covariances]
         result.append(entry)
-    out = {"method": args.method, "models": args.models, "n_frames": len(files),
-           "fps": len(files) / max(t_total, 1e-9), "frames": result}
+    out = {
+        "method": args.method,
+        "models": args.models,
+        "n_frames": len(files),
+        "fps": len(files) / max(t_total, 1e-9),
+        "frames": result,
+    }
     if args.json:
         from vtlearn.bench_utils import write_json
 
@@ -122,11 +143,15 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    sp = subparsers.add_parser("track", help="track objects/parts through a directory of point clouds (ArtReg)")
+    sp = subparsers.add_parser(
+        "track", help="track objects/parts through a directory of point clouds (ArtReg)"
+    )
     sp.add_argument("--models", nargs="+", required=True, help="model cloud per object/part (t = 0 segments)")
     sp.add_argument("--frames", required=True, help="directory of scene clouds, tracked in name order")
     sp.add_argument("--tactile", default=None, help="directory of tactile clouds with the frames' file names")
-    sp.add_argument("--init-poses", default=None, help=".npy or .json (N, 4, 4) T_world_object at t = 0 (default I)")
+    sp.add_argument(
+        "--init-poses", default=None, help=".npy or .json (N, 4, 4) T_world_object at t = 0 (default I)"
+    )
     sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
     sp.add_argument("--process-std", type=float, nargs=2, default=(0.005, 0.015), metavar=("M", "RAD"))
     sp.add_argument("--visual-std", type=float, default=0.003)
@@ -187,8 +212,12 @@ def _speed(n_points: int, cap: int | None, n_steps: int = 60) -> dict:
 
 def _summary(vals: np.ndarray) -> dict:
     vals = np.asarray(vals, dtype=np.float64) * 100.0
-    return {"mean_cm": float(vals.mean()), "median_cm": float(np.median(vals)), "std_cm": float(vals.std(ddof=1))
-            if len(vals) > 1 else 0.0, "n": int(len(vals))}
+    return {
+        "mean_cm": float(vals.mean()),
+        "median_cm": float(np.median(vals)),
+        "std_cm": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
+        "n": int(len(vals)),
+    }
 
 
 def _welch(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -208,8 +237,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     available = _trackers()
     methods = [m for m in args.methods if m in available]
     skipped = [m for m in args.methods if m not in available]
-    res: dict[str, Any] = {"machine": machine_info(), "methods": methods, "skipped_methods": skipped,
-                           "config": {k: v for k, v in vars(args).items() if k != "func"}}
+    res: dict[str, Any] = {
+        "machine": machine_info(),
+        "methods": methods,
+        "skipped_methods": skipped,
+        "config": {k: v for k, v in vars(args).items() if k != "func"},
+    }
     traj_example = None
 
     # ---- articulated benchmark (thesis 6.3.5)
@@ -218,8 +251,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     frames_done = {m: 0 for m in methods}
     jobs = [(c, t) for c in CATEGORIES for t in range(args.trials)]
     for c, t in tqdm(jobs, desc="articulated", unit="trial"):
-        seq = articulation_sequence(c, seed=args.seed + 1000 * CATEGORIES.index(c) + t, n_frames=args.frames,
-                                    width=args.width, height=args.height)
+        seq = articulation_sequence(
+            c,
+            seed=args.seed + 1000 * CATEGORIES.index(c) + t,
+            n_frames=args.frames,
+            width=args.width,
+            height=args.height,
+        )
         for m in methods:
             est, spent = run_tracker(available[m], seq.models, seq.T_world_part[0], seq.scenes)
             art_vals[c][m].extend(_adi(seq.models, est[-1], seq.T_world_part[-1]).tolist())
@@ -232,8 +270,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     seq_adi: dict[str, dict[str, list[float]]] = {k: {m: [] for m in methods} for k in kinds}
     jobs = [(k, t) for k in kinds for t in range(args.seq_trials)]
     for k, t in tqdm(jobs, desc="sequences", unit="seq"):
-        seq = motion_sequence(k, seed=args.seed + 5000 + 100 * kinds.index(k) + t, n_frames=args.seq_frames,
-                              width=args.width, height=args.height)
+        seq = motion_sequence(
+            k,
+            seed=args.seed + 5000 + 100 * kinds.index(k) + t,
+            n_frames=args.seq_frames,
+            width=args.width,
+            height=args.height,
+        )
         for m in methods:
             est, spent = run_tracker(available[m], seq.models, seq.T_world_part[0], seq.scenes, seq.tactile)
             err = _xy_error(est[1:], seq.T_world_part[1:], seq.models)  # F-1 x N
@@ -255,13 +298,29 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             vals = np.array(sum((art_vals[cc][m] for cc in CATEGORIES), []) if c == "all" else art_vals[c][m])
             s = _summary(vals)
             if m != "artreg" and "artreg" in methods:
-                ref = np.array(sum((art_vals[cc]["artreg"] for cc in CATEGORIES), []) if c == "all" else art_vals[c]["artreg"])
+                ref = np.array(
+                    sum((art_vals[cc]["artreg"] for cc in CATEGORIES), [])
+                    if c == "all"
+                    else art_vals[c]["artreg"]
+                )
                 s["welch_p_vs_artreg"] = _welch(ref, vals)
             out_art[c][m] = s
-            rows.append({"category": c, "method": m, "ADI mean cm": s["mean_cm"], "median cm": s["median_cm"],
-                         "std cm": s["std_cm"], "n": s["n"], "p (Welch vs ArtReg)": s.get("welch_p_vs_artreg", "-")})
-    print_table(rows, ["category", "method", "ADI mean cm", "median cm", "std cm", "n", "p (Welch vs ArtReg)"],
-                "Articulated benchmark (ADI of every part at the last frame, eq. 6.19)")
+            rows.append(
+                {
+                    "category": c,
+                    "method": m,
+                    "ADI mean cm": s["mean_cm"],
+                    "median cm": s["median_cm"],
+                    "std cm": s["std_cm"],
+                    "n": s["n"],
+                    "p (Welch vs ArtReg)": s.get("welch_p_vs_artreg", "-"),
+                }
+            )
+    print_table(
+        rows,
+        ["category", "method", "ADI mean cm", "median cm", "std cm", "n", "p (Welch vs ArtReg)"],
+        "Articulated benchmark (ADI of every part at the last frame, eq. 6.19)",
+    )
     res["articulated"] = out_art
     res["articulated_raw_m"] = art_vals
 
@@ -276,19 +335,37 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             if m != "artreg" and "artreg" in methods:
                 entry["welch_p_vs_artreg"] = _welch(np.array(seq_err[k]["artreg"]), np.array(seq_err[k][m]))
             out_seq[k][m] = entry
-            rows.append({"sequence": k, "method": m, "eq.6.18 error cm": e["mean_cm"], "+- std": e["std_cm"],
-                         "ADI cm": a["mean_cm"], "n seq": e["n"], "p (Welch)": entry.get("welch_p_vs_artreg", "-")})
-    print_table(rows, ["sequence", "method", "eq.6.18 error cm", "+- std", "ADI cm", "n seq", "p (Welch)"],
-                "Tracking sequences (thesis Table 6.2 analogue; error averaged over frames)")
+            rows.append(
+                {
+                    "sequence": k,
+                    "method": m,
+                    "eq.6.18 error cm": e["mean_cm"],
+                    "+- std": e["std_cm"],
+                    "ADI cm": a["mean_cm"],
+                    "n seq": e["n"],
+                    "p (Welch)": entry.get("welch_p_vs_artreg", "-"),
+                }
+            )
+    print_table(
+        rows,
+        ["sequence", "method", "eq.6.18 error cm", "+- std", "ADI cm", "n seq", "p (Welch)"],
+        "Tracking sequences (thesis Table 6.2 analogue; error averaged over frames)",
+    )
     res["sequences"] = out_seq
 
     fps = {m: frames_done[m] / max(time_spent[m], 1e-9) for m in methods}
     speed = {"artreg_2x1000_all_points": _speed(1000, None), "artreg_2x1000_cap300": _speed(1000, 300)}
     res["fps"], res["speed"] = fps, speed
-    print_table([{"method": m, "frames/s (benchmark frames)": fps[m]} for m in methods],
-                ["method", "frames/s (benchmark frames)"], "Tracking rate (step() only; shared CPU, noisy)")
-    print_table([{"case": k, "wall Hz": v["wall_hz"], "CPU-time Hz": v["cpu_hz"]} for k, v in speed.items()],
-                ["case", "wall Hz", "CPU-time Hz"], "ArtReg speed, 2 parts x 1000 points (target >= 30 Hz)")
+    print_table(
+        [{"method": m, "frames/s (benchmark frames)": fps[m]} for m in methods],
+        ["method", "frames/s (benchmark frames)"],
+        "Tracking rate (step() only; shared CPU, noisy)",
+    )
+    print_table(
+        [{"case": k, "wall Hz": v["wall_hz"], "CPU-time Hz": v["cpu_hz"]} for k, v in speed.items()],
+        ["case", "wall Hz", "CPU-time Hz"],
+        "ArtReg speed, 2 parts x 1000 points (target >= 30 Hz)",
+    )
 
     if args.plots:
         res["plots"] = _plots(Path(args.plots), art_vals, methods, traj_example)
@@ -341,13 +418,17 @@ def _plots(out_dir: Path, art_vals: dict, methods: list[str], traj: dict | None)
 
 
 def register_bench(bench_subparsers: Any) -> None:
-    sp = bench_subparsers.add_parser("tracking", help="ArtReg vs particle filter / ICP / FilterReg (thesis ch.6)")
+    sp = bench_subparsers.add_parser(
+        "tracking", help="ArtReg vs particle filter / ICP / FilterReg (thesis ch.6)"
+    )
     sp.add_argument("--json", default=None, help="write results here")
     sp.add_argument("--plots", default=None, help="directory for the violin and trajectory plots")
     sp.add_argument("--methods", nargs="+", default=list(TRACKERS), choices=list(TRACKERS))
     sp.add_argument("--trials", type=int, default=10, help="articulated trials per category (thesis: 10)")
     sp.add_argument("--frames", type=int, default=20, help="frames per articulated trial")
-    sp.add_argument("--seq-trials", type=int, default=5, help="sequences per kind (single/multiple/articulated)")
+    sp.add_argument(
+        "--seq-trials", type=int, default=5, help="sequences per kind (single/multiple/articulated)"
+    )
     sp.add_argument("--seq-frames", type=int, default=60, help="frames per sequence (30 Hz)")
     # ArtReg's defaults were tuned on seeds 0-2 (articulated) and 5000-5201 (sequences); the default
     # offset keeps the benchmark's scenes disjoint from those

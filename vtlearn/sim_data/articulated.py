@@ -62,7 +62,7 @@ CATEGORIES = ("dishwasher", "glasses", "drawer", "blade")
 
 @dataclass
 class Box:
-    """A box primitive of a link: ``half`` extents (m), centre ``xyz`` and roll-pitch-yaw ``rpy`` in the link frame."""
+    """A box of a link: ``half`` extents (m), centre ``xyz`` and roll-pitch-yaw ``rpy`` in the link frame."""
 
     half: tuple[float, float, float]
     xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -136,23 +136,44 @@ def make_articulated(category: str, rng: np.random.Generator | int | None = None
         W, D, H, t = _u(rng, 0.25, 0.4), _u(rng, 0.25, 0.35), _u(rng, 0.25, 0.4), 0.012
         base = LinkSpec("body", _cabinet(W, D, H, t), c_base)
         door = LinkSpec(
-            "door", [Box((W / 2, t / 2, H / 2 - t / 2), (0, -t / 2, H / 2 - t / 2)),
-                     Box((W / 4, 0.01, 0.008), (0, -t - 0.01, H - 0.04))],
-            c_part, "revolute", (0, -D / 2, t), (1, 0, 0), 0.0, np.deg2rad(80))
+            "door",
+            [
+                Box((W / 2, t / 2, H / 2 - t / 2), (0, -t / 2, H / 2 - t / 2)),
+                Box((W / 4, 0.01, 0.008), (0, -t - 0.01, H - 0.04)),
+            ],
+            c_part,
+            "revolute",
+            (0, -D / 2, t),
+            (1, 0, 0),
+            0.0,
+            np.deg2rad(80),
+        )
         return ArticulatedSpec(category, [base, door])
     if category == "glasses":
         w, h, t = _u(rng, 0.12, 0.15), _u(rng, 0.035, 0.05), 0.004
         L = _u(rng, 0.11, 0.14)
         lens = w / 2 - 0.012
-        frame = LinkSpec("frame", [
-            Box((w / 2, t, 0.005), (0, 0, h)),  # top bar
-            Box((lens / 2, t / 2, h / 2 - 0.004), (-w / 4 - 0.003, 0, h / 2)),
-            Box((lens / 2, t / 2, h / 2 - 0.004), (w / 4 + 0.003, 0, h / 2)),
-            Box((0.008, t, 0.004), (0, 0, h * 0.6)),  # bridge
-        ], c_base)
+        frame = LinkSpec(
+            "frame",
+            [
+                Box((w / 2, t, 0.005), (0, 0, h)),  # top bar
+                Box((lens / 2, t / 2, h / 2 - 0.004), (-w / 4 - 0.003, 0, h / 2)),
+                Box((lens / 2, t / 2, h / 2 - 0.004), (w / 4 + 0.003, 0, h / 2)),
+                Box((0.008, t, 0.004), (0, 0, h * 0.6)),  # bridge
+            ],
+            c_base,
+        )
         temples = [
-            LinkSpec(name, [Box((0.004, L / 2, 0.004), (0, L / 2, 0))], c_part, "revolute",
-                     (sx * (w / 2 - 0.004), 0, h), (0, 0, sx), 0.0, np.deg2rad(90))
+            LinkSpec(
+                name,
+                [Box((0.004, L / 2, 0.004), (0, L / 2, 0))],
+                c_part,
+                "revolute",
+                (sx * (w / 2 - 0.004), 0, h),
+                (0, 0, sx),
+                0.0,
+                np.deg2rad(90),
+            )
             for name, sx in (("temple_left", -1.0), ("temple_right", 1.0))
         ]
         # a positive angle about +-z folds each temple towards the centre, behind the lenses
@@ -161,21 +182,38 @@ def make_articulated(category: str, rng: np.random.Generator | int | None = None
         W, D, H, t = _u(rng, 0.25, 0.4), _u(rng, 0.25, 0.35), _u(rng, 0.12, 0.22), 0.012
         base = LinkSpec("cabinet", _cabinet(W, D, H, t), c_base)
         w, d, h = W - 2 * t - 0.004, D - t - 0.01, H - 2 * t - 0.01
-        drawer = LinkSpec("drawer", [
-            Box((W / 2, t / 2, H / 2), (0, -t / 2, H / 2 - t)),  # front plate
-            Box((w / 2, d / 2, t / 2), (0, d / 2, t / 2)),  # bottom
-            Box((t / 2, d / 2, h / 2), (-w / 2 + t / 2, d / 2, h / 2)),
-            Box((t / 2, d / 2, h / 2), (w / 2 - t / 2, d / 2, h / 2)),
-            Box((w / 2, t / 2, h / 2), (0, d - t / 2, h / 2)),
-            Box((W / 6, 0.012, 0.01), (0, -t - 0.012, H / 2 - t)),  # handle
-        ], c_part, "prismatic", (0, -D / 2, t), (0, -1, 0), 0.0, 0.75 * D)
+        drawer = LinkSpec(
+            "drawer",
+            [
+                Box((W / 2, t / 2, H / 2), (0, -t / 2, H / 2 - t)),  # front plate
+                Box((w / 2, d / 2, t / 2), (0, d / 2, t / 2)),  # bottom
+                Box((t / 2, d / 2, h / 2), (-w / 2 + t / 2, d / 2, h / 2)),
+                Box((t / 2, d / 2, h / 2), (w / 2 - t / 2, d / 2, h / 2)),
+                Box((w / 2, t / 2, h / 2), (0, d - t / 2, h / 2)),
+                Box((W / 6, 0.012, 0.01), (0, -t - 0.012, H / 2 - t)),  # handle
+            ],
+            c_part,
+            "prismatic",
+            (0, -D / 2, t),
+            (0, -1, 0),
+            0.0,
+            0.75 * D,
+        )
         return ArticulatedSpec(category, [base, drawer])
     # blade
     Lh, Wh, Hh = _u(rng, 0.09, 0.13), _u(rng, 0.022, 0.03), _u(rng, 0.014, 0.02)
     Lb, Wb = _u(rng, 0.07, 0.1), Wh * 0.7
     handle = LinkSpec("handle", [Box((Lh / 2, Wh / 2, Hh / 2), (0, 0, Hh / 2))], c_base)
-    blade = LinkSpec("blade", [Box((Lb / 2, Wb / 2, 0.0015), (-Lb / 2, 0, 0))], c_part, "prismatic",
-                     (Lh / 2, 0, Hh + 0.0015), (1, 0, 0), 0.0, 0.85 * Lb)
+    blade = LinkSpec(
+        "blade",
+        [Box((Lb / 2, Wb / 2, 0.0015), (-Lb / 2, 0, 0))],
+        c_part,
+        "prismatic",
+        (Lh / 2, 0, Hh + 0.0015),
+        (1, 0, 0),
+        0.0,
+        0.85 * Lb,
+    )
     return ArticulatedSpec("blade", [handle, blade])
 
 
@@ -187,9 +225,15 @@ def make_rigid(rng: np.random.Generator | int | None = None, kind: str | None = 
     if kind == "box":
         boxes = [Box((a / 2, b / 2, c / 2), (0, 0, c / 2))]
     elif kind == "L":
-        boxes = [Box((a / 2, b / 4, c / 2), (0, -b / 4, c / 2)), Box((a / 4, b / 4, c / 2), (-a / 4, b / 4, c / 2))]
+        boxes = [
+            Box((a / 2, b / 4, c / 2), (0, -b / 4, c / 2)),
+            Box((a / 4, b / 4, c / 2), (-a / 4, b / 4, c / 2)),
+        ]
     elif kind == "T":
-        boxes = [Box((a / 2, b / 4, c / 2), (0, -b / 4, c / 2)), Box((a / 6, b / 4, c / 2), (0, b / 4, c / 2))]
+        boxes = [
+            Box((a / 2, b / 4, c / 2), (0, -b / 4, c / 2)),
+            Box((a / 6, b / 4, c / 2), (0, b / 4, c / 2)),
+        ]
     else:
         raise ValueError(f"kind must be 'box', 'L' or 'T', got {kind!r}")
     return ArticulatedSpec("rigid", [LinkSpec(kind, boxes, _colour(rng))])
@@ -205,18 +249,27 @@ def to_urdf(spec: ArticulatedSpec) -> str:
     for i, link in enumerate(spec.links):
         out.append(f'  <link name="{link.name}">')
         # identity inertial origin: pybullet's base frame then equals the URDF base-link frame
-        out.append('    <inertial><origin xyz="0 0 0"/><mass value="0.5"/>'
-                   '<inertia ixx="1e-3" iyy="1e-3" izz="1e-3" ixy="0" ixz="0" iyz="0"/></inertial>')
+        out.append(
+            '    <inertial><origin xyz="0 0 0"/><mass value="0.5"/>'
+            '<inertia ixx="1e-3" iyy="1e-3" izz="1e-3" ixy="0" ixz="0" iyz="0"/></inertial>'
+        )
         for b in link.boxes:
-            geo = f'<origin xyz="{_fmt(b.xyz)}" rpy="{_fmt(b.rpy)}"/><geometry><box size="{_fmt(2 * np.asarray(b.half))}"/></geometry>'
-            out.append(f'    <visual>{geo}<material name="m{i}"><color rgba="{_fmt(link.rgba)}"/></material></visual>')
+            size = _fmt(2 * np.asarray(b.half))
+            geo = (
+                f'<origin xyz="{_fmt(b.xyz)}" rpy="{_fmt(b.rpy)}"/><geometry><box size="{size}"/></geometry>'
+            )
+            out.append(
+                f'    <visual>{geo}<material name="m{i}">'
+                f'<color rgba="{_fmt(link.rgba)}"/></material></visual>'
+            )
             out.append(f"    <collision>{geo}</collision>")
         out.append("  </link>")
     base = spec.links[0].name
     for link in spec.links[1:]:
         out.append(
             f'  <joint name="{link.name}_joint" type="{link.joint_type}"><parent link="{base}"/>'
-            f'<child link="{link.name}"/><origin xyz="{_fmt(link.joint_xyz)}"/><axis xyz="{_fmt(link.axis)}"/>'
+            f'<child link="{link.name}"/><origin xyz="{_fmt(link.joint_xyz)}"/>'
+            f'<axis xyz="{_fmt(link.axis)}"/>'
             f'<limit lower="{link.lower}" upper="{link.upper}" effort="10" velocity="1"/></joint>'
         )
     out.append("</robot>\n")
@@ -241,7 +294,9 @@ class ArticulatedObject:
         seed: seed of the model sampling.
     """
 
-    def __init__(self, scene: Scene, spec: ArticulatedSpec, n_model_points: int | float = 0.005, seed: int = 0):
+    def __init__(
+        self, scene: Scene, spec: ArticulatedSpec, n_model_points: int | float = 0.005, seed: int = 0
+    ):
         self.scene, self.spec = scene, spec
         fd, path = tempfile.mkstemp(suffix=".urdf")
         try:
@@ -250,8 +305,10 @@ class ArticulatedObject:
             self.body = p.loadURDF(path, useFixedBase=True, physicsClientId=scene.client)
         finally:
             os.unlink(path)
-        self.models = [sample_surface(link.mesh(), _n_points(link.mesh(), n_model_points), seed=seed + i)[0]
-                       for i, link in enumerate(spec.links)]
+        self.models = [
+            sample_surface(link.mesh(), _n_points(link.mesh(), n_model_points), seed=seed + i)[0]
+            for i, link in enumerate(spec.links)
+        ]
 
     @property
     def n_parts(self) -> int:
@@ -262,8 +319,9 @@ class ArticulatedObject:
         from vtlearn.sim_data.scene import _xyzw
 
         c = self.scene.client
-        p.resetBasePositionAndOrientation(self.body, T_world_base[:3, 3].tolist(), _xyzw(T_world_base[:3, :3]),
-                                          physicsClientId=c)
+        p.resetBasePositionAndOrientation(
+            self.body, T_world_base[:3, 3].tolist(), _xyzw(T_world_base[:3, :3]), physicsClientId=c
+        )
         if q is None:
             return
         q = np.asarray(q, dtype=np.float64)
@@ -289,7 +347,9 @@ def look_at_45(target: np.ndarray, distance: float, azimuth: float = -np.pi / 2)
     objects' front).
     """
     target = np.asarray(target, dtype=np.float64)
-    d = np.array([np.cos(azimuth) * np.cos(np.pi / 4), np.sin(azimuth) * np.cos(np.pi / 4), np.sin(np.pi / 4)])
+    d = np.array(
+        [np.cos(azimuth) * np.cos(np.pi / 4), np.sin(azimuth) * np.cos(np.pi / 4), np.sin(np.pi / 4)]
+    )
     eye = target + distance * d
     z = (target - eye) / np.linalg.norm(target - eye)
     x = np.cross(z, [0.0, 0.0, 1.0])
@@ -332,7 +392,9 @@ def _planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:
 
 def _smooth_path(rng: np.random.Generator, n_frames: int, n_waypoints: int, scale: np.ndarray) -> np.ndarray:
     """A C1-smooth random path through ``n_waypoints`` random offsets (cubic Hermite, zero end speed)."""
-    wp = np.concatenate([np.zeros((1, len(scale))), rng.uniform(-1, 1, size=(n_waypoints, len(scale))) * scale])
+    wp = np.concatenate(
+        [np.zeros((1, len(scale))), rng.uniform(-1, 1, size=(n_waypoints, len(scale))) * scale]
+    )
     s = np.linspace(0, n_waypoints, n_frames)
     i = np.minimum(s.astype(int), n_waypoints - 1)
     u = (s - i)[:, None]
@@ -340,8 +402,9 @@ def _smooth_path(rng: np.random.Generator, n_frames: int, n_waypoints: int, scal
     return wp[i] * (1 - h) + wp[i + 1] * h
 
 
-def _render_cloud(scene: Scene, camera: RGBDCamera, T_world_camera: np.ndarray, drop: set[int],
-                  rng: np.random.Generator) -> np.ndarray:
+def _render_cloud(
+    scene: Scene, camera: RGBDCamera, T_world_camera: np.ndarray, drop: set[int], rng: np.random.Generator
+) -> np.ndarray:
     frame = camera.render(scene, T_world_camera, rng)
     mask = (frame.depth > 0) & (frame.seg >= 0) & ~np.isin(frame.seg, list(drop))
     return camera.point_cloud(frame, rng=rng)[mask[frame.depth > 0]]
@@ -418,17 +481,26 @@ def motion_sequence(
     # lay the objects out on a grid of 0.25 m cells so that their paths never cross
     cols = int(np.ceil(np.sqrt(len(specs))))
     cell = 0.25 if kind != "articulated" else 0.6
-    starts = [((i % cols - (cols - 1) / 2) * cell, (i // cols - (len(specs) - 1) // cols / 2) * cell)
-              for i in range(len(specs))]
+    starts = [
+        ((i % cols - (cols - 1) / 2) * cell, (i // cols - (len(specs) - 1) // cols / 2) * cell)
+        for i in range(len(specs))
+    ]
     reach = np.array([0.06, 0.06, 0.6]) if kind != "articulated" else np.array([0.08, 0.08, 0.3])
     paths = [_smooth_path(rng, n_frames, 3, reach) for _ in specs]
     yaw0 = rng.uniform(-np.pi, np.pi, size=len(specs)) if kind != "articulated" else rng.uniform(-0.4, 0.4, 1)
     with Scene(table=True) as scene:
-        objs = [ArticulatedObject(scene, s, n_model_points=n_model_points, seed=seed + 10 * i) for i, s in enumerate(specs)]
+        objs = [
+            ArticulatedObject(scene, s, n_model_points=n_model_points, seed=seed + 10 * i)
+            for i, s in enumerate(specs)
+        ]
         kw = {"physicsClientId": scene.client}
-        probe = p.createMultiBody(0, p.createCollisionShape(p.GEOM_SPHERE, radius=probe_radius, **kw),
-                                  p.createVisualShape(p.GEOM_SPHERE, radius=probe_radius, rgbaColor=[0.2, 0.2, 0.2, 1], **kw),
-                                  basePosition=[0, 0, 2.0], **kw)
+        probe = p.createMultiBody(
+            0,
+            p.createCollisionShape(p.GEOM_SPHERE, radius=probe_radius, **kw),
+            p.createVisualShape(p.GEOM_SPHERE, radius=probe_radius, rgbaColor=[0.2, 0.2, 0.2, 1], **kw),
+            basePosition=[0, 0, 2.0],
+            **kw,
+        )
         extent = cell * cols
         camera = RGBDCamera(width, height, fov_y_deg=50.0, noise=DepthNoise() if noise else DepthNoise.off())
         T_wc = look_at_45(np.array([0.0, 0.0, 0.05]), distance=max(0.7, 1.5 * extent))
@@ -451,7 +523,9 @@ def motion_sequence(
     return TrackingSequence(kind, models, np.stack(gts), scenes, tactile, joint_values)
 
 
-def _place_probe(scene: Scene, obj: ArticulatedObject, probe: int, vel: np.ndarray, r: float) -> np.ndarray | None:
+def _place_probe(
+    scene: Scene, obj: ArticulatedObject, probe: int, vel: np.ndarray, r: float
+) -> np.ndarray | None:
     """Put the probe against ``obj``'s base on the side opposite to ``vel``; return the contact points."""
     kw = {"physicsClientId": scene.client}
     if np.linalg.norm(vel) < 1e-6:
