@@ -25,15 +25,15 @@ Implementation notes (where the thesis text is ambiguous or has a typo):
   (the estimate then does not depend on any ordering; as ``H`` is linear in ``(s_ji, o_ji)`` and the sum over
   all pairs of their outer products is N times the centred second moment, this costs O(N), see
   :func:`tiqf_update_moment`), otherwise ``n_shifts`` random cyclic shifts of a random permutation
-  (``n_shifts * N`` pairs,
-  every point used ``2 * n_shifts`` times, long baselines on average).
+  (``n_shifts * N`` pairs, every point used ``2 * n_shifts`` times, long baselines on average).
 * Batch mode: every outer iteration changes the correspondences, so the pseudo-measurements of the previous
   iteration are superseded rather than repeated. The update therefore starts each outer iteration from the
   current mean with the initial covariance ``Sigma_0`` (``reset_covariance=True``); otherwise the information
   of stale correspondences would accumulate and freeze the filter. In sequential mode
-  (:class:`SequentialTIQF`)
-  the covariance carries over between touches and each touch only adds the pairs that contain a new point,
-  so after all touches the filter has seen every pair exactly once.
+  (:class:`SequentialTIQF`, ``mode="carry"``) the covariance carries over between touches and each touch only
+  adds the pairs that contain a new point, so after all touches the filter has seen every pair exactly once;
+  ``mode="reassociate"`` re-derives the posterior from the initial belief with all pairs at the current
+  correspondences.
 * Local-minimum escape (thesis 4.3.2): after convergence, the rotation is perturbed by angles drawn from
   U[-2, 2] degrees about each axis and the filter is rerun; a perturbed solution is kept when it lowers the
   correspondence RMSE.
