@@ -9,7 +9,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from vtlearn.active.learning_loop import ActiveLearningLoop, labels_to_reach
+from vtlearn.active.learning_loop import ActiveLearningLoop, epochs_for, labels_to_reach
 from vtlearn.active.mc_dropout import (
     acquisition_scores,
     bald_score,
@@ -157,6 +157,13 @@ def test_score_pool_ranks_the_most_uncertain_first():
     idx, scores = score_pool(_Stub(), batches, "entropy", num_passes=2)
     assert idx.tolist() == [7, 8, 9, 10]
     assert idx[select_top_k(scores, 2)].tolist() == [8, 10]  # equal logits, then the closest pair
+
+
+def test_epochs_for_min_steps():
+    assert epochs_for(10, 0, 3) == 10
+    assert epochs_for(10, 150, 1) == 150  # 32 labels, batch 32: one step per epoch
+    assert epochs_for(10, 150, 18) == 10  # the full pool already gets 180 steps
+    assert epochs_for(2, 7, 3) == 3
 
 
 def test_labels_to_reach_hand_case():

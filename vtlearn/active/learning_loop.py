@@ -24,6 +24,7 @@ error ``(acc_full − acc) / acc_full`` against a model trained on the whole poo
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 
@@ -33,7 +34,7 @@ from tqdm.auto import tqdm
 
 from vtlearn.active.mc_dropout import STRATEGIES, score_pool, select_top_k
 
-__all__ = ["RoundResult", "ActiveLearningLoop", "train_and_test", "labels_to_reach"]
+__all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach"]
 
 log = logging.getLogger(__name__)
 
@@ -55,11 +56,21 @@ def _trainer(max_epochs: int, **overrides) -> L.Trainer:
     return L.Trainer(**kwargs)
 
 
+def epochs_for(max_epochs: int, min_steps: int, steps_per_epoch: int) -> int:
+    """``max_epochs``, raised so that training lasts at least ``min_steps`` optimiser steps."""
+    return max(max_epochs, math.ceil(min_steps / max(1, steps_per_epoch)))
+
+
 def train_and_test(
-    model: L.LightningModule, train_loader, test_loader, max_epochs: int, **trainer_kwargs
+    model: L.LightningModule, train_loader, test_loader, max_epochs: int, min_steps: int = 0,
+    **trainer_kwargs,
 ) -> float:
-    """Fit ``model`` on ``train_loader`` (no validation) and return ``test/acc`` on ``test_loader``."""
-    trainer = _trainer(max_epochs, limit_val_batches=0, **trainer_kwargs)
+    """Fit ``model`` on ``train_loader`` (no validation) and return ``test/acc`` on ``test_loader``.
+
+    The run lasts ``max_epochs`` epochs, or more if that would be fewer than ``min_steps`` optimiser
+    steps: small labelled sets otherwise get only a handful of updates and stay near chance.
+    """
+    trainer = _trainer(epochs_for(max_epochs, min_steps, len(train_loader)), limit_val_batches=0, **trainer_kwargs)
     trainer.fit(model, train_dataloaders=train_loader)
     metrics = trainer.test(model, dataloaders=test_loader, verbose=False)
     return float(metrics[0]["test/acc"])
@@ -78,6 +89,7 @@ class ActiveLearningLoop:
         rounds: number of query rounds (the loop trains ``rounds + 1`` times).
         mc_passes: T of eq. 7.3.
         max_epochs: epochs per (re)training.
+        min_steps: at least this many optimiser steps per (re)training (more epochs on small sets).
         warm_start: keep the weights between rounds instead of retraining from scratch.
         seed: base seed; round r trains with ``seed + r``.
         trainer_kwargs: extra ``Trainer`` arguments (e.g. ``limit_train_batches``).
@@ -92,6 +104,7 @@ class ActiveLearningLoop:
         rounds: int = 5,
         mc_passes: int = 20,
         max_epochs: int = 10,
+        min_steps: int = 0,
         warm_start: bool = False,
         seed: int = 0,
         trainer_kwargs: dict | None = None,
@@ -110,7 +123,9 @@ class ActiveLearningLoop:
         self.dm = datamodule
         self.model_factory = model_factory
         self.strategy, self.kappa, self.rounds = strategy, int(kappa), int(rounds)
-        self.mc_passes, self.max_epochs = int(mc_passes), int(max_epochs)
+        if min_steps < 0:
+            raise ValueError(f"min_steps must be >= 0, got {min_steps}")
+        self.mc_passes, self.max_epochs, self.min_steps = int(mc_passes), int(max_epochs), int(min_steps)
         self.warm_start, self.seed = bool(warm_start), int(seed)
         self.trainer_kwargs = dict(trainer_kwargs or {})
         self.show_progress = show_progress
@@ -135,7 +150,7 @@ class ActiveLearningLoop:
             if self.model is None or not self.warm_start:
                 self.model = self.model_factory(self.seed + r)
             acc = train_and_test(self.model, self.dm.train_dataloader(), self.dm.test_dataloader(),
-                                 self.max_epochs, **self.trainer_kwargs)
+                                 self.max_epochs, self.min_steps, **self.trainer_kwargs)
             result = RoundResult(r, len(self.dm.labelled_indices), acc)
             self.history.append(result)
             bar.set_postfix(labels=result.n_labels, acc=f"{acc:.3f}")

@@ -36,7 +36,7 @@ VARIANTS: dict[str, dict] = {
     "dann": {"da_method": "dann"},
 }
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
-               "warm_start": False}
+               "warm_start": False, "min_steps": 0}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
                     "vtloss": 81.25}
 
@@ -289,7 +289,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     for seed in seeds:
         L.seed_everything(seed, verbose=False)
         dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
-        full.append(train_and_test(factory(seed), dm.train_dataloader(), dm.test_dataloader(), max_epochs))
+        full.append(train_and_test(factory(seed), dm.train_dataloader(), dm.test_dataloader(), max_epochs,
+                                   int(al["min_steps"])))
         print(f"full pool ({pool} labels) seed {seed}: acc {100 * full[-1]:.1f}%", flush=True)
     acc_full = float(np.mean(full))
 
@@ -300,6 +301,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
             dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
             loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
                                       mc_passes=al["mc_passes"], max_epochs=max_epochs,
+                                      min_steps=int(al["min_steps"]),
                                       warm_start=bool(al["warm_start"]), seed=seed)
             runs.append(loop.history_dicts() if loop.run() else [])
         n = [h["n_labels"] for h in runs[0]]
@@ -383,6 +385,8 @@ def register_bench(sub) -> None:
     q.add_argument("--mc-passes", dest="mc_passes", type=int, default=None, help="T of eq. 7.3")
     q.add_argument("--warm-start", dest="warm_start", action="store_const", const=True, default=None,
                    help="fine-tune between rounds (default: retrain from scratch)")
+    q.add_argument("--min-steps", dest="min_steps", type=int, default=None,
+                   help="at least this many optimiser steps per training (more epochs on small sets)")
     q.add_argument("--seeds", type=int, default=2)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--max-epochs", type=int, default=None)
