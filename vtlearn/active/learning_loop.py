@@ -70,7 +70,8 @@ def train_and_test(
     The run lasts ``max_epochs`` epochs, or more if that would be fewer than ``min_steps`` optimiser
     steps: small labelled sets otherwise get only a handful of updates and stay near chance.
     """
-    trainer = _trainer(epochs_for(max_epochs, min_steps, len(train_loader)), limit_val_batches=0, **trainer_kwargs)
+    epochs = epochs_for(max_epochs, min_steps, len(train_loader))
+    trainer = _trainer(epochs, limit_val_batches=0, **trainer_kwargs)
     trainer.fit(model, train_dataloaders=train_loader)
     metrics = trainer.test(model, dataloaders=test_loader, verbose=False)
     return float(metrics[0]["test/acc"])
