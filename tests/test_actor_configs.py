@@ -66,6 +66,7 @@ def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeyp
     assert cli.model.hparams.attention == ("noattn" not in config)
 
 
+@pytest.mark.slow  # the recognition module itself is covered by tests/test_actor_recognition.py
 def test_quick_recognition_config(tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
