@@ -120,6 +120,8 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
             str(data),
             "--max-clouds",
             "2",
+            "--per-category",
+            "1",
             "--min-points",
             "20",
             "--max-points",
@@ -143,6 +145,8 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
     assert res["clouds"] == 2
     assert all(np.isfinite(r["CD_mm"]) and r["CD_mm"] > 0 for r in res["rows"])
     assert all(20 <= r["n_input"] <= 40 for r in res["rows"])
+    assert len({r["category"] for r in res["rows"]}) == 2  # one instance per category
+    assert res["input_source"] == "tactile"
     assert res["inference_ms"]["ACTOR"] > 0
     assert 0 <= res["recognition"]["accuracy"] <= 1
     assert np.array(res["recognition"]["confusion"]).sum() == 2

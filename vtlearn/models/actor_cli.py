@@ -185,22 +185,33 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     first = {}
     for j, inst in enumerate(d["tactile_instance"]):
         first.setdefault(int(inst), j)
-    items = []
+    from vtlearn.datamodules.shards import random_voxel_subsample
+
+    items, per_cat = [], {}
     for i, inst in enumerate(d["instance"]):
         if int(inst) not in first:
             continue
+        cat = class_names[int(d["label"][i])]
+        per_cat[cat] = per_cat.get(cat, 0) + 1
+        if args.per_category and per_cat[cat] > args.per_category:
+            continue
+        dense = d["dense"][i].astype(np.float64)
+        if args.input_source == "tactile":
+            sparse = _subsample_tactile(
+                clouds[first[int(inst)]].astype(np.float64), args.min_points, args.max_points, rng
+            )
+        else:  # the training distribution: random voxel-grid subsampling of the dense cloud
+            sparse = random_voxel_subsample(dense, args.min_points, args.max_points, rng)
         items.append(
             {
                 "index": i,
                 "instance": int(inst),
                 "label": int(d["label"][i]),
-                "category": class_names[int(d["label"][i])],
+                "category": cat,
                 "transparent": bool(d["transparent"][i]),
                 "scale_m": float(d["scale_m"][i]),
-                "dense": d["dense"][i].astype(np.float64),
-                "sparse": _subsample_tactile(
-                    clouds[first[int(inst)]].astype(np.float64), args.min_points, args.max_points, rng
-                ),
+                "dense": dense,
+                "sparse": sparse,
             }
         )
     if args.max_clouds:
@@ -319,6 +330,7 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     ttext = ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in targets.items())
     print(f"targets: {ttext}; GPIS failures: {gpis_failures}/{len(items)}")
     result = {
+        "input_source": args.input_source,
         "data": args.data,
         "split": args.split,
         "clouds": len(items),
@@ -394,6 +406,14 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--min-points", type=int, default=100)
     p.add_argument("--max-points", type=int, default=120)
     p.add_argument("--max-clouds", type=int, default=0, help="use only the first N clouds (0: all)")
+    p.add_argument("--per-category", type=int, default=0, help="at most N instances per category (0: all)")
+    p.add_argument(
+        "--input-source",
+        choices=["tactile", "voxel"],
+        default="tactile",
+        help="sparse input: the simulated tactile cloud (thesis experiment) or random voxel-grid "
+        "subsampling of the dense cloud (the training distribution)",
+    )
     p.add_argument(
         "--emd-points", type=int, default=1024, help="EMD on this many random points per cloud (0: all)"
     )
