@@ -32,7 +32,7 @@ down-weighting that keeps partial-view outliers from dragging the estimate).
 Data association. Scene points are assigned to the part whose model, at its predicted pose, is
 closest (thesis 6.2.3); points further than ``max_correspondence_distance`` from every part are
 ignored. At most ``max_points_per_part`` points per part enter the update (a fixed-seed random
-subsample), which bounds the cost per frame; with the defaults (300 points, 2 iterations) two parts
+subsample), which bounds the cost per frame; with the defaults (200 points, 3 iterations) two parts
 with 1000 points each run above 30 Hz on one core (``vtlearn bench tracking`` prints the rate).
 
 Frames with no usable point keep the last estimate: the filter only predicts, so the covariance grows.
@@ -204,8 +204,8 @@ class ArtRegTracker:
         init_std: tuple[float, float] = (0.005, 0.02),
         max_correspondence_distance: float = 0.05,
         robust_scale: float = 0.01,
-        max_points_per_part: int | None = 300,
-        n_iterations: int = 2,
+        max_points_per_part: int | None = 200,
+        n_iterations: int = 3,
         alpha: float = 1.0,
         beta: float = 2.0,
         kappa: float = 0.0,

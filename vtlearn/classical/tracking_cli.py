@@ -155,7 +155,7 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
     sp.add_argument("--process-std", type=float, nargs=2, default=(0.005, 0.015), metavar=("M", "RAD"))
     sp.add_argument("--visual-std", type=float, default=0.003)
-    sp.add_argument("--max-points", type=int, default=300, help="measurement points per part (0: all)")
+    sp.add_argument("--max-points", type=int, default=200, help="measurement points per part (0: all)")
     sp.add_argument("--json", default=None, help="write the per-frame poses here")
     sp.set_defaults(func=_cmd_track)
 
@@ -354,7 +354,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     res["sequences"] = out_seq
 
     fps = {m: frames_done[m] / max(time_spent[m], 1e-9) for m in methods}
-    speed = {"artreg_2x1000_all_points": _speed(1000, None), "artreg_2x1000_cap300": _speed(1000, 300)}
+    speed = {"artreg_2x1000_all_points": _speed(1000, None), "artreg_2x1000_cap200": _speed(1000, 200)}
     res["fps"], res["speed"] = fps, speed
     print_table(
         [{"method": m, "frames/s (benchmark frames)": fps[m]} for m in methods],
@@ -399,12 +399,13 @@ def _plots(out_dir: Path, art_vals: dict, methods: list[str], traj: dict | None)
     if traj is not None:
         fig, ax = plt.subplots(figsize=(6, 6))
         cs = [np.append(m.mean(0), 1.0) for m in traj["models"]]
+        colours = {m: f"C{i}" for i, m in enumerate(methods)}  # one colour per method, for every object
         for n, c in enumerate(cs):
             g = traj["gt"][:, n] @ c
             ax.plot(g[:, 0], g[:, 1], "k-", lw=2, label="ground truth" if n == 0 else None)
             for m, st in zip(methods, ("-", "--", ":", "-."), strict=False):
                 e = traj["est"][m][:, n] @ c
-                ax.plot(e[:, 0], e[:, 1], st, label=m if n == 0 else None)
+                ax.plot(e[:, 0], e[:, 1], st, color=colours[m], label=m if n == 0 else None)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")

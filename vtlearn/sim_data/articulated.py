@@ -391,7 +391,8 @@ def _planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:
 
 
 def _smooth_path(rng: np.random.Generator, n_frames: int, n_waypoints: int, scale: np.ndarray) -> np.ndarray:
-    """A C1-smooth random path through ``n_waypoints`` random offsets (cubic Hermite, zero end speed)."""
+    """A random path through ``n_waypoints`` random offsets: straight segments in space, each
+    travelled with smoothstep timing (zero speed at the waypoints, so the motion is C1 in time)."""
     wp = np.concatenate(
         [np.zeros((1, len(scale))), rng.uniform(-1, 1, size=(n_waypoints, len(scale))) * scale]
     )
