@@ -64,6 +64,11 @@ def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeyp
     cli = cli_main(["test", f"--config={ROOT / config}", f"--ckpt_path={last}", *base])
     assert "test/cd_mm" in cli.trainer.callback_metrics
     assert cli.model.hparams.attention == ("noattn" not in config)
+    cli = cli_main(["validate", f"--config={ROOT / config}", f"--ckpt_path={last}", *base])
+    assert "val/cd_mm" in cli.trainer.callback_metrics
+    cli = cli_main(["predict", f"--config={ROOT / config}", f"--ckpt_path={last}", *base])
+    preds = cli.trainer.predict_loop.predictions
+    assert len(preds) > 0 and preds[0].shape[1:] == (64, 3)  # dense reconstructions of the test clouds
 
 
 @pytest.mark.slow  # the recognition module itself is covered by tests/test_actor_recognition.py

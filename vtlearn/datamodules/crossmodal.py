@@ -179,6 +179,10 @@ class CrossModalDataModule(pl.LightningDataModule):
     def test_dataloader(self) -> DataLoader:
         return self._loader(self.dataset("test", "tactile"), shuffle=False)
 
+    def predict_dataloader(self) -> DataLoader:
+        """``trainer.predict`` classifies the test tactile clouds (the cross-modal target domain)."""
+        return self.test_dataloader()
+
     def source_test_dataloader(self) -> DataLoader:
         """Labelled visual clouds of the test instances."""
         return self._loader(self.dataset("test", "visual"), shuffle=False)

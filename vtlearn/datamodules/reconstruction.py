@@ -162,3 +162,7 @@ class ReconstructionDataModule(pl.LightningDataModule):
     def tactile_test_dataloader(self) -> DataLoader:
         """Test instances with their simulated tactile cloud as the sparse input (not voxel-subsampled)."""
         return self._loader(self._dataset("test", tactile=True), shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        """``trainer.predict`` reconstructs the test instances from their simulated tactile clouds."""
+        return self.tactile_test_dataloader()
