@@ -109,7 +109,9 @@ def log_figure(logger, key: str, fig, step: int) -> str | None:
         elif name == "TensorBoardLogger":
             logger.experiment.add_figure(key, fig, global_step=step)
         else:
-            log_dir = getattr(logger, "log_dir", None) or getattr(logger, "save_dir", None) or "."
+            log_dir = getattr(logger, "log_dir", None) or getattr(logger, "save_dir", None)
+            if not log_dir:  # e.g. the DummyLogger of fast_dev_run: logging is off, write nothing
+                return None
             folder = os.path.join(str(log_dir), "figures")
             os.makedirs(folder, exist_ok=True)
             path = os.path.join(folder, f"{key.replace('/', '_')}_step{step:07d}.png")
