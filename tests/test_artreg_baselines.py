@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from vtlearn.classical.artreg import se3_exp_single
 from vtlearn.classical.tracking_baselines import FrameToFrameICPTracker, ParticleFilterTracker
+from vtlearn.geometry import se3_exp
 
 
 def _box_cloud(n=500, size=(0.12, 0.08, 0.05), seed=0):
@@ -20,10 +20,10 @@ def _box_cloud(n=500, size=(0.12, 0.08, 0.05), seed=0):
 def test_baseline_follows_slow_motion(cls):
     rng = np.random.default_rng(0)
     model = _box_cloud()
-    T0 = se3_exp_single(np.array([0.3, 0.0, 0.025, 0, 0, 0]))
+    T0 = se3_exp(np.array([0.3, 0.0, 0.025, 0, 0, 0]))
     tracker = cls([model], [T0])
     for k in range(30):
-        T_gt = T0 @ se3_exp_single(np.array([0.002 * k, 0.001 * k, 0, 0, 0, 0.01 * k]))
+        T_gt = T0 @ se3_exp(np.array([0.002 * k, 0.001 * k, 0, 0, 0, 0.01 * k]))
         scene = model @ T_gt[:3, :3].T + T_gt[:3, 3] + rng.normal(scale=0.001, size=model.shape)
         (T_est,) = tracker.step(scene)
     assert np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3]) < 0.01

@@ -141,7 +141,9 @@ def test_transform_points_single_and_batched():
         ref = np.stack([T[b, :3, :3] @ p + T[b, :3, 3] for p in pts[b]])  # naive loop
         np.testing.assert_allclose(out[b], ref, atol=1e-12)
         np.testing.assert_allclose(transform_points(T[b], pts[b]), ref, atol=1e-12)
-    np.testing.assert_allclose(transform_points(T[0], pts), np.stack([transform_points(T[0], p) for p in pts]))
+    np.testing.assert_allclose(
+        transform_points(T[0], pts), np.stack([transform_points(T[0], p) for p in pts])
+    )
     with pytest.raises(ValueError, match="points_b"):
         transform_points(T, pts[:2])
     with pytest.raises(ValueError, match="T_a_b"):
@@ -152,7 +154,9 @@ def test_random_pose_ranges():
     T = random_pose(500, seed=0)
     assert T.shape == (500, 4, 4)
     assert T[:, :3, 3].min() >= -5 and T[:, :3, 3].max() <= 5
-    np.testing.assert_allclose(np.einsum("nji,njk->nik", T[:, :3, :3], T[:, :3, :3]), np.tile(np.eye(3), (500, 1, 1)), atol=1e-9)
+    np.testing.assert_allclose(
+        np.einsum("nji,njk->nik", T[:, :3, :3], T[:, :3, :3]), np.tile(np.eye(3), (500, 1, 1)), atol=1e-9
+    )
     with pytest.raises(ValueError, match="trans_range"):
         random_pose(trans_range=(1, 0))
     np.testing.assert_array_equal(random_pose(seed=7), random_pose(seed=7))
@@ -235,3 +239,18 @@ def test_pad_clouds():
         pad_clouds([])
     with pytest.raises(ValueError, match=r"clouds\[1\]"):
         pad_clouds([np.ones((2, 3)), np.ones((2, 2))])
+
+
+@pytest.mark.parametrize("theta", [0.0, 1e-7, 1e-3, 1.0, 3.0, np.pi - 1e-6, np.pi])
+def test_se3_single_numpy_path_matches_batched_torch_path(theta):
+    rng = np.random.default_rng(3)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    xi = np.concatenate([rng.normal(size=3), theta * axis])
+    T = se3_exp(xi)  # (6,) numpy: the plain-numpy fast path
+    T_batched = se3_exp(xi[None])[0]  # (1, 6): the torch path
+    np.testing.assert_allclose(T, T_batched, atol=1e-12)
+    np.testing.assert_allclose(se3_log(T), se3_log(T[None])[0], atol=1e-9)
+    np.testing.assert_allclose(se3_exp(se3_log(T)), T, atol=1e-9)
+    if theta < np.pi - 1e-3:
+        np.testing.assert_allclose(se3_log(T), xi, atol=1e-8)

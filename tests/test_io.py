@@ -30,7 +30,9 @@ def test_cloud_round_trip(tmp_path, cloud, suffix):
     np.testing.assert_allclose(back, pts, atol=max(tol, 1e-12))
     assert back_n is not None
     np.testing.assert_allclose(back_n, nrm, atol=max(tol, 1e-12))
-    np.testing.assert_allclose(read_cloud(write_cloud(tmp_path / f"n{suffix}", pts)), pts, atol=max(tol, 1e-12))
+    np.testing.assert_allclose(
+        read_cloud(write_cloud(tmp_path / f"n{suffix}", pts)), pts, atol=max(tol, 1e-12)
+    )
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".off"])

@@ -32,8 +32,17 @@ def _cmd_info(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info
 
     info = machine_info()
-    for mod in ("numpy", "scipy", "lightning", "torch_geometric", "open3d", "trimesh", "pybullet",
-                "pytorch_kinematics", "wandb"):
+    for mod in (
+        "numpy",
+        "scipy",
+        "lightning",
+        "torch_geometric",
+        "open3d",
+        "trimesh",
+        "pybullet",
+        "pytorch_kinematics",
+        "wandb",
+    ):
         try:
             info[mod] = getattr(importlib.import_module(mod), "__version__", "installed")
         except Exception as exc:  # noqa: BLE001 - report, never crash, an info command
@@ -84,7 +93,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vtlearn",
-        description="Visuo-tactile perception and learning: registration, tracking, recognition, reconstruction.",
+        description=(
+            "Visuo-tactile perception and learning: registration, tracking, recognition, reconstruction."
+        ),
     )
     parser.add_argument("--version", action="version", version=f"vtlearn {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -93,7 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="versions of vtlearn and its dependencies, as JSON")
     p.set_defaults(func=_cmd_info)
 
-    p = sub.add_parser("metrics", help="Chamfer / Hausdorff / EMD between two clouds or meshes (eq. 8.1, 8.6, 8.7)")
+    p = sub.add_parser(
+        "metrics", help="Chamfer / Hausdorff / EMD between two clouds or meshes (eq. 8.1/8.6/8.7)"
+    )
     p.add_argument("a", help="cloud or mesh file")
     p.add_argument("b", help="cloud or mesh file")
     p.add_argument("--points", type=int, default=2048, help="points sampled from a mesh (default 2048)")

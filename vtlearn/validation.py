@@ -64,7 +64,7 @@ def as_transform(T: Any, name: str, *, atol: float = 1e-5) -> np.ndarray:
     """Validate a rigid transform ``T_a_b`` and return it as a ``(4, 4)`` float64 array.
 
     Raises:
-        ValueError: wrong shape, NaN/inf, non-orthonormal rotation block, or a last row other than (0, 0, 0, 1).
+        ValueError: wrong shape, NaN/inf, a non-orthonormal rotation block, or a last row other than 0 0 0 1.
     """
     try:
         arr = to_numpy(T)

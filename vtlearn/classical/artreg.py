@@ -47,9 +47,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vtlearn.classical.ukf import ManifoldUKF
+from vtlearn.geometry.lie import se3_exp, se3_log
 from vtlearn.validation import as_points, as_transform
 
-__all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3", "se3_exp_single", "se3_log_single"]
+__all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3"]
 
 
 def _translation(t: np.ndarray) -> np.ndarray:
@@ -65,81 +66,19 @@ def _inv(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
-def _hat(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def se3_exp_single(xi: np.ndarray) -> np.ndarray:
-    """SE(3) exponential of one ``xi = (rho, phi)`` in plain numpy. (6,) -> (4, 4).
-
-    Same map and tangent order as :func:`vtlearn.geometry.se3_exp` (which it is tested against); the
-    filter calls it ~80 times per part and frame, where the torch-first foundation version costs about
-    a millisecond per call.
-    """
-    rho, phi = xi[:3], xi[3:]
-    th2 = float(phi @ phi)
-    th = np.sqrt(th2)
-    Phi = _hat(phi)
-    Phi2 = Phi @ Phi
-    if th < 1e-4:  # Taylor series: the closed forms lose all precision here
-        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        s, co = np.sin(th), np.cos(th)
-        a, b, c = s / th, (1.0 - co) / th2, (th - s) / (th2 * th)
-    T = np.eye(4)
-    T[:3, :3] = np.eye(3) + a * Phi + b * Phi2
-    T[:3, 3] = rho + b * (Phi @ rho) + c * (Phi2 @ rho)  # V rho, V = J_l(phi)
-    return T
-
-
-def se3_log_single(T: np.ndarray) -> np.ndarray:
-    """SE(3) logarithm of one 4x4 in plain numpy, returning ``(rho, phi)``. (4, 4) -> (6,).
-
-    The rotation angle comes from the quaternion, ``theta = 2 atan2(|v|, w)``, which stays accurate
-    near 0 and near pi, unlike ``arccos((tr R - 1) / 2)``.
-    """
-    R = T[:3, :3]
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    # Shepperd's method, (w, x, y, z) Hamilton
-    if tr > 0:
-        S = np.sqrt(tr + 1.0) * 2
-        q = np.array([0.25 * S, (R[2, 1] - R[1, 2]) / S, (R[0, 2] - R[2, 0]) / S, (R[1, 0] - R[0, 1]) / S])
-    else:
-        i = int(np.argmax([R[0, 0], R[1, 1], R[2, 2]]))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        S = np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k]) * 2
-        q = np.empty(4)
-        q[0] = (R[k, j] - R[j, k]) / S
-        q[1 + i] = 0.25 * S
-        q[1 + j] = (R[j, i] + R[i, j]) / S
-        q[1 + k] = (R[k, i] + R[i, k]) / S
-    if q[0] < 0:
-        q = -q
-    vn = np.sqrt(q[1:] @ q[1:])
-    th = 2.0 * np.arctan2(vn, q[0])
-    phi = q[1:] * (th / vn) if vn > 1e-12 else 2.0 * q[1:] / q[0]
-    Phi = _hat(phi)
-    if th < 1e-4:
-        c = 1.0 / 12.0 + th * th / 720.0
-    else:
-        c = 1.0 / (th * th) - 1.0 / (2.0 * th * np.tan(0.5 * th))  # 1/th^2 - cot(th/2) / (2 th)
-    rho = T[:3, 3] - 0.5 * (Phi @ T[:3, 3]) + c * (Phi @ (Phi @ T[:3, 3]))  # J_l(phi)^-1 t
-    return np.concatenate([rho, phi])
-
-
 def se3_phi(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """Retraction on SE(3): ``T @ exp(xi)``, xi = (rho, phi) in the body frame. (4, 4), (6,) -> (4, 4)."""
-    return T @ se3_exp_single(np.asarray(xi, dtype=np.float64))
+    return T @ se3_exp(np.asarray(xi, dtype=np.float64))
 
 
 def se3_phi_inv(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Inverse retraction: ``log(T_ref^-1 @ T)`` as (rho, phi). (4, 4), (4, 4) -> (6,)."""
-    return se3_log_single(_inv(T_ref) @ T)
+    return se3_log(_inv(T_ref) @ T)
 
 
 def random_walk_se3(T: np.ndarray, u: Any, w: np.ndarray) -> np.ndarray:
     """Random-walk process model of ArtReg: the pose is constant up to the noise ``w`` (thesis 6.2.3)."""
-    return T @ se3_exp_single(np.asarray(w, dtype=np.float64))
+    return T @ se3_exp(np.asarray(w, dtype=np.float64))
 
 
 class _PartMeasurement:

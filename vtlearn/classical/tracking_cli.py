@@ -184,11 +184,12 @@ def _speed(n_points: int, cap: int | None, n_steps: int = 60) -> dict:
     """
     from threadpoolctl import threadpool_limits
 
-    from vtlearn.classical.artreg import ArtRegTracker, se3_exp_single
+    from vtlearn.classical.artreg import ArtRegTracker
+    from vtlearn.geometry import se3_exp
 
     rng = np.random.default_rng(0)
     models, scene = [], []
-    Ts = [se3_exp_single(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i])) for i in range(2)]
+    Ts = [se3_exp(np.array([0.2 * i, 0, 0.05, 0, 0, 0.5 * i])) for i in range(2)]
     for size, T in zip(((0.12, 0.08, 0.05), (0.06, 0.06, 0.1)), Ts, strict=True):
         s = np.asarray(size) / 2
         pts = rng.uniform(-1, 1, size=(n_points, 3)) * s

@@ -7,7 +7,8 @@ converted to float64 tensors and outputs back to numpy, so ``quat_to_matrix(np_a
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -47,8 +48,10 @@ def numpy_compatible(fn: Callable) -> Callable:
     return wrapper
 
 
-def as_tensor(x: Any, name: str, *, last_dims: tuple[int, ...], dtype: torch.dtype | None = None) -> torch.Tensor:
-    """Return ``x`` as a floating tensor and check its trailing dimensions, raising ``ValueError`` naming ``name``."""
+def as_tensor(
+    x: Any, name: str, *, last_dims: tuple[int, ...], dtype: torch.dtype | None = None
+) -> torch.Tensor:
+    """``x`` as a floating tensor with checked trailing dimensions; ``ValueError`` naming ``name`` if not."""
     if not isinstance(x, torch.Tensor):
         try:
             x = torch.as_tensor(np.asarray(x, dtype=np.float64))

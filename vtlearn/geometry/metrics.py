@@ -32,14 +32,16 @@ __all__ = [
 
 
 def _batched(x, y, x_lengths, y_lengths):
-    """Bring two clouds or two batches to ``(B, N, 3)`` tensors with lengths; remembers if input was single."""
+    """Two clouds or two batches as ``(B, N, 3)`` tensors with lengths, and whether the input was single."""
     was_numpy = isinstance(x, np.ndarray) or isinstance(y, np.ndarray)
     x = as_tensor(x, "x", last_dims=(3,))
     y = as_tensor(y, "y", last_dims=(3,)).to(x.dtype)
     single = x.dim() == 2
     if single:
         if y.dim() != 2:
-            raise ValueError(f"x, y: expected both (N, 3) or both (B, N, 3), got {tuple(x.shape)} and {tuple(y.shape)}")
+            raise ValueError(
+                f"x, y: expected both (N, 3) or both (B, N, 3), got {tuple(x.shape)} and {tuple(y.shape)}"
+            )
         x, y = x[None], y[None]
     if x.dim() != 3 or y.dim() != 3 or x.shape[0] != y.shape[0]:
         raise ValueError(f"x, y: expected (B, N, 3) and (B, M, 3), got {tuple(x.shape)} and {tuple(y.shape)}")
@@ -113,13 +115,13 @@ def hausdorff_distance(x, y, x_lengths=None, y_lengths=None, reduction: str = "m
 def earth_movers_distance(x, y) -> float:
     """Earth Mover's distance, thesis eq. 8.7: ``min_phi 1/|X| sum_x ||x - phi(x)||_2``.
 
-    * ``|X| == |Y|``: exact, the optimal bijection by the Hungarian algorithm (scipy ``linear_sum_assignment``).
+    * ``|X| == |Y|``: exact, the optimal bijection by the Hungarian algorithm (``linear_sum_assignment``).
     * ``|X| < |Y|``: exact minimum over injections ``X -> Y`` (rectangular assignment).
-    * ``|X| > |Y|`` (approximation): ``Y`` is replicated ``ceil(|X|/|Y|)`` times, so each ``y`` may receive at most
-      that many ``x``; the optimal such assignment is returned. It equals the bijective EMD when ``|X|`` is a
-      multiple of ``|Y|`` and upper-bounds the balanced transport cost otherwise.
+    * ``|X| > |Y|`` (approximation): ``Y`` is replicated ``ceil(|X|/|Y|)`` times, so each ``y`` may
+      receive at most that many ``x``; the optimal such assignment is returned. It equals the bijective
+      EMD when ``|X|`` is a multiple of ``|Y|`` and upper-bounds the balanced transport cost otherwise.
 
-    Cost is O(n^3): about a second for 2048 points. Not differentiable (use :func:`chamfer_distance` as a loss).
+    Cost is O(n^3): about a second for 2048 points. Not differentiable (use :func:`chamfer_distance`).
 
     Shapes:
         x: ``(N, 3)``, y: ``(M, 3)`` -> float (mean Euclidean distance, input units).

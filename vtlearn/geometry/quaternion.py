@@ -146,7 +146,7 @@ def quat_to_matrix(q):
 
 @numpy_compatible
 def matrix_to_quat(R):
-    """Quaternion (w, x, y, z) of a rotation matrix, with ``w >= 0`` (Shepperd's method, stable for all angles).
+    """Quaternion (w, x, y, z) of a rotation matrix, ``w >= 0`` (Shepperd's method, stable at all angles).
 
     Shapes:
         R: ``(..., 3, 3)`` -> ``(..., 4)``.
@@ -157,10 +157,42 @@ def matrix_to_quat(R):
     # four candidate solutions; pick, per matrix, the one with the largest (best-conditioned) denominator
     cands = torch.stack(
         [
-            torch.stack([1 + tr, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1),
-            torch.stack([R[..., 2, 1] - R[..., 1, 2], 1 + m00 - m11 - m22, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1),
-            torch.stack([R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], 1 - m00 + m11 - m22, R[..., 1, 2] + R[..., 2, 1]], -1),
-            torch.stack([R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], 1 - m00 - m11 + m22], -1),
+            torch.stack(
+                [
+                    1 + tr,
+                    R[..., 2, 1] - R[..., 1, 2],
+                    R[..., 0, 2] - R[..., 2, 0],
+                    R[..., 1, 0] - R[..., 0, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    R[..., 2, 1] - R[..., 1, 2],
+                    1 + m00 - m11 - m22,
+                    R[..., 0, 1] + R[..., 1, 0],
+                    R[..., 0, 2] + R[..., 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    R[..., 0, 2] - R[..., 2, 0],
+                    R[..., 0, 1] + R[..., 1, 0],
+                    1 - m00 + m11 - m22,
+                    R[..., 1, 2] + R[..., 2, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    R[..., 1, 0] - R[..., 0, 1],
+                    R[..., 0, 2] + R[..., 2, 0],
+                    R[..., 1, 2] + R[..., 2, 1],
+                    1 - m00 - m11 + m22,
+                ],
+                -1,
+            ),
         ],
         -2,
     )  # (..., 4 candidates, 4)
@@ -185,7 +217,9 @@ def quat_rotate(q, v):
     return v + 2 * (w * uv + torch.cross(u.expand_as(v), uv, dim=-1))
 
 
-def random_quaternion(n: int | None = None, seed: int | np.random.Generator | None = None, *, numpy: bool = False):
+def random_quaternion(
+    n: int | None = None, seed: int | np.random.Generator | None = None, *, numpy: bool = False
+):
     """Uniformly distributed unit quaternions (Shoemake's method), (w, x, y, z) with ``w >= 0``.
 
     Args:
@@ -203,7 +237,12 @@ def random_quaternion(n: int | None = None, seed: int | np.random.Generator | No
     u1, u2, u3 = rng.random((3, m))
     a, b = np.sqrt(1 - u1), np.sqrt(u1)
     q = np.stack(
-        [b * np.cos(2 * np.pi * u3), a * np.sin(2 * np.pi * u2), a * np.cos(2 * np.pi * u2), b * np.sin(2 * np.pi * u3)],
+        [
+            b * np.cos(2 * np.pi * u3),
+            a * np.sin(2 * np.pi * u2),
+            a * np.cos(2 * np.pi * u2),
+            b * np.sin(2 * np.pi * u3),
+        ],
         -1,
     )
     q = np.where(q[:, :1] < 0, -q, q)

@@ -24,7 +24,9 @@ __all__ = [
 ]
 
 
-def sample_surface(mesh, n: int, seed: int | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+def sample_surface(
+    mesh, n: int, seed: int | np.random.Generator | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Area-uniform random points on a triangle mesh, with the face normal of each point.
 
     Args:
@@ -136,7 +138,7 @@ def knn(
     x_lengths: torch.Tensor | None = None,
     y_lengths: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Batched k-nearest neighbours of every ``x`` point among the ``y`` points, by ``torch.cdist`` + ``topk``.
+    """Batched k nearest neighbours of every ``x`` point among the ``y`` points (``torch.cdist`` + ``topk``).
 
     Padded ``y`` points (index >= ``y_lengths``) are never returned as neighbours. Rows of padded ``x`` points
     are computed but meaningless; mask them with ``x_lengths``. Distances are Euclidean (not squared) and
@@ -151,7 +153,9 @@ def knn(
     if y_lengths is None:
         y_lengths = torch.full((y.shape[0],), m, dtype=torch.int64, device=y.device)
     if int(y_lengths.min()) < k:
-        raise ValueError(f"k: {k} neighbours requested but a cloud in y has only {int(y_lengths.min())} points")
+        raise ValueError(
+            f"k: {k} neighbours requested but a cloud in y has only {int(y_lengths.min())} points"
+        )
     d = torch.cdist(x, y)  # B x N x M
     invalid = ~lengths_mask(y_lengths, m)  # B x M
     d = d.masked_fill(invalid[:, None, :], float("inf"))

@@ -7,7 +7,6 @@ points_b)``.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from vtlearn.geometry._compat import as_tensor, numpy_compatible
 from vtlearn.geometry.lie import make_transform
@@ -67,5 +66,3 @@ def random_pose(
     t = rng.uniform(lo, hi, size=(m, 3))
     T = make_transform(R, t)
     return T[0] if n is None else T
-
-
