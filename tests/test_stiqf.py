@@ -12,6 +12,7 @@ from vtlearn.classical.stiqf import (
     DistanceField,
     TangentPlanes,
     aabb_scale,
+    annealing_field,
     best_buddy_pairs,
     simulated_annealing,
 )
@@ -94,6 +95,66 @@ def test_tangent_planes_project_onto_plane():
     assert tp.distance(q, cKDTree(model))[0] == pytest.approx(0.7, abs=1e-9)
 
 
+def test_tangent_planes_closest_matches_naive_loop():
+    rng = np.random.default_rng(5)
+    model = rng.normal(size=(200, 3))
+    tree = cKDTree(model)
+    tp = TangentPlanes(model, tree, cap_factor=2.0, n_patches=5)
+    q = rng.normal(size=(30, 3))
+    idx, foot = tp.closest(q, tree)
+    for i in range(len(q)):
+        _, nbr = tree.query(q[i], k=5)
+        feet = [tp.project(q[i][None], np.array([j]))[0] for j in nbr]
+        d = [np.linalg.norm(q[i] - f) for f in feet]
+        assert idx[i] == nbr[int(np.argmin(d))]
+        np.testing.assert_allclose(foot[i], feet[int(np.argmin(d))], atol=1e-12)
+    np.testing.assert_allclose(tp.distance(q, tree), np.linalg.norm(q - foot, axis=1))
+    # one patch: the nearest sample's patch, as before
+    tp1 = TangentPlanes(model, tree, n_patches=1)
+    _, nn = tree.query(q, k=1)
+    np.testing.assert_allclose(tp1.closest(q, tree)[1], tp1.project(q, nn))
+
+
+def test_tangent_patches_see_the_near_side_of_a_thin_wall():
+    # two parallel sheets 0.3 apart, sample spacing 1: the nearest sample of a point on the lower sheet is
+    # often on the upper one; with several patches the distance to the lower sheet is found
+    g = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0), indexing="ij"), -1).reshape(-1, 2)
+    lower = np.concatenate([g, np.zeros((64, 1))], 1)
+    upper = np.concatenate([g + 0.5, np.full((64, 1), 0.3)], 1)
+    model = np.concatenate([lower, upper])
+    tree = cKDTree(model)
+    q = np.array([[3.45, 3.45, 0.0], [3.5, 3.5, 0.0]])
+    assert (tree.query(q)[1] >= 64).all()  # nearest samples on the upper sheet
+    one = TangentPlanes(model, tree, k=9, n_patches=1).distance(q, tree)
+    many = TangentPlanes(model, tree, k=9, n_patches=8).distance(q, tree)
+    np.testing.assert_allclose(one, 0.3, atol=1e-9)
+    np.testing.assert_allclose(many, 0.0, atol=1e-9)
+
+
+def test_tangent_planes_reject_bad_parameters():
+    model = np.random.default_rng(0).normal(size=(20, 3))
+    with pytest.raises(ValueError, match="cap_factor"):
+        TangentPlanes(model, cKDTree(model), cap_factor=-1.0)
+    with pytest.raises(ValueError, match="n_patches"):
+        TangentPlanes(model, cKDTree(model), n_patches=0)
+
+
+def test_annealing_field_uses_patch_distance_near_the_cloud():
+    g = np.stack(np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-1, 1, 9), indexing="ij"), -1).reshape(-1, 2)
+    model = np.concatenate([g, np.zeros((81, 1))], 1)
+    tree = cKDTree(model)
+    tp = TangentPlanes(model, tree, k=6, cap_factor=1.0, n_patches=4)
+    field = annealing_field(model, tree, tp, grid=24)
+    plain = annealing_field(model, tree, None, grid=24)
+    q = np.array([[0.13, -0.37, 0.0], [0.6, 0.12, 0.05]])  # between samples, on or near the plane
+    np.testing.assert_allclose(field(q), np.abs(q[:, 2]), atol=field.h)
+    assert (plain(q) > field(q) + 0.02).all()  # the point distance sees the gaps between samples
+    # farther than two patch radii from the cloud the lattice keeps the distance to the points
+    far = plain.values >= 2 * tp.cap
+    assert far.any()
+    np.testing.assert_allclose(field.values[far], plain.values[far])
+
+
 def test_simulated_annealing_is_seedable_and_lowers_cost():
     rng = np.random.default_rng(2)
     model = rng.uniform(-1, 1, size=(256, 3)) * [1.0, 0.6, 0.3]
@@ -174,4 +235,10 @@ def test_stiqf_rejects_bad_parameters():
         STIQF(sa_cost="nope")
     with pytest.raises(ValueError, match="restarts"):
         STIQF(restarts=0)
+    with pytest.raises(ValueError, match="sa_field"):
+        STIQF(sa_field="nope")
+    with pytest.raises(ValueError, match="tangent_cap"):
+        STIQF(tangent_cap=-1.0)
+    with pytest.raises(ValueError, match="tangent_patches"):
+        STIQF(tangent_patches=0)
     assert "zeta=0.98" in repr(STIQF())

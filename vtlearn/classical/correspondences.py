@@ -18,20 +18,42 @@ class TangentPlanes:
 
     A point-to-point correspondence with a sparse model cloud is off by up to half the sample spacing along
     the surface. With ``tangent=True`` the model point of a pair is moved to the foot of the scene point on
-    the model point's tangent plane (normal from PCA of its ``k`` neighbours), the move capped at the
-    median sample spacing. The pair is still a point pair, so eq. 4.13 applies unchanged.
+    the model point's tangent plane (normal from PCA of its ``k`` neighbours), the move capped at
+    ``cap_factor`` times the median sample spacing. The pair is still a point pair, so eq. 4.13 applies
+    unchanged. A cap of one spacing leaves holes: with uniform random sampling the chance that no sample lies
+    within a radius ``r`` of a surface point is ``exp(-rho pi r^2)`` (``rho`` samples per area). With
+    ``h`` the median sample spacing (Poisson sampling: ``rho ~ 1 / (4 h^2)``) that is ``exp(-pi / 4) ~ 46%``
+    for ``r = h`` and ``exp(-pi) ~ 4%`` for ``r = 2 h``; with a one-spacing cap, surface points in the holes
+    look far from the model even at the true pose.
+
+    Args:
+        model: the model cloud.
+        tree: KD-tree of ``model``.
+        k: neighbours of the PCA normal.
+        cap_factor: the tangent patch radius in median sample spacings.
+        n_patches: a query point is matched to the closest of the patches of its ``n_patches`` nearest
+            samples, not only the nearest sample's. On thin-walled objects (a mug wall is about one sample
+            spacing thick) the nearest sample is often on the opposite side of the wall, whose patch is a
+            wall thickness away.
 
     Shapes:
         model: ``(M, 3)``.
     """
 
-    def __init__(self, model: np.ndarray, tree: cKDTree, k: int = 10):
+    def __init__(
+        self, model: np.ndarray, tree: cKDTree, k: int = 10, cap_factor: float = 1.0, n_patches: int = 1
+    ):
+        if cap_factor < 0:
+            raise ValueError(f"cap_factor: must be >= 0, got {cap_factor}")
+        if n_patches < 1:
+            raise ValueError(f"n_patches: must be >= 1, got {n_patches}")
+        self.n_patches = min(n_patches, len(model))
         d, nbr = tree.query(model, k=min(k, len(model)))
         nb = model[nbr] - model[nbr].mean(1, keepdims=True)  # MxKx3
         _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))
         self.normals = vecs[:, :, 0]
         self.model = model
-        self.cap = float(np.median(d[:, 1])) if d.shape[1] > 1 else 0.0
+        self.cap = cap_factor * float(np.median(d[:, 1])) if d.shape[1] > 1 else 0.0
 
     def project(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """Feet of ``q`` ``(K, 3)`` on the tangent planes of model points ``idx`` ``(K,)`` -> ``(K, 3)``."""
@@ -41,7 +63,20 @@ class TangentPlanes:
         norm = np.linalg.norm(tang, axis=1, keepdims=True)
         return o + tang * np.minimum(1.0, self.cap / np.maximum(norm, 1e-12))
 
+    def closest(self, q: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
+        """The closest patch among those of the ``n_patches`` nearest samples of each ``q`` ``(K, 3)``.
+
+        Returns:
+            ``(idx (K,), foot (K, 3))``: the patch's sample index and the foot of ``q`` on it.
+        """
+        q = np.asarray(q, dtype=np.float64)
+        _, nbr = tree.query(q, k=self.n_patches)
+        nbr = nbr.reshape(len(q), -1)  # KxP
+        feet = self.project(np.repeat(q, nbr.shape[1], 0), nbr.ravel()).reshape(len(q), -1, 3)
+        best = np.argmin(((feet - q[:, None]) ** 2).sum(-1), axis=1)
+        rows = np.arange(len(q))
+        return nbr[rows, best], feet[rows, best]
+
     def distance(self, q: np.ndarray, tree: cKDTree) -> np.ndarray:
-        """Distance of ``q`` ``(K, 3)`` to the tangent-plane patch of its nearest model point."""
-        _, idx = tree.query(q, k=1)
-        return np.linalg.norm(q - self.project(q, idx), axis=1)
+        """Distance of ``q`` ``(K, 3)`` to the closest tangent-plane patch (see :meth:`closest`)."""
+        return np.linalg.norm(np.asarray(q, dtype=np.float64) - self.closest(q, tree)[1], axis=1)

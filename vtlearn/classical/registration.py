@@ -116,6 +116,11 @@ def _run_stiqf(model, scene, rng, opts):
         "n_escapes",
         "scale_iters",
         "tangent",
+        "tangent_cap",
+        "tangent_patches",
+        "sa_field",
+        "chains_per_restart",
+        "sa_max_points",
     )
     kw = {k: opts[k] for k in keys if k in opts}
     if "restarts_sa" in kw:

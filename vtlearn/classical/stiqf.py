@@ -55,6 +55,7 @@ __all__ = [
     "aabb_scale",
     "best_buddy_pairs",
     "DistanceField",
+    "annealing_field",
     "simulated_annealing",
     "TangentPlanes",
 ]
@@ -122,9 +123,18 @@ class DistanceField:
         points: the cloud ``(M, 3)``.
         grid: lattice nodes along the longest box side.
         pad: padding of the lattice beyond the cloud's box, as a fraction of its longest side.
+        distance_fn: optional ``(K, 3) -> (K,)`` distance to the surface the cloud samples (e.g.
+            :meth:`TangentPlanes.distance`) used at the lattice nodes instead of the distance to the points.
     """
 
-    def __init__(self, points, grid: int = 32, pad: float = 0.25, tree: cKDTree | None = None):
+    def __init__(
+        self,
+        points,
+        grid: int = 32,
+        pad: float = 0.25,
+        tree: cKDTree | None = None,
+        distance_fn=None,
+    ):
         points = as_points(points, "points", min_points=1)
         lo, hi = points.min(0), points.max(0)
         side = float((hi - lo).max())
@@ -137,7 +147,8 @@ class DistanceField:
         axes = [self.lo[k] + self.h * np.arange(self.shape[k]) for k in range(3)]
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         tree = cKDTree(points) if tree is None else tree
-        self.values = tree.query(nodes, k=1)[0].reshape(tuple(self.shape))
+        values = tree.query(nodes, k=1)[0] if distance_fn is None else distance_fn(nodes)
+        self.values = np.asarray(values, dtype=np.float64).reshape(tuple(self.shape))
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         """Distances for query points ``(..., 3)`` -> ``(...)``."""
@@ -155,6 +166,31 @@ class DistanceField:
         inside = map_coordinates(self.values, g, order=1, mode="nearest")
         d = np.maximum(np.maximum(self.lo[:, None] - q, q - self.hi[:, None]), 0.0)
         return (inside + np.sqrt((d * d).sum(0))).reshape(np.shape(x))
+
+
+def annealing_field(
+    model, tree: cKDTree, tangent: TangentPlanes | None = None, grid: int = 32
+) -> DistanceField:
+    """The distance field of S-TIQF's annealing cost (eq. 5.14) for a model cloud.
+
+    With ``tangent`` the lattice holds the distance to the model's tangent patches
+    (:meth:`TangentPlanes.distance`) near the cloud, so the annealing scores a pose with the same surface
+    approximation as the refinement; farther than two patch radii the patches change nothing and the
+    distance to the points is kept. Without it, the distance to the points.
+
+    Shapes:
+        model: ``(M, 3)``.
+    """
+    dist = None
+    if tangent is not None:
+
+        def dist(nodes):
+            d = tree.query(nodes, k=1)[0]
+            near = d < 2.0 * tangent.cap
+            d[near] = tangent.distance(nodes[near], tree)
+            return d
+
+    return DistanceField(model, grid=grid, tree=tree, distance_fn=dist)
 
 
 def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -315,8 +351,18 @@ class STIQF:
         n_escapes: int = 0,
         scale_iters: int = 2,
         tangent: bool = True,
+        tangent_cap: float = 2.0,
+        tangent_patches: int = 8,
+        sa_field: str = "tangent",
         seed: int | None = 0,
     ):
+        if sa_field not in ("points", "tangent"):
+            raise ValueError(f"sa_field: expected 'points' or 'tangent', got {sa_field!r}")
+        if tangent_cap < 0:
+            raise ValueError(f"tangent_cap: must be >= 0, got {tangent_cap}")
+        if tangent_patches < 1:
+            raise ValueError(f"tangent_patches: must be >= 1, got {tangent_patches}")
+        self.tangent_cap, self.tangent_patches, self.sa_field = tangent_cap, tangent_patches, sa_field
         if sa_cost not in ("field", "kdtree"):
             raise ValueError(f"sa_cost: expected 'field' or 'kdtree', got {sa_cost!r}")
         if restarts < 1:
@@ -366,15 +412,19 @@ class STIQF:
                 si = np.arange(len(scene_in_model))
             o = model[mi]
             if tangent is not None:
-                o = tangent.project(scene_in_model[si], mi)
+                o = tangent.closest(scene_in_model[si], tree)[1]
             return scene[si], o
 
         return corr
 
     def _register_scaled(self, model, scene, rng, model_normals, scene_normals):
         tree = cKDTree(model)
+        tangent = None
+        if self.tangent:
+            tangent = TangentPlanes(model, tree, cap_factor=self.tangent_cap, n_patches=self.tangent_patches)
         if self.sa_cost == "field":
-            field = DistanceField(model, grid=self.grid, tree=tree)
+            surface = tangent if self.sa_field == "tangent" else None
+            field = annealing_field(model, tree, surface, grid=self.grid)
             cost_fn = field.lookup
         else:
 
@@ -394,7 +444,6 @@ class STIQF:
             restarts=self.restarts * self.chains_per_restart,
             rng=rng,
         )
-        tangent = TangentPlanes(model, tree) if self.tangent else None
         corr = self._correspondence_fn(model, tree, model_normals, scene, scene_normals, tangent)
         best = None
         for k in range(min(self.n_refine, len(T_sa))):
