@@ -174,9 +174,10 @@ def annealing_field(
     """The distance field of S-TIQF's annealing cost (eq. 5.14) for a model cloud.
 
     With ``tangent`` the lattice holds the distance to the model's tangent patches
-    (:meth:`TangentPlanes.distance`) near the cloud, so the annealing scores a pose with the same surface
-    approximation as the refinement; farther than two patch radii the patches change nothing and the
-    distance to the points is kept. Without it, the distance to the points.
+    (:meth:`TangentPlanes.distance`), so the annealing scores a pose with the same surface approximation as
+    the refinement; without it, the distance to the points. (Keeping the point distance at nodes farther
+    than two patch radii saves little CPU but puts a step of up to one patch radius into the field; on the
+    three-mesh benchmark at 120 points it raised the mean ADI from 2.12 to 2.50 cm.)
 
     Shapes:
         model: ``(M, 3)``.
@@ -185,10 +186,7 @@ def annealing_field(
     if tangent is not None:
 
         def dist(nodes):
-            d = tree.query(nodes, k=1)[0]
-            near = d < 2.0 * tangent.cap
-            d[near] = tangent.distance(nodes[near], tree)
-            return d
+            return tangent.distance(nodes, tree)
 
     return DistanceField(model, grid=grid, tree=tree, distance_fn=dist)
 
