@@ -72,10 +72,12 @@ class TangentPlanes:
         q = np.asarray(q, dtype=np.float64)
         _, nbr = tree.query(q, k=self.n_patches)
         nbr = nbr.reshape(len(q), -1)  # KxP
-        feet = self.project(np.repeat(q, nbr.shape[1], 0), nbr.ravel()).reshape(len(q), -1, 3)
-        best = np.argmin(((feet - q[:, None]) ** 2).sum(-1), axis=1)
-        rows = np.arange(len(q))
-        return nbr[rows, best], feet[rows, best]
+        v = q[:, None] - self.model[nbr]  # KxPx3
+        h = np.einsum("kpd,kpd->kp", v, self.normals[nbr])  # offset along the normal
+        tang = np.sqrt(np.maximum((v * v).sum(-1) - h * h, 0.0))  # tangential distance to the sample
+        best = np.argmin(h * h + np.maximum(tang - self.cap, 0.0) ** 2, axis=1)
+        idx = nbr[np.arange(len(q)), best]
+        return idx, self.project(q, idx)
 
     def distance(self, q: np.ndarray, tree: cKDTree) -> np.ndarray:
         """Distance of ``q`` ``(K, 3)`` to the closest tangent-plane patch (see :meth:`closest`)."""
