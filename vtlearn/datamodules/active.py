@@ -12,16 +12,15 @@ Shapes (batch dicts):
 
 from __future__ import annotations
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
 from vtlearn.datamodules.crossmodal import CloudDataset, modality_clouds
-from vtlearn.datamodules.shards import collate_clouds, load_manifest, load_split, normalize_cloud
+from vtlearn.datamodules.shards import ShardedDataModule, collate_clouds, normalize_cloud
 
 
-class ActivePoolDataModule(pl.LightningDataModule):
+class ActivePoolDataModule(ShardedDataModule):
     """Args:
     data_dir: a `gen-data crossmodal` (tactile or visual) or `gen-data reconstruction` (tactile) dataset.
     initial_labels: pool items labelled at the start (n0), drawn at random with ``seed``.
@@ -48,13 +47,10 @@ class ActivePoolDataModule(pl.LightningDataModule):
         if units not in ("canonical", "metres"):
             raise ValueError(f"units: expected 'canonical' or 'metres', got {units!r}")
         normalize_cloud(np.zeros((1, 3)), normalize)
-        self.data_dir, self.modality, self.batch_size = data_dir, modality, batch_size
+        self.modality, self.batch_size = modality, batch_size
         self.normalize, self.units, self.rotate_z = normalize, units, rotate_z
-        self.num_workers, self.seed, self.verify = num_workers, seed, verify
-        manifest = load_manifest(data_dir)
-        self.class_names: list[str] = list(manifest["class_names"])
-        self.num_classes: int = len(self.class_names)
-        self._splits: dict[str, dict] = {}
+        self.num_workers, self.seed = num_workers, seed
+        self._open_dataset(data_dir, verify)
         clouds, labels, scales = modality_clouds(self._split("train"), modality, units == "metres")
         self._pool = (clouds, labels, scales)
         n = len(clouds)
@@ -63,11 +59,6 @@ class ActivePoolDataModule(pl.LightningDataModule):
         perm = np.random.default_rng(seed).permutation(n)
         self._labelled = np.zeros(n, dtype=bool)
         self._labelled[perm[:initial_labels]] = True
-
-    def _split(self, split: str) -> dict:
-        if split not in self._splits:
-            self._splits[split] = load_split(self.data_dir, split, self.verify)
-        return self._splits[split]
 
     @property
     def pool_size(self) -> int:

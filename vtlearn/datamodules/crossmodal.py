@@ -18,15 +18,13 @@ Shapes (batch dicts):
 
 from __future__ import annotations
 
-import lightning.pytorch as pl
 import numpy as np
 from lightning.pytorch.utilities import CombinedLoader
 from torch.utils.data import DataLoader, Dataset
 
 from vtlearn.datamodules.shards import (
+    ShardedDataModule,
     collate_clouds,
-    load_manifest,
-    load_split,
     normalize_cloud,
     rotation_z,
     split_clouds,
@@ -98,7 +96,7 @@ def modality_clouds(
     return clouds, labels, scales
 
 
-class CrossModalDataModule(pl.LightningDataModule):
+class CrossModalDataModule(ShardedDataModule):
     """Visual (labelled source) and tactile (unlabelled target) clouds from `vtlearn gen-data crossmodal`.
 
     Args:
@@ -127,23 +125,9 @@ class CrossModalDataModule(pl.LightningDataModule):
         if units not in ("canonical", "metres"):
             raise ValueError(f"units: expected 'canonical' or 'metres', got {units!r}")
         normalize_cloud(np.zeros((1, 3)), normalize)
-        self.data_dir, self.batch_size, self.normalize, self.units = data_dir, batch_size, normalize, units
-        self.rotate_z, self.num_workers, self.seed, self.verify = rotate_z, num_workers, seed, verify
-        manifest = load_manifest(data_dir)
-        if manifest.get("kind") != "crossmodal":
-            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need 'crossmodal'")
-        self.class_names: list[str] = list(manifest["class_names"])
-        self.num_classes: int = len(self.class_names)
-        self._splits: dict[str, dict] = {}
-
-    def _split(self, split: str) -> dict:
-        if split not in self._splits:
-            self._splits[split] = load_split(self.data_dir, split, self.verify)
-        return self._splits[split]
-
-    def setup(self, stage: str | None = None) -> None:
-        for split in ("train", "val", "test"):
-            self._split(split)
+        self.batch_size, self.normalize, self.units = batch_size, normalize, units
+        self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
+        self._open_dataset(data_dir, verify, kind="crossmodal")
 
     def dataset(self, split: str, modality: str, with_label: bool = True) -> CloudDataset:
         clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")

@@ -15,14 +15,12 @@ from __future__ import annotations
 
 from functools import partial
 
-import lightning.pytorch as pl
 import numpy as np
 from torch.utils.data import DataLoader, Dataset
 
 from vtlearn.datamodules.shards import (
+    ShardedDataModule,
     collate_clouds,
-    load_manifest,
-    load_split,
     random_voxel_subsample,
     rotation_z,
     split_clouds,
@@ -71,7 +69,7 @@ class ReconstructionDataset(Dataset):
         }
 
 
-class ReconstructionDataModule(pl.LightningDataModule):
+class ReconstructionDataModule(ShardedDataModule):
     """Lightning data for ACTOR from a `vtlearn gen-data reconstruction` (or crossmodal) directory.
 
     Args:
@@ -100,22 +98,10 @@ class ReconstructionDataModule(pl.LightningDataModule):
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
         if not 1 <= min_points <= max_points:
             raise ValueError(f"min_points/max_points: need 1 <= min <= max, got {min_points}, {max_points}")
-        self.data_dir, self.batch_size = data_dir, batch_size
+        self.batch_size = batch_size
         self.min_points, self.max_points = min_points, max_points
-        self.rotate_z, self.num_workers, self.seed, self.verify = rotate_z, num_workers, seed, verify
-        manifest = load_manifest(data_dir)
-        self.class_names: list[str] = list(manifest["class_names"])
-        self.num_classes: int = len(self.class_names)
-        self._splits: dict[str, dict] = {}
-
-    def _split(self, split: str) -> dict:
-        if split not in self._splits:
-            self._splits[split] = load_split(self.data_dir, split, self.verify)
-        return self._splits[split]
-
-    def setup(self, stage: str | None = None) -> None:
-        for split in ("train", "val", "test"):
-            self._split(split)
+        self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
+        self._open_dataset(data_dir, verify)
 
     def _dataset(self, split: str, tactile: bool = False) -> ReconstructionDataset:
         d = self._split(split)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import lightning.pytorch as pl
 import numpy as np
 import torch
 
@@ -140,3 +141,30 @@ def worker_rng(train: bool, seed: int, index: int) -> np.random.Generator:
     if train:
         return np.random.default_rng(int(torch.randint(0, 2**62, (1,)).item()))
     return np.random.default_rng([seed, index])
+
+
+class ShardedDataModule(pl.LightningDataModule):
+    """Shared base of the vtlearn datamodules: reads a ``gen-data`` manifest once and caches its splits.
+
+    Subclasses call :meth:`_open_dataset` in ``__init__``; ``class_names`` and ``num_classes`` come from the
+    manifest, and :meth:`_split` loads (and, with ``verify``, checksums) a split on first use.
+    """
+
+    def _open_dataset(self, data_dir: str | Path, verify: bool, kind: str | None = None) -> dict:
+        manifest = load_manifest(data_dir)
+        if kind is not None and manifest.get("kind") != kind:
+            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need {kind!r}")
+        self.data_dir, self.verify = data_dir, verify
+        self.class_names: list[str] = list(manifest["class_names"])
+        self.num_classes: int = len(self.class_names)
+        self._splits: dict[str, dict] = {}
+        return manifest
+
+    def _split(self, split: str) -> dict:
+        if split not in self._splits:
+            self._splits[split] = load_split(self.data_dir, split, self.verify)
+        return self._splits[split]
+
+    def setup(self, stage: str | None = None) -> None:
+        for split in ("train", "val", "test"):
+            self._split(split)
