@@ -135,7 +135,9 @@ def _trainer(max_epochs: int, log_dir: Path, name: str):
 
 def _save_atomic(trainer, path: Path) -> None:
     tmp = path.with_suffix(".tmp.ckpt")
-    trainer.save_checkpoint(str(tmp))
+    # the full training state (optimizer included), so the checkpoint can also resume training; loading it
+    # elsewhere in vtlearn is always torch.load(weights_only=True), which this file satisfies
+    trainer.save_checkpoint(str(tmp), weights_only=False)
     os.replace(tmp, path)
 
 
