@@ -111,6 +111,8 @@ def _quick_init_args(name: str) -> dict:
 
     path = _REPO / "configs" / "quick" / f"{name}.yaml"
     if not path.is_file():
+        # a non-editable install has no configs/: say so, since the full-size defaults train far slower
+        log.warning("%s not found (vtlearn not run from its repository); using %s defaults", path, name)
         return {}
     return dict(yaml.safe_load(path.read_text())["model"].get("init_args", {}))
 
