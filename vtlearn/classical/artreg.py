@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.ukf import ManifoldUKF
 from vtlearn.geometry.lie import se3_exp, se3_log
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_points, as_transform, to_numpy
 
 __all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3"]
 
@@ -57,6 +57,14 @@ def _translation(t: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, 3] = t
     return T
+
+
+def _frame_cloud(x: Any, name: str) -> np.ndarray:
+    """A frame's (M, 3) cloud; an empty input of any shape is an empty frame, anything else is validated."""
+    arr = to_numpy(x)
+    if arr.size == 0:
+        return np.zeros((0, 3))
+    return as_points(arr, name)
 
 
 def _inv(T: np.ndarray) -> np.ndarray:
@@ -252,11 +260,11 @@ class ArtRegTracker:
             ValueError: naming ``scene_cloud`` / ``tactile_cloud`` for a wrong shape or NaN/inf values,
                 or an empty ``scene_cloud`` when ``allow_empty`` is False.
         """
-        scene = self._cloud(scene_cloud, "scene_cloud")
+        scene = _frame_cloud(scene_cloud, "scene_cloud")
         if len(scene) == 0 and not allow_empty:
             raise ValueError("scene_cloud is empty (pass allow_empty=True to keep the last estimate)")
         tactile = (
-            self._cloud(tactile_cloud, "tactile_cloud") if tactile_cloud is not None else np.zeros((0, 3))
+            _frame_cloud(tactile_cloud, "tactile_cloud") if tactile_cloud is not None else np.zeros((0, 3))
         )
         if self.max_points_per_part is not None and len(scene) > 8 * self.max_points_per_part * self.n_parts:
             scene = scene[
@@ -294,10 +302,3 @@ class ArtRegTracker:
             f.update(s.reshape(-1), R=np.repeat(r, 3), n_iterations=self.n_iterations)
             self.last_counts[i] = len(sel)
         return self.poses
-
-    @staticmethod
-    def _cloud(x: Any, name: str) -> np.ndarray:
-        arr = np.asarray(x.detach().cpu().numpy() if hasattr(x, "detach") else x, dtype=np.float64)
-        if arr.size == 0:
-            return np.zeros((0, 3))
-        return as_points(arr, name, min_points=1)

@@ -29,7 +29,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from vtlearn.classical.artreg import _inv, _translation
+from vtlearn.classical.artreg import _frame_cloud, _inv, _translation
 from vtlearn.geometry import se3_exp, se3_log
 from vtlearn.validation import as_points, as_transform
 
@@ -83,9 +83,9 @@ class _TrackerBase:
 
     def _split(self, scene_cloud: Any, tactile_cloud: Any) -> list[np.ndarray]:
         """Per-part measurement points: nearest part at its current estimate, within the gate."""
-        pts = _cloud(scene_cloud, "scene_cloud")
+        pts = _frame_cloud(scene_cloud, "scene_cloud")
         if tactile_cloud is not None:
-            pts = np.concatenate([pts, _cloud(tactile_cloud, "tactile_cloud")])
+            pts = np.concatenate([pts, _frame_cloud(tactile_cloud, "tactile_cloud")])
         if len(pts) == 0:
             return [np.zeros((0, 3))] * self.n_parts
         d = np.empty((self.n_parts, len(pts)))
@@ -94,13 +94,6 @@ class _TrackerBase:
         owner = np.argmin(d, 0)
         ok = d[owner, np.arange(len(pts))] <= self.max_correspondence_distance
         return [pts[ok & (owner == i)] for i in range(self.n_parts)]
-
-
-def _cloud(x: Any, name: str) -> np.ndarray:
-    arr = np.asarray(x.detach().cpu().numpy() if hasattr(x, "detach") else x, dtype=np.float64)
-    if arr.size == 0:
-        return np.zeros((0, 3))
-    return as_points(arr, name)
 
 
 class ParticleFilterTracker(_TrackerBase):
