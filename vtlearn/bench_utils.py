@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["print_table", "format_table", "write_json", "machine_info", "to_jsonable"]
+__all__ = ["print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable"]
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -80,4 +80,15 @@ def write_json(path, obj: Any) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(json.dumps(to_jsonable(obj), indent=2))
+    return p
+
+
+def save_figure(fig, path, dpi: int = 120) -> Path:
+    """Save a matplotlib figure as ``path`` (parent folders created) and close it; returns the path."""
+    import matplotlib.pyplot as plt
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=dpi)
+    plt.close(fig)
     return p

@@ -31,6 +31,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from vtlearn.bench_utils import save_figure
 from vtlearn.classical.tiqf import SequentialTIQF, _quat_to_matrix, gaussian_kl, tiqf_update_moment
 from vtlearn.validation import as_transform
 
@@ -401,8 +402,6 @@ def run_active_touch_benchmark(
 
 
 def _plot_curves(rmse: dict, path):
-    from pathlib import Path
-
     import matplotlib
 
     matplotlib.use("Agg")
@@ -419,8 +418,4 @@ def _plot_curves(rmse: dict, path):
         ax.set_xlabel("number of touches")
         ax.legend()
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)

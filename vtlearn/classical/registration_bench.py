@@ -28,6 +28,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
+from vtlearn.bench_utils import save_figure
 from vtlearn.classical.registration import _run_icp, available_methods, register
 from vtlearn.classical.sparse_icp import sparse_icp
 from vtlearn.classical.stiqf import STIQF, TangentPlanes, annealing_field, simulated_annealing
@@ -386,8 +387,4 @@ def bar_plot(result: dict, path) -> Path:
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Sparse-to-dense registration, thesis 5.3.3 protocol")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_utils import save_figure
+
 log = logging.getLogger(__name__)
 
 # Table 7.2/7.4 rows -> XAVTNet overrides; configs/xavtnet_ablation/<name>.yaml hold the same values.
@@ -110,9 +112,7 @@ def _tsne_figure(panels: dict, class_names, path: Path, seed: int) -> None:
         ax.legend(loc="best", fontsize=8)
     fig.suptitle("fc2 features, colour = class (Fig. 7.4 analogue)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
 
 
 def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> None:
@@ -136,9 +136,7 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
     ax.set_title(title)
     fig.colorbar(im, ax=ax)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
 
 
 def run_crossmodal_bench(args: argparse.Namespace) -> int:
@@ -344,9 +342,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     ax.set_title("MC-dropout active learning (Fig. 7.5a analogue)")
     ax.legend()
     fig.tight_layout()
-    plot.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(plot, dpi=120)
-    plt.close(fig)
+    save_figure(fig, plot, dpi=120)
     print(f"plot: {plot}")
     write_json(args.json, {
         "bench": "active-learning", "config": args.config, "data": data_kwargs, "pool_size": pool,

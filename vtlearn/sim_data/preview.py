@@ -1,10 +1,12 @@
-"""`vtlearn preview DATASET`: a PNG grid, one row per category: mesh, dense cloud, tactile cloud, visual cloud."""
+"""`vtlearn preview DATASET`: a PNG grid, a row per category: mesh, dense, tactile and visual clouds."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+
+from vtlearn.bench_utils import save_figure
 
 
 def _instance_meshes(manifest: dict) -> dict[int, object]:
@@ -107,7 +109,5 @@ def write_preview(
             ax.set_title(title, fontsize=9)
     fig.tight_layout()
     path = Path(out) if out else dataset / "preview.png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
     return path
