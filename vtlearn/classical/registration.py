@@ -118,6 +118,7 @@ def _run_stiqf(model, scene, rng, opts):
         "tangent",
         "tangent_cap",
         "tangent_patches",
+        "tangent_k",
         "sa_field",
         "chains_per_restart",
         "sa_max_points",

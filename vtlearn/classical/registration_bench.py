@@ -31,7 +31,7 @@ from tqdm import tqdm
 from vtlearn.bench_utils import save_figure
 from vtlearn.classical.registration import _run_icp, available_methods, register
 from vtlearn.classical.sparse_icp import sparse_icp
-from vtlearn.classical.stiqf import STIQF, TangentPlanes, annealing_field, simulated_annealing
+from vtlearn.classical.stiqf import STIQF, annealing_field, simulated_annealing
 from vtlearn.classical.tiqf import _quat_to_matrix
 
 __all__ = ["load_benchmark_mesh", "run_registration_benchmark", "normalise_mesh", "THESIS_TABLE_5_1"]
@@ -108,9 +108,7 @@ def _sa_pose(model, scene, seed) -> tuple[np.ndarray, float, float]:
     # the same annealing cost as S-TIQF's defaults (tangent-patch distance field)
     st = STIQF()
     tree = cKDTree(model)
-    field = annealing_field(
-        model, tree, TangentPlanes(model, tree, cap_factor=st.tangent_cap, n_patches=st.tangent_patches)
-    )
+    field = annealing_field(model, tree, st.tangent_planes(model, tree))
     T_sa, _ = simulated_annealing(model, scene, cost_fn=field.lookup, rng=seed, restarts=30)
     return T_sa[0], time.perf_counter() - t0, time.process_time() - c0
 
@@ -154,7 +152,7 @@ def _summary(vals) -> dict:
 def run_registration_benchmark(
     mesh_specs=None,
     sizes=(20, 40, 80, 120),
-    trials: int = 6,
+    trials: int = 10,
     methods=None,
     seed: int = 0,
     time_matched: bool = True,

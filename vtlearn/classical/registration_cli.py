@@ -149,7 +149,9 @@ def register_bench(bench_subparsers: Any) -> None:
         default=None,
         help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 procedural shapes)",
     )
-    p.add_argument("--trials", type=int, default=6, help="trials per mesh and scene size")
+    p.add_argument(
+        "--trials", type=int, default=10, help="trials per mesh and scene size (3 meshes x 10 = the thesis's 30)"
+    )
     p.add_argument("--sizes", default="20,40,80,120", help="scene sizes, comma separated")
     p.add_argument("--methods", default=None, help="comma-separated subset of methods")
     p.add_argument("--scale-trials", type=int, default=4, help="trials per mesh of the scale run (0: skip)")
