@@ -6,6 +6,12 @@ rotated together with its target by a random angle about z. The target is the de
 ``tactile_test_dataloader`` instead feeds the simulated tactile clouds stored with each test
 instance, for evaluating reconstruction from real-like touches.
 
+``tactile_fraction`` (default 0, the thesis protocol) replaces that fraction of the training and
+validation inputs by the instance's own stored simulated tactile cloud, randomly subsampled to
+``[min_points, max_points]``. Touches come in taxel patches rather than voxel-uniform samples, and a
+network trained only on voxel subsamples loses accuracy on them; mixing them in is this framework's
+option (not in the thesis) for closing that gap. Test data are never mixed.
+
 Shapes (batch dict):
     sparse (B, Nmax, 3) float32, zero-padded; lengths (B,) int64; dense (B, 2048, 3) float32;
     label (B,) int64
@@ -41,6 +47,8 @@ class ReconstructionDataset(Dataset):
         seed: int = 0,
         rotate_z: bool = True,
         sparse: list[np.ndarray] | None = None,
+        tactile: list[list[np.ndarray]] | None = None,
+        tactile_fraction: float = 0.0,
     ):
         if dense.ndim != 3 or dense.shape[-1] != 3 or len(dense) == 0:
             raise ValueError(f"dense: need a non-empty (N, P, 3) array, got shape {dense.shape}")
@@ -48,6 +56,11 @@ class ReconstructionDataset(Dataset):
         self.min_points, self.max_points = int(min_points), int(max_points)
         self.train, self.seed, self.rotate_z = train, seed, rotate_z
         self.sparse = sparse
+        if not 0.0 <= tactile_fraction <= 1.0:
+            raise ValueError(f"tactile_fraction: need a value in [0, 1], got {tactile_fraction}")
+        if tactile_fraction > 0 and (tactile is None or len(tactile) != len(self.dense)):
+            raise ValueError("tactile: tactile_fraction > 0 needs one list of tactile clouds per instance")
+        self.tactile, self.tactile_fraction = tactile, float(tactile_fraction)
 
     def __len__(self) -> int:
         return len(self.dense)
@@ -57,6 +70,12 @@ class ReconstructionDataset(Dataset):
         dense = self.dense[i].astype(np.float64)
         if self.sparse is not None:
             sparse = self.sparse[i].astype(np.float64)
+        elif self.tactile_fraction > 0 and self.tactile[i] and rng.random() < self.tactile_fraction:
+            clouds = self.tactile[i]
+            sparse = clouds[int(rng.integers(len(clouds)))].astype(np.float64)
+            n = int(rng.integers(self.min_points, self.max_points + 1))
+            if len(sparse) > n:
+                sparse = sparse[rng.choice(len(sparse), size=n, replace=False)]
         else:
             sparse = random_voxel_subsample(dense, self.min_points, self.max_points, rng)
         if self.rotate_z:
@@ -79,6 +98,8 @@ class ReconstructionDataModule(ShardedDataModule):
         rotate_z: random rotation about z (training always; evaluation with a fixed angle per sample).
         num_workers: DataLoader worker processes.
         seed: fixes the evaluation subsampling and rotations.
+        tactile_fraction: fraction of training / validation inputs taken from the instance's stored
+            simulated tactile clouds instead of voxel subsampling (0: thesis protocol; see module doc).
         verify: check shard sha256 sums against the manifest when loading.
     """
 
@@ -91,9 +112,13 @@ class ReconstructionDataModule(ShardedDataModule):
         rotate_z: bool = True,
         num_workers: int = 0,
         seed: int = 0,
+        tactile_fraction: float = 0.0,
         verify: bool = True,
     ):
         super().__init__()
+        if not 0.0 <= tactile_fraction <= 1.0:
+            raise ValueError(f"tactile_fraction: need a value in [0, 1], got {tactile_fraction}")
+        self.tactile_fraction = float(tactile_fraction)
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
         if not 1 <= min_points <= max_points:
@@ -107,14 +132,18 @@ class ReconstructionDataModule(ShardedDataModule):
         d = self._split(split)
         if "dense" not in d:
             raise ValueError(f"data_dir: split {split!r} of {self.data_dir} is empty")
-        sparse = None
-        if tactile:
-            sparse = split_clouds(d["tactile_points"], d["tactile_offsets"])
-            # one tactile cloud per instance: crossmodal datasets store several, keep the first
-            first = {}
+        sparse, mix = None, None
+        mixed = split != "test" and self.tactile_fraction > 0
+        if tactile or mixed:
+            clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
+            per_instance: dict[int, list[np.ndarray]] = {}
             for j, inst in enumerate(d["tactile_instance"]):
-                first.setdefault(int(inst), j)
-            sparse = [sparse[first[int(inst)]] for inst in d["instance"]]
+                per_instance.setdefault(int(inst), []).append(clouds[j])
+            if tactile:
+                # one tactile cloud per instance: crossmodal datasets store several, keep the first
+                sparse = [per_instance[int(inst)][0] for inst in d["instance"]]
+            else:
+                mix = [per_instance.get(int(inst), []) for inst in d["instance"]]
         return ReconstructionDataset(
             d["dense"],
             d["label"],
@@ -124,6 +153,8 @@ class ReconstructionDataModule(ShardedDataModule):
             seed=self.seed,
             rotate_z=self.rotate_z,
             sparse=sparse,
+            tactile=mix,
+            tactile_fraction=self.tactile_fraction if mix is not None else 0.0,
         )
 
     def _loader(self, ds, shuffle: bool) -> DataLoader:

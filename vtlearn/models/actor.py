@@ -137,6 +137,9 @@ class ACTOR(L.LightningModule):
         alpha: loss weight of eq. 8.1 (thesis 100).
         lr: Adam learning rate (thesis 1e-4).
         weight_decay: Adam weight decay (thesis: none).
+        lr_schedule: "constant" (thesis) or "cosine": cosine decay per step to ``lr * lr_min_ratio`` over
+            the trainer's estimated total steps (for short CPU budgets at a larger ``lr``).
+        lr_min_ratio: final learning rate of the cosine schedule, relative to ``lr``.
         encoder_channels: PointNet conv channels (thesis 64, 64, 128, 1024).
         fc_channels: decoder FC size (thesis 1024).
         deconv_channels: channels of the first four transposed convolutions.
@@ -162,6 +165,8 @@ class ACTOR(L.LightningModule):
         alpha: float = 100.0,
         lr: float = 1e-4,
         weight_decay: float = 0.0,
+        lr_schedule: str = "constant",
+        lr_min_ratio: float = 0.01,
         encoder_channels: tuple[int, ...] = (64, 64, 128, 1024),
         fc_channels: int = 1024,
         deconv_channels: tuple[int, ...] = (512, 256, 256, 128),
@@ -182,6 +187,10 @@ class ACTOR(L.LightningModule):
             )
         if input_scale <= 0:
             raise ValueError(f"input_scale: must be positive, got {input_scale}")
+        if lr_schedule not in ("constant", "cosine"):
+            raise ValueError(f"lr_schedule: 'constant' or 'cosine', got {lr_schedule!r}")
+        if not 0.0 <= lr_min_ratio <= 1.0:
+            raise ValueError(f"lr_min_ratio: need a value in [0, 1], got {lr_min_ratio}")
         self.save_hyperparameters()
         self.encoder = ActorEncoder(tuple(encoder_channels), attention=attention)
         self.decoder = ActorDecoder(
@@ -322,9 +331,16 @@ class ACTOR(L.LightningModule):
         return self(batch["sparse"], batch.get("lengths"))
 
     def configure_optimizers(self):
-        return torch.optim.Adam(
+        opt = torch.optim.Adam(
             self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999), weight_decay=self.hparams.weight_decay
         )
+        if self.hparams.get("lr_schedule", "constant") == "constant":
+            return opt
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(
+            opt, T_max=total, eta_min=self.hparams.lr * self.hparams.lr_min_ratio
+        )
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
 # -------------------------------------------------------------------- checkpoint inference API
