@@ -162,6 +162,21 @@ def test_invalid_hparams():
         ACTOR(num_points=100)
     with pytest.raises(ValueError, match="input_scale"):
         ACTOR(input_scale=0.0, **TINY)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        ACTOR(lr_schedule="step", **TINY)
+
+
+def test_cosine_schedule_decays_to_min_ratio_over_the_run():
+    model = ACTOR(lr=1e-3, lr_schedule="cosine", lr_min_ratio=0.1, **TINY)
+    trainer = L.Trainer(
+        max_epochs=2, accelerator="cpu", enable_progress_bar=False, enable_model_summary=False, logger=False,
+        enable_checkpointing=False, limit_val_batches=0,
+    )
+    trainer.fit(model, datamodule=_dm())
+    opt = trainer.optimizers[0]
+    # two epochs of two steps: cosine from 1e-3 to 1e-4 at the last step
+    assert opt.param_groups[0]["lr"] == pytest.approx(1e-4, rel=1e-6)
+    assert trainer.global_step == 4
 
 
 # ------------------------------------------------------------------ Lightning

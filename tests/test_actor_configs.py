@@ -1,4 +1,4 @@
-"""configs/quick/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test,
+"""configs/quick/actor*.yaml and configs/cpu/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test,
 and the recognition config on the resulting checkpoint. Tiny dataset and tiny layer sizes."""
 
 import os
@@ -42,17 +42,28 @@ def _common(data: str) -> list[str]:
     ]
 
 
+RUN_DIRS = {
+    "configs/quick/actor.yaml": "runs/actor_quick",
+    "configs/quick/actor_noattn.yaml": "runs/actor_quick_noattn",
+    "configs/cpu/actor.yaml": "runs/actor_cpu",
+    "configs/cpu/actor_noattn.yaml": "runs/actor_cpu_noattn",
+}
+
+
 @pytest.mark.parametrize(
     "config",
-    ["configs/quick/actor.yaml", pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow)],
+    [
+        "configs/quick/actor.yaml",
+        pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow),
+        "configs/cpu/actor.yaml",  # cosine schedule + tactile_fraction through the CLI
+        pytest.param("configs/cpu/actor_noattn.yaml", marks=pytest.mark.slow),
+    ],
 )
 def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
     monkeypatch.chdir(tmp_path)
-    ckpt_dir = (
-        tmp_path / ("runs/actor_quick_noattn" if "noattn" in config else "runs/actor_quick") / "checkpoints"
-    )
+    ckpt_dir = tmp_path / RUN_DIRS[config] / "checkpoints"
     base = _common(tiny_data) + TINY_ARGS
     cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=1", *base])
     last = ckpt_dir / "last.ckpt"

@@ -72,6 +72,30 @@ def test_tactile_test_loader_feeds_stored_tactile_clouds(recon_dir):
     assert b["sparse"].abs().max() < 0.75
 
 
+def test_tactile_fraction_mixes_stored_touches_into_training_only(recon_dir):
+    d = load_split(recon_dir, "train")
+    from vtlearn.datamodules.shards import split_clouds
+
+    clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
+    dm = ReconstructionDataModule(
+        str(recon_dir), batch_size=2, min_points=5, max_points=10, rotate_z=False, tactile_fraction=1.0
+    )
+    ds = dm._dataset("train")
+    for i in range(len(ds)):
+        sparse = ds[i]["sparse"].astype(np.float64)
+        inst = d["instance"][i]
+        own = np.concatenate([c for c, j in zip(clouds, d["tactile_instance"]) if j == inst])
+        assert 5 <= len(sparse) <= 10 or len(sparse) == len(own)
+        # every input point is one of the instance's stored tactile points (not a voxel centroid)
+        dist = np.linalg.norm(sparse[:, None] - own[None], axis=-1).min(1)
+        assert dist.max() < 1e-6
+    # the test split keeps the voxel protocol: its points are voxel centroids of the dense cloud
+    test = dm._dataset("test")
+    assert test.tactile_fraction == 0.0 and test.tactile is None
+    with pytest.raises(ValueError, match="tactile_fraction"):
+        ReconstructionDataModule(str(recon_dir), tactile_fraction=1.5)
+
+
 def test_random_voxel_subsample_range_and_validation():
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(2048, 3))
