@@ -141,7 +141,9 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
     assert rc == 0
     res = json.loads((out / "a.json").read_text())
     methods = {r["method"] for r in res["summary"] if r["group"] == "all"}
-    assert {"ACTOR", "ACTOR (no attention)"} <= methods
+    assert {"ACTOR", "ACTOR (no attention)", "GPIS", "GPIS (true normals)"} <= methods
+    # the 40 % target is measured against GPIS on ACTOR's exact input; the oracle-normal GPIS is reported too
+    assert {"actor_cd_reduction_vs_gpis", "actor_cd_reduction_vs_gpis_dense_normals"} <= set(res["targets"])
     assert res["clouds"] == 2
     assert all(np.isfinite(r["CD_mm"]) and r["CD_mm"] > 0 for r in res["rows"])
     assert all(20 <= r["n_input"] <= 40 for r in res["rows"])
@@ -153,6 +155,16 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
     assert (out / "a.md").read_text().count("|") > 10
     assert (out / "a.png").is_file() and (out / "a_confusion.png").is_file()
     assert "targets:" in capsys.readouterr().out
+
+
+def test_gpis_variants_parse_and_reject_unknown():
+    from vtlearn.models.actor_cli import _gpis_variants
+
+    assert _gpis_variants("estimated,dense") == [("GPIS", "estimated"), ("GPIS (true normals)", "dense")]
+    with pytest.raises(ValueError, match="gpis_normals"):
+        _gpis_variants("mesh")
+    with pytest.raises(ValueError, match="gpis_normals"):
+        _gpis_variants(" , ")
 
 
 def test_reconstruct_from_generated_data(ckpts, tiny_data, tmp_path, capsys):

@@ -113,6 +113,21 @@ def _dense_normals(points: np.ndarray, dense: np.ndarray) -> np.ndarray:
     return dn[idx]
 
 
+GPIS_NAMES = {"estimated": "GPIS", "dense": "GPIS (true normals)"}
+
+
+def _gpis_variants(spec: str) -> list[tuple[str, str]]:
+    """``"estimated,dense"`` -> ``[("GPIS", "estimated"), ("GPIS (true normals)", "dense")]``."""
+    out = []
+    for source in (x.strip() for x in spec.split(",") if x.strip()):
+        if source not in GPIS_NAMES:
+            raise ValueError(f"gpis_normals: expected 'estimated' and/or 'dense', got {source!r}")
+        out.append((GPIS_NAMES[source], source))
+    if not out:
+        raise ValueError("gpis_normals: empty; give 'estimated', 'dense' or both (or use --no-gpis)")
+    return out
+
+
 def _distances_mm(pred: np.ndarray, gt: np.ndarray, mm: float, emd_points: int, rng) -> dict[str, float]:
     import torch
 
@@ -222,20 +237,21 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     models = {"ACTOR": load_actor(args.ckpt)}
     if args.ckpt_noattn:
         models["ACTOR (no attention)"] = load_actor(args.ckpt_noattn)
-    methods = list(models) + ([] if args.no_gpis else ["GPIS"])
+    gpis_variants = [] if args.no_gpis else _gpis_variants(args.gpis_normals)
+    methods = list(models) + [name for name, _ in gpis_variants]
     rows, examples, gpis_failures = [], {}, 0
     for it in tqdm(items, desc="bench actor", unit="cloud"):
         mm = it["scale_m"] * 1000.0
         preds = {name: reconstruct(m, it["sparse"]) for name, m in models.items()}
-        if not args.no_gpis:
-            normals = _dense_normals(it["sparse"], it["dense"]) if args.gpis_normals == "dense" else None
+        for name, source in gpis_variants:
+            normals = _dense_normals(it["sparse"], it["dense"]) if source == "dense" else None
             try:
-                preds["GPIS"] = gpis_reconstruct(
+                preds[name] = gpis_reconstruct(
                     it["sparse"], normals, num_points=2048, resolution=args.gpis_resolution, seed=args.seed
                 ).points
             except ValueError as exc:
                 gpis_failures += 1
-                log.warning("GPIS failed on instance %d: %s", it["instance"], exc)
+                log.warning("%s failed on instance %d: %s", name, it["instance"], exc)
         for name, pred in preds.items():
             row = {
                 "instance": it["instance"],
@@ -268,10 +284,15 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
 
     overall = {r["method"]: r for r in summary if r["group"] == "all"}
     targets = {}
-    if "GPIS" in overall:
-        red = 1 - overall["ACTOR"]["CD_mm_mean"] / overall["GPIS"]["CD_mm_mean"]
-        targets["actor_cd_reduction_vs_gpis"] = red
-        targets["target_cd_reduction_0.40_met"] = bool(red >= 0.40)
+    for name, source in gpis_variants:
+        if name not in overall:
+            continue
+        red = 1 - overall["ACTOR"]["CD_mm_mean"] / overall[name]["CD_mm_mean"]
+        if name == "GPIS":  # the thesis protocol: GPIS gets exactly ACTOR's input
+            targets["actor_cd_reduction_vs_gpis"] = red
+            targets["target_cd_reduction_0.40_met"] = bool(red >= 0.40)
+        else:
+            targets[f"actor_cd_reduction_vs_gpis_{source}_normals"] = red
     if "ACTOR (no attention)" in overall:
         targets["attention_improves_cd"] = bool(
             overall["ACTOR"]["CD_mm_mean"] < overall["ACTOR (no attention)"]["CD_mm_mean"]
@@ -419,9 +440,10 @@ def register_bench(bench_subparsers) -> None:
     )
     p.add_argument(
         "--gpis-normals",
-        choices=["dense", "estimated"],
-        default="dense",
-        help="GPIS contact normals: from the true surface (as a force sensor measures), or PCA-estimated",
+        default="estimated,dense",
+        help="GPIS variants, comma separated: 'estimated' (row GPIS; normals by PCA of the tactile cloud, "
+        "so GPIS gets exactly ACTOR's input as in thesis 8.3.2; the 40%% target is measured against it) "
+        "and 'dense' (row 'GPIS (true normals)': oracle normals of the true surface at each contact)",
     )
     p.add_argument("--gpis-resolution", type=int, default=32)
     p.add_argument("--no-gpis", action="store_true")
