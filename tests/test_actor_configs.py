@@ -83,27 +83,27 @@ def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeyp
 
 
 @pytest.mark.slow  # the recognition module itself is covered by tests/test_actor_recognition.py
-def test_quick_recognition_config(tiny_data, tmp_path, monkeypatch):
+@pytest.mark.parametrize("kind", ["quick", "cpu"])
+def test_recognition_config(kind, tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
     monkeypatch.chdir(tmp_path)
+    actor_dir = RUN_DIRS[f"configs/{kind}/actor.yaml"]
     cli_main(
         [
             "fit",
-            f"--config={ROOT / 'configs/quick/actor.yaml'}",
+            f"--config={ROOT / f'configs/{kind}/actor.yaml'}",
             "--trainer.max_epochs=1",
             *_common(tiny_data),
             *TINY_ARGS,
         ]
     )
-    assert (
-        tmp_path / "runs/actor_quick/checkpoints/last.ckpt"
-    ).is_file()  # the recognition config's actor_ckpt
-    rec_dir = tmp_path / "runs/actor_recognition_quick/checkpoints"
+    assert (tmp_path / actor_dir / "checkpoints/last.ckpt").is_file()  # the recognition config's actor_ckpt
+    rec_dir = tmp_path / ("runs/actor_recognition_quick" if kind == "quick" else "runs/actor_cpu_recognition")
     cli = cli_main(
         [
             "fit",
-            f"--config={ROOT / 'configs/quick/actor_recognition.yaml'}",
+            f"--config={ROOT / f'configs/{kind}/actor_recognition.yaml'}",
             "--trainer.max_epochs=1",
             "--model.init_args.num_classes=3",
             *_common(tiny_data),
@@ -112,4 +112,4 @@ def test_quick_recognition_config(tiny_data, tmp_path, monkeypatch):
     assert "val/acc" in cli.trainer.callback_metrics
     from vtlearn.models.actor_recognition import load_recognition
 
-    assert load_recognition(rec_dir / "last.ckpt").hparams.num_classes == 3
+    assert load_recognition(rec_dir / "checkpoints/last.ckpt").hparams.num_classes == 3
