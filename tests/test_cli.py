@@ -15,6 +15,16 @@ def test_help_lists_subcommands():
         assert cmd in text
 
 
+def test_help_does_not_load_torch_or_open3d():
+    # building every subcommand's parser must stay light: `vtlearn --help` took ~9 s when it loaded them
+    code = (
+        "import sys; from vtlearn.cli import build_parser; build_parser(); "
+        "print(sorted(m for m in ('torch', 'open3d', 'pybullet', 'lightning') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
 def test_version_via_console_entry():
     out = subprocess.run([sys.executable, "-m", "vtlearn.cli", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and __version__ in out.stdout

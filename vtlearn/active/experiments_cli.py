@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.active.closed_loop import STRATEGIES
 
 THESIS = {
     "active-reconstruction": {
@@ -49,6 +48,8 @@ def _csv(s: str) -> list[str]:
 
 def _strategies(args) -> list[tuple[str, str, str]]:
     """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row."""
+    from vtlearn.active.closed_loop import STRATEGIES
+
     modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
     rows = []
     for s in _csv(args.strategies):

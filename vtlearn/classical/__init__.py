@@ -1,37 +1,47 @@
-"""Classical (non-learned) estimators: TIQF/S-TIQF registration and active touch (ch.4-5), ArtReg (ch.6)."""
+"""Classical (non-learned) estimators: TIQF/S-TIQF registration and active touch (ch.4-5), ArtReg (ch.6).
 
-# --- registration: TIQF, S-TIQF, baselines, active touch (issue 6; thesis ch.4-5) ---------------------------
-from vtlearn.classical.registration import METHODS, RegistrationResult, available_methods, register
-from vtlearn.classical.stiqf import STIQF, STIQFResult
-from vtlearn.classical.tiqf import TIQF, SequentialTIQF, TIQFResult, gaussian_kl
+The public names below are imported on first use (PEP 562), so that importing a submodule such as
+``vtlearn.classical.tracking_cli`` (which ``vtlearn --help`` does) does not load torch and Open3D.
+"""
 
-__all__ = [
-    "register",
-    "RegistrationResult",
-    "METHODS",
-    "available_methods",
-    "TIQF",
-    "TIQFResult",
-    "SequentialTIQF",
-    "STIQF",
-    "STIQFResult",
-    "gaussian_kl",
-]
-# --- end registration block ---------------------------------------------------------------------------------
+from __future__ import annotations
 
-# --- tracking: manifold UKF, ArtReg, part segmentation, tracking baselines (issue 7; thesis ch.6) ----------
-from vtlearn.classical.artreg import ArtRegTracker
-from vtlearn.classical.segmentation import SegmentationResult, segment_parts
-from vtlearn.classical.tracking_baselines import FilterRegTracker, FrameToFrameICPTracker, ParticleFilterTracker
-from vtlearn.classical.ukf import ManifoldUKF
+import importlib
+from typing import Any
 
-__all__ += [
-    "ManifoldUKF",
-    "ArtRegTracker",
-    "segment_parts",
-    "SegmentationResult",
-    "ParticleFilterTracker",
-    "FrameToFrameICPTracker",
-    "FilterRegTracker",
-]
-# --- end tracking block -------------------------------------------------------------------------------------
+#: public name -> submodule that defines it
+_EXPORTS = {
+    # registration: TIQF, S-TIQF, baselines, active touch (issue 6; thesis ch.4-5)
+    "register": "registration",
+    "RegistrationResult": "registration",
+    "METHODS": "registration",
+    "available_methods": "registration",
+    "TIQF": "tiqf",
+    "TIQFResult": "tiqf",
+    "SequentialTIQF": "tiqf",
+    "gaussian_kl": "tiqf",
+    "STIQF": "stiqf",
+    "STIQFResult": "stiqf",
+    # tracking: manifold UKF, ArtReg, part segmentation, tracking baselines (issue 7; thesis ch.6)
+    "ManifoldUKF": "ukf",
+    "ArtRegTracker": "artreg",
+    "segment_parts": "segmentation",
+    "SegmentationResult": "segmentation",
+    "ParticleFilterTracker": "tracking_baselines",
+    "FrameToFrameICPTracker": "tracking_baselines",
+    "FilterRegTracker": "tracking_baselines",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
