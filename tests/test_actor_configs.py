@@ -39,6 +39,7 @@ def _common(data: str) -> list[str]:
         f"--data.init_args.data_dir={data}",
         "--data.init_args.batch_size=3",
         "--trainer.enable_progress_bar=false",
+        "--trainer.check_val_every_n_epoch=1",  # configs/cpu validate every 3rd epoch
     ]
 
 
