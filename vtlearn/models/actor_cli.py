@@ -102,8 +102,13 @@ def _subsample_tactile(cloud: np.ndarray, lo: int, hi: int, rng: np.random.Gener
 
 
 def _dense_normals(points: np.ndarray, dense: np.ndarray) -> np.ndarray:
-    """Contact normals from the ground-truth surface near each contact (stands in for the thesis's
-    force-derived normal): PCA normal of the dense cloud at the nearest dense point, outward."""
+    """Oracle contact normals from the ground-truth surface near each contact (the row "GPIS (true
+    normals)"; a real sensor only approximates them): PCA normal of the dense cloud at the nearest dense
+    point, outward.
+
+    Shapes:
+        points (N, 3), dense (M, 3) -> (N, 3)
+    """
     from scipy.spatial import cKDTree
 
     from vtlearn.models.gpis import estimate_normals
