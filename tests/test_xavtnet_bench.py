@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from vtlearn.models.xavtnet import XAVTNet
-from vtlearn.models.xavtnet_cli import VARIANTS, load_config
+from vtlearn.models.xavtnet_cli import VARIANTS, _data_kwargs, load_config
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,6 +56,15 @@ def _tiny_config(tmp_path, data_dir, active=False):
 
 
 @pytest.mark.slow  # the tiny simulated dataset alone takes ~1 min of pybullet on 2 shared cores
+def test_data_kwargs_override_and_missing_dataset():
+    cfg = {"data": {"data_dir": "cfg_dir", "batch_size": 8}}
+    assert _data_kwargs(cfg, None) == {"data_dir": "cfg_dir", "batch_size": 8}
+    assert _data_kwargs(cfg, "cli_dir")["data_dir"] == "cli_dir"
+    assert cfg["data"]["data_dir"] == "cfg_dir"  # the config itself is not modified
+    with pytest.raises(ValueError, match="--data: no dataset directory"):
+        _data_kwargs({"data": {"batch_size": 8}}, None)
+
+
 def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 

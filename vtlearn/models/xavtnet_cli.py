@@ -65,6 +65,14 @@ def load_config(path: str | None) -> dict:
             "active": dict(raw.get("active") or {})}
 
 
+def _data_kwargs(cfg: dict, data_dir: str | None) -> dict:
+    """The config's data init_args with ``--data`` taking precedence; one of them must name the dataset."""
+    kwargs = {**cfg["data"], **({"data_dir": data_dir} if data_dir else {})}
+    if "data_dir" not in kwargs:
+        raise ValueError("--data: no dataset directory given (and none in --config)")
+    return kwargs
+
+
 def _quiet_lightning() -> None:
     for name in ("lightning", "lightning.pytorch", "lightning.fabric"):
         logging.getLogger(name).setLevel(logging.WARNING)
@@ -151,9 +159,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     _quiet_lightning()
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
-    data_kwargs = {**cfg["data"], **({"data_dir": args.data} if args.data else {})}
-    if "data_dir" not in data_kwargs:
-        raise ValueError("--data: no dataset directory given (and none in --config)")
+    data_kwargs = _data_kwargs(cfg, args.data)
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
@@ -255,9 +261,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     _quiet_lightning()
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
-    data_kwargs = {**cfg["data"], **({"data_dir": args.data} if args.data else {})}
-    if "data_dir" not in data_kwargs:
-        raise ValueError("--data: no dataset directory given (and none in --config)")
+    data_kwargs = _data_kwargs(cfg, args.data)
     for key in ("initial_labels", "seed"):
         data_kwargs.pop(key, None)
     if args.modality:
