@@ -17,7 +17,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from vtlearn.datamodules.crossmodal import CloudDataset, modality_clouds
-from vtlearn.datamodules.shards import ShardedDataModule, collate_clouds, normalize_cloud
+from vtlearn.datamodules.shards import ShardedDataModule, normalize_cloud
 
 
 class ActivePoolDataModule(ShardedDataModule):
@@ -104,13 +104,8 @@ class ActivePoolDataModule(ShardedDataModule):
         )
 
     def _loader(self, ds, shuffle: bool) -> DataLoader:
-        return DataLoader(
-            ds,
-            batch_size=self.batch_size,
-            shuffle=shuffle,
-            num_workers=self.num_workers,
-            collate_fn=collate_clouds,
-        )
+        # the pool changes every round, so workers are not kept between epochs
+        return super()._loader(ds, shuffle, persistent_workers=False)
 
     def train_dataloader(self) -> DataLoader:
         if not self._labelled.any():

@@ -24,7 +24,6 @@ from torch.utils.data import DataLoader, Dataset
 
 from vtlearn.datamodules.shards import (
     ShardedDataModule,
-    collate_clouds,
     normalize_cloud,
     rotation_z,
     split_clouds,
@@ -140,16 +139,6 @@ class CrossModalDataModule(ShardedDataModule):
             seed=self.seed,
             scales=scales,
             with_label=with_label,
-        )
-
-    def _loader(self, ds: Dataset, shuffle: bool) -> DataLoader:
-        return DataLoader(
-            ds,
-            batch_size=self.batch_size,
-            shuffle=shuffle,
-            num_workers=self.num_workers,
-            collate_fn=collate_clouds,
-            persistent_workers=self.num_workers > 0,
         )
 
     def train_dataloader(self) -> CombinedLoader:

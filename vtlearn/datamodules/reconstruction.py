@@ -158,14 +158,7 @@ class ReconstructionDataModule(ShardedDataModule):
         )
 
     def _loader(self, ds, shuffle: bool) -> DataLoader:
-        return DataLoader(
-            ds,
-            batch_size=self.batch_size,
-            shuffle=shuffle,
-            num_workers=self.num_workers,
-            collate_fn=partial(collate_clouds, cloud_keys=("sparse",)),
-            persistent_workers=self.num_workers > 0,
-        )
+        return super()._loader(ds, shuffle, collate_fn=partial(collate_clouds, cloud_keys=("sparse",)))
 
     def train_dataloader(self) -> DataLoader:
         return self._loader(self._dataset("train"), shuffle=True)

@@ -165,6 +165,23 @@ class ShardedDataModule(pl.LightningDataModule):
             self._splits[split] = load_split(self.data_dir, split, self.verify)
         return self._splits[split]
 
+    def _loader(self, ds, shuffle: bool, collate_fn=None, persistent_workers: bool = True):
+        """A ``DataLoader`` over ``ds`` with the subclass's ``batch_size`` and ``num_workers``.
+
+        ``collate_fn`` defaults to :func:`collate_clouds`; ``persistent_workers`` keeps worker processes
+        between epochs (only when there are workers).
+        """
+        from torch.utils.data import DataLoader
+
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            collate_fn=collate_clouds if collate_fn is None else collate_fn,
+            persistent_workers=persistent_workers and self.num_workers > 0,
+        )
+
     def setup(self, stage: str | None = None) -> None:
         for split in ("train", "val", "test"):
             self._split(split)
