@@ -1,5 +1,6 @@
-"""configs/quick/actor*.yaml and configs/cpu/actor*.yaml through train.py (LightningCLI): fit, resume with --ckpt_path last, test,
-and the recognition config on the resulting checkpoint. Tiny dataset and tiny layer sizes."""
+"""configs/quick/actor*.yaml and configs/cpu/actor*.yaml through train.py (LightningCLI): fit, resume with
+--ckpt_path last, test, and the recognition config on the resulting checkpoint. Tiny dataset and tiny
+layer sizes."""
 
 import os
 import sys

@@ -84,7 +84,7 @@ def test_tactile_fraction_mixes_stored_touches_into_training_only(recon_dir):
     for i in range(len(ds)):
         sparse = ds[i]["sparse"].astype(np.float64)
         inst = d["instance"][i]
-        own = np.concatenate([c for c, j in zip(clouds, d["tactile_instance"]) if j == inst])
+        own = np.concatenate([c for c, j in zip(clouds, d["tactile_instance"], strict=True) if j == inst])
         assert 5 <= len(sparse) <= 10 or len(sparse) == len(own)
         # every input point is one of the instance's stored tactile points (not a voxel centroid)
         dist = np.linalg.norm(sparse[:, None] - own[None], axis=-1).min(1)

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 THESIS = {
     "active-reconstruction": {
         "cd_mm_at_20": {"active": 20.0, "random": 65.0, "uniform": 192.0},

@@ -150,7 +150,10 @@ def register_bench(bench_subparsers: Any) -> None:
         help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 procedural shapes)",
     )
     p.add_argument(
-        "--trials", type=int, default=10, help="trials per mesh and scene size (3 meshes x 10 = the thesis's 30)"
+        "--trials",
+        type=int,
+        default=10,
+        help="trials per mesh and scene size (3 meshes x 10 = the thesis's 30)",
     )
     p.add_argument("--sizes", default="20,40,80,120", help="scene sizes, comma separated")
     p.add_argument("--methods", default=None, help="comma-separated subset of methods")
