@@ -241,4 +241,6 @@ def test_stiqf_rejects_bad_parameters():
         STIQF(tangent_cap=-1.0)
     with pytest.raises(ValueError, match="tangent_patches"):
         STIQF(tangent_patches=0)
+    with pytest.raises(ValueError, match="tangent_k"):
+        STIQF(tangent_k=2)
     assert "zeta=0.98" in repr(STIQF())
