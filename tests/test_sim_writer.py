@@ -1,4 +1,5 @@
-"""gen-data writer: shard format, splits by instance, determinism, kill-then-resume gives the same manifest."""
+"""gen-data writer: shard format, splits by instance, determinism, kill-then-resume gives the same
+manifest, and the crossmodal visual crop."""
 
 import json
 import os
@@ -105,11 +106,44 @@ def test_crossmodal_shard_contents(tmp_path):
     from vtlearn.sim_data.fixtures import tiny_config
 
     cfg = tiny_config("crossmodal")
-    cfg.categories, cfg.per_category, cfg.split_fractions = ["wineglass"], 1, [1.0, 0.0, 0.0]
+    cfg.categories, cfg.per_category, cfg.split_fractions = ["can"], 1, [1.0, 0.0, 0.0]
     m = generate_dataset(cfg, tmp_path, progress=False)
     with np.load(tmp_path / m["shards"][0]["file"], allow_pickle=False) as z:
-        assert z["visual"].shape[1:] == (1024, 3) and len(z["visual_label"]) == len(z["visual"]) >= 1
+        assert z["visual"].shape[1:] == (1024, 3) and len(z["visual_label"]) == len(z["visual"]) == 2
         sizes = np.diff(z["tactile_offsets"])
         assert np.all((sizes >= 30) & (sizes <= 120))
-        assert bool(z["transparent"][0])  # wineglasses are glass
+        assert not bool(z["transparent"][0])
     assert json.loads((tmp_path / "manifest.json").read_text())["kind"] == "crossmodal"
+
+
+def test_crossmodal_visual_crop_drops_see_through_returns(tmp_path):
+    """A glass's visual cloud is segmented by its box: the see-through returns (2-30 cm too deep, on or
+    under the table) are dropped, which the uncropped mask keeps."""
+    from vtlearn.sim_data.fixtures import tiny_config
+
+    def outside(margin, out):
+        cfg = tiny_config("crossmodal")
+        cfg.categories, cfg.per_category, cfg.split_fractions = ["wineglass"], 1, [1.0, 0.0, 0.0]
+        cfg.visual_crop_margin, cfg.image_width, cfg.image_height, cfg.views = margin, 320, 240, 1
+        cfg.tactile_clouds = 1
+        m = generate_dataset(cfg, out, progress=False)
+        with np.load(out / m["shards"][0]["file"], allow_pickle=False) as z:
+            lo, hi = z["dense"][0].min(0), z["dense"][0].max(0)  # canonical: largest extent 1
+            v = z["visual"].reshape(-1, 3)
+            assert bool(z["transparent"][0]) and len(v) > 0  # wineglasses are glass
+        tol = 0.05 + 0.01  # the margin, plus the gap between sampled and true mesh bounds
+        return np.mean(np.any((v < lo - tol) | (v > hi + tol), axis=1))
+
+    assert outside(0.05, tmp_path / "crop") == 0.0
+    assert outside(None, tmp_path / "mask") > 0.2
+
+
+def test_crop_to_box_and_bad_margin():
+    from vtlearn.sim_data.writer import crop_to_box
+
+    pts = np.array([[0.0, 0, 0], [1.05, 0, 0], [1.2, 0, 0], [-0.15, 0.5, 0.5]])
+    kept = crop_to_box(pts, np.zeros(3), np.ones(3), 0.1)  # box grown by 0.1 on every side
+    np.testing.assert_array_equal(kept, pts[[0, 1]])
+    assert len(crop_to_box(pts, np.zeros(3), np.ones(3), None)) == 4
+    with pytest.raises(ValueError, match="visual_crop_margin"):
+        GenConfig(kind="crossmodal", visual_crop_margin=-0.1).validate()

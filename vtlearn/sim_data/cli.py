@@ -38,6 +38,7 @@ def _cmd_gen_data(args: argparse.Namespace) -> int:
         image_width=args.width,
         image_height=args.height,
         depth_noise=not args.no_depth_noise,
+        visual_crop_margin=None if args.no_visual_crop else args.visual_crop_margin,
         tactile_clouds=args.tactile_clouds,
         mesh_source=args.meshes or "procedural",
     )
@@ -96,6 +97,10 @@ def register(sub) -> None:
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--height", type=int, default=240)
     p.add_argument("--no-depth-noise", action="store_true")
+    p.add_argument("--visual-crop-margin", type=float, default=0.05,
+                   help="crossmodal: keep visual points inside the object's box grown by this fraction")
+    p.add_argument("--no-visual-crop", action="store_true",
+                   help="crossmodal: keep the whole segmentation mask (transparent see-through returns too)")
     p.add_argument(
         "--meshes",
         default=None,

@@ -71,6 +71,10 @@ class GenConfig:
     image_width: int = 320
     image_height: int = 240
     depth_noise: bool = True
+    # crossmodal: segment each view by the object's world bounding box grown by this fraction of its
+    # largest extent (the PCL segmentation of thesis 7.3.1); None keeps every pixel of the body's mask,
+    # including the see-through returns of transparent objects (datasets made before this option).
+    visual_crop_margin: float | None = 0.05
     tactile_clouds: int = 4  # crossmodal: tactile clouds per instance
     tactile_min_points: int = 30
     tactile_max_points: int = 120
@@ -90,6 +94,8 @@ class GenConfig:
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
         if self.shard_size < 1:
             raise ValueError(f"shard_size: need >= 1, got {self.shard_size}")
+        if self.visual_crop_margin is not None and not self.visual_crop_margin >= 0:
+            raise ValueError(f"visual_crop_margin: need >= 0 or None, got {self.visual_crop_margin}")
         if not 1 <= self.tactile_min_points <= self.tactile_max_points:
             raise ValueError(
                 "tactile_min_points/tactile_max_points: need 1 <= min <= max, "
@@ -216,6 +222,23 @@ def _to_canonical(points_world: np.ndarray, T_world_object: np.ndarray, scale: f
     return transform_points(se3_inverse(T_world_object), points_world) / scale
 
 
+def crop_to_box(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: float | None) -> np.ndarray:
+    """Points inside the box ``[lo, hi]`` grown by ``margin`` times its largest extent (``None``: all).
+
+    Models the segmentation step of thesis 7.3.1 (table removal and clustering in PCL give the object's
+    bounding box): a transparent object's see-through returns land on or below the table, far behind
+    the object, and are discarded, so its visual cloud is sparse rather than a cloud of background.
+
+    Shapes:
+        points (N, 3), lo (3,), hi (3,) -> (M, 3) with M <= N
+    """
+    if margin is None or len(points) == 0:
+        return points
+    pad = margin * float(np.max(np.asarray(hi) - np.asarray(lo)))
+    keep = np.all((points >= np.asarray(lo) - pad) & (points <= np.asarray(hi) + pad), axis=1)
+    return points[keep]
+
+
 def _tactile_cloud(sim, lo, hi, rng, touches: int, pinches: int, target: int | None = None, max_actions=400):
     """Touch (and pinch) until ``target`` points are collected (or the fixed budget is spent)."""
     from vtlearn.sim_data.tactile import sample_pinches, sample_touches
@@ -295,7 +318,7 @@ def generate_shard(cfg: GenConfig, job: dict) -> dict[str, np.ndarray]:
                 got = 0
                 for V in views:
                     frame = cam.render(scene, V, rng)
-                    pts = cam.point_cloud(frame, body, rng)
+                    pts = crop_to_box(cam.point_cloud(frame, body, rng), lo, hi, cfg.visual_crop_margin)
                     if len(pts) < 16:
                         continue  # a view where the object is (nearly) invisible or lost to transparency
                     pts = random_subsample(pts, cfg.visual_points, rng)
@@ -368,7 +391,7 @@ def generate_dataset(
     cfg_dict = asdict(cfg)
     cfg_path = out / "config.json"
     if cfg_path.exists():
-        old = json.loads(cfg_path.read_text())
+        old = {"visual_crop_margin": None, **json.loads(cfg_path.read_text())}  # pre-crop datasets
         if old != json.loads(json.dumps(cfg_dict)):
             raise ValueError(f"out_dir: {out} holds a dataset made with another config; use a new directory")
     else:
