@@ -55,7 +55,6 @@ def _tiny_config(tmp_path, data_dir, active=False):
     return path
 
 
-@pytest.mark.slow  # the tiny simulated dataset alone takes ~1 min of pybullet on 2 shared cores
 def test_data_kwargs_override_and_missing_dataset():
     cfg = {"data": {"data_dir": "cfg_dir", "batch_size": 8}}
     assert _data_kwargs(cfg, None) == {"data_dir": "cfg_dir", "batch_size": 8}
@@ -79,6 +78,16 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert "vtloss_minus_noda" in res["checks"]
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
     assert "Table 7.2/7.4 analogue" in capsys.readouterr().out
+    # the same jobs in two spawned worker processes give the same runs, in the same order
+    out2 = tmp_path / "cm2.json"
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
+                 "--workers", "2", "--no-figures", "--json", str(out2)]) == 0
+    res2 = json.loads(out2.read_text())
+    key = [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"]) for r in res["runs"]]
+    assert key == [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"])
+                   for r in res2["runs"]]
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--workers", "0", "--json", str(out2)]) == 2
+    assert "--workers: need >= 1" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -147,17 +147,63 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
     save_figure(fig, path, dpi=120)
 
 
-def run_crossmodal_bench(args: argparse.Namespace) -> int:
+def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_epochs: int, threads: int,
+                    features: bool):
+    """Train one (variant, seed) of the Table 7.2/7.4 analogue and score it on tactile and visual test clouds.
+
+    Returns (row, (fc2 features and labels of visual and tactile test clouds) or None, class names).
+    A module-level function so that ``--workers`` can run it in a spawned process.
+    """
     import lightning as L
     import torch
-    from tqdm.auto import tqdm
 
-    from vtlearn.bench_utils import machine_info, print_table, write_json
     from vtlearn.datamodules import CrossModalDataModule
     from vtlearn.models.xavtnet import XAVTNet
 
     _quiet_lightning()
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads)
+    L.seed_everything(seed, verbose=False)
+    dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
+    model = XAVTNet(num_classes=dm.num_classes, **base, **VARIANTS[variant])
+    t0 = time.perf_counter()
+    trainer = _trainer(max_epochs)
+    trainer.fit(model, train_dataloaders=dm.train_dataloader())
+    fit_s = time.perf_counter() - t0
+    tactile = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
+    conf = model.last_test_confusion.numpy()
+    visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
+    row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
+           "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
+    feats = None
+    if features:
+        with torch.no_grad():
+            feats = (*_collect_features(model, dm.source_test_dataloader()),
+                     *_collect_features(model, dm.test_dataloader()))
+    return row, feats, dm.class_names
+
+
+def _map_jobs(fn, job_args: list[tuple], workers: int):
+    """Yield ``fn(*a)`` for every tuple in ``job_args``: in this process, or in ``workers`` spawned ones
+    (results then arrive in completion order)."""
+    if workers < 1:
+        raise ValueError(f"--workers: need >= 1, got {workers}")
+    if workers == 1:
+        for a in job_args:
+            yield fn(*a)
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+        for fut in as_completed([ex.submit(fn, *a) for a in job_args]):
+            yield fut.result()
+
+
+def run_crossmodal_bench(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+
     cfg = load_config(args.config)
     data_kwargs = _data_kwargs(cfg, args.data)
     if args.batch_size:
@@ -167,34 +213,31 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         raise ValueError(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
+    if args.workers < 1:
+        raise ValueError(f"--workers: need >= 1, got {args.workers}")
     seeds = list(range(args.seed, args.seed + args.seeds))
     out_dir = Path(args.out_dir)
     base = {k: v for k, v in cfg["model"].items() if k not in VARIANTS["vtloss"] and k != "num_classes"}
 
+    jobs = [(v, s) for v in variants for s in seeds]
+    figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
+    job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs)
+                for variant, seed in jobs]
     per_run: list[dict] = []
     keep: dict = {}
-    jobs = [(v, s) for v in variants for s in seeds]
-    for variant, seed in tqdm(jobs, desc="bench crossmodal"):
-        L.seed_everything(seed, verbose=False)
-        dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
-        model = XAVTNet(num_classes=dm.num_classes, **base, **VARIANTS[variant])
-        t0 = time.perf_counter()
-        trainer = _trainer(max_epochs)
-        trainer.fit(model, train_dataloaders=dm.train_dataloader())
-        fit_s = time.perf_counter() - t0
-        tactile = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
-        conf = model.last_test_confusion.numpy()
-        visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
-        row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
-               "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
+    bar = tqdm(total=len(jobs), desc="bench crossmodal")
+    class_names: list[str] = []
+    for row, feats, names in _map_jobs(_crossmodal_job, job_args, args.workers):
         per_run.append(row)
-        tqdm.write(f"{variant} seed {seed}: tactile {row['tactile_acc']:.1f}%  "
-                   f"visual {row['visual_acc']:.1f}%  ({fit_s:.0f} s)")
-        if seed == seeds[0] and variant in ("noda", "vtloss") and not args.no_figures:
-            fs, ys = _collect_features(model, dm.source_test_dataloader())
-            ft, yt = _collect_features(model, dm.test_dataloader())
-            keep[variant] = (fs, ys, ft, yt)
-        class_names = dm.class_names
+        class_names = names
+        if feats is not None:
+            keep[row["variant"]] = feats
+        bar.update()
+        tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
+                   f"visual {row['visual_acc']:.1f}%  ({row['fit_s']:.0f} s)")
+    bar.close()
+    order = {job: i for i, job in enumerate(jobs)}
+    per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
 
     rows = []
     for variant in variants:
@@ -368,6 +411,8 @@ def register_bench(sub) -> None:
     p.add_argument("--max-epochs", type=int, default=None)
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the CPU is shared)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="(variant, seed) trainings run in parallel, each with --threads threads")
     p.add_argument("--no-figures", action="store_true", help="skip the confusion matrix and t-SNE figures")
     p.add_argument("--out-dir", default="runs/bench/crossmodal", help="figure folder")
     p.add_argument("--json", default="runs/bench/crossmodal.json")
