@@ -104,6 +104,14 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
         assert res["curves"][strategy]["n_labels"] == [3, 5]
         assert set(res["curves"][strategy]["labels_to_reach"]) == {"10%", "5%", "3%", "2%"}
     assert (tmp_path / "al.png").exists()
+    # two worker processes: the same curves and full-pool reference as the serial run
+    out2 = tmp_path / "al2.json"
+    assert main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--workers", "2",
+                 "--json", str(out2), "--plot", str(tmp_path / "al2.png")]) == 0
+    res2 = json.loads(out2.read_text())
+    assert res2["full_acc"] == res["full_acc"]
+    for strategy in ("entropy", "random"):
+        assert res2["curves"][strategy]["runs"] == res["curves"][strategy]["runs"]
 
 
 @pytest.mark.slow  # a fresh interpreter importing lightning + train.py: tens of seconds on shared cores

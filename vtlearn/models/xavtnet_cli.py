@@ -292,17 +292,48 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_active_learning_bench(args: argparse.Namespace) -> int:
+def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
+                         threads: int):
+    """One seed of one strategy of the Fig. 7.5a analogue, or (``strategy="full"``) the reference model
+    trained on the whole labelled pool. Returns (strategy, seed, history dicts or the full-pool accuracy).
+
+    A module-level function so that ``--workers`` can run it in a spawned process.
+    """
     import lightning as L
     import torch
 
-    from vtlearn.active.learning_loop import ActiveLearningLoop, labels_to_reach, train_and_test
-    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.active.learning_loop import ActiveLearningLoop, train_and_test
     from vtlearn.datamodules import ActivePoolDataModule
     from vtlearn.models.xavtnet import XAVTNet
 
     _quiet_lightning()
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads)
+    min_steps = int(al["min_steps"])
+    if strategy == "full":
+        L.seed_everything(seed, verbose=False)
+        probe = ActivePoolDataModule(initial_labels=0, seed=seed, **data_kwargs)
+        dm = ActivePoolDataModule(initial_labels=probe.pool_size, seed=seed, **data_kwargs)
+        model = XAVTNet(num_classes=dm.num_classes, **base)
+        return strategy, seed, train_and_test(model, dm.train_dataloader(), dm.test_dataloader(), max_epochs,
+                                              min_steps)
+    dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
+
+    def factory(round_seed: int):
+        return XAVTNet(num_classes=dm.num_classes, **base)
+
+    loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
+                              mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
+                              warm_start=bool(al["warm_start"]), seed=seed, show_progress=False)
+    return strategy, seed, (loop.history_dicts() if loop.run() else [])
+
+
+def run_active_learning_bench(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
+    from vtlearn.active.learning_loop import labels_to_reach
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.datamodules import ActivePoolDataModule
+
     cfg = load_config(args.config)
     data_kwargs = _data_kwargs(cfg, args.data)
     for key in ("initial_labels", "seed"):
@@ -311,6 +342,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
         data_kwargs["modality"] = args.modality
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
+    if args.workers < 1:
+        raise ValueError(f"--workers: need >= 1, got {args.workers}")
     al = {**AL_DEFAULTS, **cfg["active"]}
     for key in AL_DEFAULTS:
         if getattr(args, key, None) is not None:
@@ -322,33 +355,27 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.seeds))
     base = {k: v for k, v in cfg["model"].items() if k != "num_classes"}
     base.setdefault("da_method", "none")
+    pool = ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs).pool_size
 
-    probe = ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs)
-    num_classes, pool = probe.num_classes, probe.pool_size
-
-    def factory(seed: int):
-        return XAVTNet(num_classes=num_classes, **base)
-
-    # Reference: the model trained on the fully labelled pool (Table 7.1 "fully trained network").
-    full = []
-    for seed in seeds:
-        L.seed_everything(seed, verbose=False)
-        dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
-        full.append(train_and_test(factory(seed), dm.train_dataloader(), dm.test_dataloader(), max_epochs,
-                                   int(al["min_steps"])))
-        print(f"full pool ({pool} labels) seed {seed}: acc {100 * full[-1]:.1f}%", flush=True)
+    # The reference is the model trained on the fully labelled pool (Table 7.1 "fully trained network").
+    jobs = [(s, seed) for s in ["full", *strategies] for seed in seeds]
+    results: dict = {}
+    bar = tqdm(total=len(jobs), desc="bench active-learning")
+    for strategy, seed, res in _map_jobs(_active_learning_job, [
+            (s, seed, data_kwargs, base, al, max_epochs, args.threads) for s, seed in jobs], args.workers):
+        results[strategy, seed] = res
+        bar.update()
+        if strategy == "full":
+            tqdm.write(f"full pool ({pool} labels) seed {seed}: acc {100 * res:.1f}%")
+        elif res:
+            tqdm.write(f"{strategy} seed {seed}: " + ", ".join(
+                f"{h['n_labels']}: {100 * h['accuracy']:.1f}%" for h in res))
+    bar.close()
+    full = [results["full", seed] for seed in seeds]
     acc_full = float(np.mean(full))
-
     curves: dict[str, dict] = {}
     for strategy in strategies:
-        runs = []
-        for seed in seeds:
-            dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
-            loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
-                                      mc_passes=al["mc_passes"], max_epochs=max_epochs,
-                                      min_steps=int(al["min_steps"]),
-                                      warm_start=bool(al["warm_start"]), seed=seed)
-            runs.append(loop.history_dicts() if loop.run() else [])
+        runs = [results[strategy, seed] for seed in seeds]
         n = [h["n_labels"] for h in runs[0]]
         acc = np.array([[h["accuracy"] for h in r] for r in runs])
         curves[strategy] = {"n_labels": n, "acc_mean": acc.mean(0).tolist(), "acc_std": acc.std(0).tolist(),
@@ -437,6 +464,8 @@ def register_bench(sub) -> None:
     q.add_argument("--max-epochs", type=int, default=None)
     q.add_argument("--batch-size", type=int, default=None)
     q.add_argument("--threads", type=int, default=1)
+    q.add_argument("--workers", type=int, default=1,
+                   help="(strategy, seed) loops and full-pool references run in parallel processes")
     q.add_argument("--plot", default="runs/bench/active_learning.png")
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
