@@ -128,6 +128,23 @@ def test_crossmodal_batches(cross_dir):
         )  # centred
 
 
+def test_crossmodal_target_split(cross_dir):
+    """The unlabelled target stream holds the chosen split's tactile clouds (yaw-augmented, no labels);
+    the labelled test loader is unchanged."""
+    def target_sizes(dm):
+        target = dm.train_dataloader().iterables["target"]
+        assert target.dataset.train and not target.dataset.with_label
+        return sorted(len(c) for c in target.dataset.clouds)
+
+    inductive = CrossModalDataModule(str(cross_dir), batch_size=2)
+    transductive = CrossModalDataModule(str(cross_dir), batch_size=2, target_split="test")
+    test_sizes = sorted(len(c) for c in transductive.dataset("test", "tactile").clouds)
+    assert target_sizes(transductive) == test_sizes != target_sizes(inductive)
+    assert len(transductive.test_dataloader().dataset) == len(inductive.test_dataloader().dataset)
+    with pytest.raises(ValueError, match="target_split"):
+        CrossModalDataModule(str(cross_dir), target_split="val")
+
+
 def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
     with pytest.raises(ValueError, match="data_dir"):
         CrossModalDataModule(str(recon_dir))

@@ -104,6 +104,11 @@ class CrossModalDataModule(ShardedDataModule):
         normalize: per-cloud normalisation, ``none`` | ``center`` | ``unit_sphere``.
         units: ``canonical`` (unit cube per instance) or ``metres``.
         rotate_z: random yaw augmentation in training.
+        target_split: the split whose tactile clouds, without labels, form the target stream.
+            ``"train"`` (default, inductive): the test instances are never seen in training at all.
+            ``"test"`` (transductive, the usual UDA protocol of DAN / Deep CORAL / DANN and the
+            thesis's 900 + 300 tactile clouds of the same 12 objects): the unlabelled tactile clouds of
+            the test instances adapt the model that is then scored on them with their labels.
         num_workers, seed, verify: see :class:`ReconstructionDataModule`.
     """
 
@@ -114,11 +119,14 @@ class CrossModalDataModule(ShardedDataModule):
         normalize: str = "center",
         units: str = "canonical",
         rotate_z: bool = True,
+        target_split: str = "train",
         num_workers: int = 0,
         seed: int = 0,
         verify: bool = True,
     ):
         super().__init__()
+        if target_split not in ("train", "test"):
+            raise ValueError(f"target_split: expected 'train' or 'test', got {target_split!r}")
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
         if units not in ("canonical", "metres"):
@@ -126,14 +134,19 @@ class CrossModalDataModule(ShardedDataModule):
         normalize_cloud(np.zeros((1, 3)), normalize)
         self.batch_size, self.normalize, self.units = batch_size, normalize, units
         self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
+        self.target_split = target_split
         self._open_dataset(data_dir, verify, kind="crossmodal")
 
-    def dataset(self, split: str, modality: str, with_label: bool = True) -> CloudDataset:
+    def dataset(
+        self, split: str, modality: str, with_label: bool = True, train: bool | None = None
+    ) -> CloudDataset:
+        """Clouds of one split and modality; ``train`` (default: ``split == "train"``) turns on the
+        random yaw augmentation."""
         clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")
         return CloudDataset(
             clouds,
             labels,
-            train=split == "train",
+            train=split == "train" if train is None else train,
             normalize=self.normalize,
             rotate_z=self.rotate_z,
             seed=self.seed,
@@ -143,7 +156,9 @@ class CrossModalDataModule(ShardedDataModule):
 
     def train_dataloader(self) -> CombinedLoader:
         source = self._loader(self.dataset("train", "visual"), shuffle=True)
-        target = self._loader(self.dataset("train", "tactile", with_label=False), shuffle=True)
+        target = self._loader(
+            self.dataset(self.target_split, "tactile", with_label=False, train=True), shuffle=True
+        )
         return CombinedLoader({"source": source, "target": target}, mode="max_size_cycle")
 
     def val_dataloader(self) -> DataLoader:

@@ -208,6 +208,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     data_kwargs = _data_kwargs(cfg, args.data)
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
+    if args.target_split:
+        data_kwargs["target_split"] = args.target_split
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
@@ -253,7 +255,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         })
     print_table(rows, ["variant", "tactile_acc", "visual_acc", "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
-                f"{max_epochs} epochs")
+                f"{max_epochs} epochs, unlabelled target: {data_kwargs.get('target_split', 'train')} "
+                f"instances")
     means = {r["variant"]: r["tactile_mean"] for r in rows}
     checks = {}
     if {"vtloss", "noda"} <= means.keys():
@@ -440,6 +443,9 @@ def register_bench(sub) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the CPU is shared)")
     p.add_argument("--workers", type=int, default=1,
                    help="(variant, seed) trainings run in parallel, each with --threads threads")
+    p.add_argument("--target-split", choices=["train", "test"], default=None,
+                   help="unlabelled tactile clouds for adaptation: train instances (inductive) or the "
+                        "test instances themselves (transductive UDA protocol); default from the config")
     p.add_argument("--no-figures", action="store_true", help="skip the confusion matrix and t-SNE figures")
     p.add_argument("--out-dir", default="runs/bench/crossmodal", help="figure folder")
     p.add_argument("--json", default="runs/bench/crossmodal.json")
