@@ -24,8 +24,8 @@ def test_ablation_configs_match_bench_variants():
             assert args[key] == value, (name, key)
 
 
-@pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "active_learning.yaml",
-                                  "quick/active_learning.yaml"])
+@pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "cpu/xavtnet.yaml",
+                                  "active_learning.yaml", "quick/active_learning.yaml"])
 def test_configs_build_the_model(path):
     cfg = load_config(str(ROOT / "configs" / path))
     model = XAVTNet(**cfg["model"])
