@@ -88,6 +88,12 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                    for r in res2["runs"]]
     assert main(["bench", "crossmodal", "--config", str(cfg), "--workers", "0", "--json", str(out2)]) == 2
     assert "--workers: need >= 1" in capsys.readouterr().err
+    # the train-on-target upper bound is a variant of its own, scored like the others
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "tactile_oracle", "--seeds", "1",
+                 "--no-figures", "--json", str(out2)]) == 0
+    assert [r["variant"] for r in json.loads(out2.read_text())["runs"]] == ["tactile_oracle"]
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "bogus",
+                 "--json", str(out2)]) == 2
 
 
 @pytest.mark.slow

@@ -175,5 +175,10 @@ class CrossModalDataModule(ShardedDataModule):
         """Labelled visual clouds of the test instances."""
         return self._loader(self.dataset("test", "visual"), shuffle=False)
 
+    def labelled_target_train_dataloader(self) -> DataLoader:
+        """Labelled, yaw-augmented tactile training clouds. Only for the train-on-target upper bound
+        (``bench crossmodal --variants tactile_oracle``); UDA training never sees tactile labels."""
+        return self._loader(self.dataset("train", "tactile"), shuffle=True)
+
     def source_val_dataloader(self) -> DataLoader:
         return self._loader(self.dataset("val", "visual"), shuffle=False)
