@@ -188,14 +188,16 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
 
 
 def _map_jobs(fn, job_args: list[tuple], workers: int):
-    """Yield ``fn(*a)`` for every tuple in ``job_args``: in this process, or in ``workers`` spawned ones
-    (results then arrive in completion order)."""
+    """An iterator of ``fn(*a)`` for every tuple in ``job_args``: in this process, or in ``workers`` spawned
+    ones (results then arrive in completion order). ``workers`` is checked here, before any job runs."""
     if workers < 1:
         raise ValueError(f"--workers: need >= 1, got {workers}")
     if workers == 1:
-        for a in job_args:
-            yield fn(*a)
-        return
+        return (fn(*a) for a in job_args)
+    return _map_in_processes(fn, job_args, workers)
+
+
+def _map_in_processes(fn, job_args: list[tuple], workers: int):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -220,8 +222,6 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
     if unknown:
         raise ValueError(f"--variants: unknown {unknown}; choose from {[*VARIANTS, ORACLE]}")
-    if args.workers < 1:
-        raise ValueError(f"--workers: need >= 1, got {args.workers}")
     seeds = list(range(args.seed, args.seed + args.seeds))
     out_dir = Path(args.out_dir)
     base = {k: v for k, v in cfg["model"].items() if k not in VARIANTS["vtloss"] and k != "num_classes"}
@@ -230,11 +230,12 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
     job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs)
                 for variant, seed in jobs]
+    results = _map_jobs(_crossmodal_job, job_args, args.workers)
     per_run: list[dict] = []
     keep: dict = {}
     bar = tqdm(total=len(jobs), desc="bench crossmodal")
     class_names: list[str] = []
-    for row, feats, names in _map_jobs(_crossmodal_job, job_args, args.workers):
+    for row, feats, names in results:
         per_run.append(row)
         class_names = names
         if feats is not None:
@@ -301,9 +302,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
 
 
 def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
-                         threads: int):
+                         threads: int, pool: int):
     """One seed of one strategy of the Fig. 7.5a analogue, or (``strategy="full"``) the reference model
-    trained on the whole labelled pool. Returns (strategy, seed, history dicts or the full-pool accuracy).
+    trained on the whole labelled pool of ``pool`` clouds. Returns (strategy, seed, history dicts or the
+    full-pool accuracy).
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
@@ -319,8 +321,7 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
     min_steps = int(al["min_steps"])
     if strategy == "full":
         L.seed_everything(seed, verbose=False)
-        probe = ActivePoolDataModule(initial_labels=0, seed=seed, **data_kwargs)
-        dm = ActivePoolDataModule(initial_labels=probe.pool_size, seed=seed, **data_kwargs)
+        dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
         model = XAVTNet(num_classes=dm.num_classes, **base)
         return strategy, seed, train_and_test(model, dm.train_dataloader(), dm.test_dataloader(), max_epochs,
                                               min_steps)
@@ -350,8 +351,6 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
         data_kwargs["modality"] = args.modality
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
-    if args.workers < 1:
-        raise ValueError(f"--workers: need >= 1, got {args.workers}")
     al = {**AL_DEFAULTS, **cfg["active"]}
     for key in AL_DEFAULTS:
         if getattr(args, key, None) is not None:
@@ -367,10 +366,11 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
 
     # The reference is the model trained on the fully labelled pool (Table 7.1 "fully trained network").
     jobs = [(s, seed) for s in ["full", *strategies] for seed in seeds]
+    outputs = _map_jobs(_active_learning_job, [
+        (s, seed, data_kwargs, base, al, max_epochs, args.threads, pool) for s, seed in jobs], args.workers)
     results: dict = {}
     bar = tqdm(total=len(jobs), desc="bench active-learning")
-    for strategy, seed, res in _map_jobs(_active_learning_job, [
-            (s, seed, data_kwargs, base, al, max_epochs, args.threads) for s, seed in jobs], args.workers):
+    for strategy, seed, res in outputs:
         results[strategy, seed] = res
         bar.update()
         if strategy == "full":
