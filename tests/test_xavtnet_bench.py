@@ -25,7 +25,7 @@ def test_ablation_configs_match_bench_variants():
 
 
 @pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "cpu/xavtnet.yaml",
-                                  "active_learning.yaml", "quick/active_learning.yaml"])
+                                  "gpu/xavtnet.yaml", "active_learning.yaml", "quick/active_learning.yaml"])
 def test_configs_build_the_model(path):
     cfg = load_config(str(ROOT / "configs" / path))
     model = XAVTNet(**cfg["model"])
@@ -76,6 +76,7 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
     assert len(res["runs"]) == 4 and all(0 <= r["tactile_acc"] <= 100 for r in res["runs"])
     assert "vtloss_minus_noda" in res["checks"]
+    assert (res["accelerator"], res["workers"]) == ("cpu", 1)
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
     assert "Table 7.2/7.4 analogue" in capsys.readouterr().out
     # the same jobs in two spawned worker processes give the same runs, in the same order
@@ -83,6 +84,7 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
                  "--workers", "2", "--no-figures", "--json", str(out2)]) == 0
     res2 = json.loads(out2.read_text())
+    assert res2["workers"] == 2
     key = [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"]) for r in res["runs"]]
     assert key == [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"])
                    for r in res2["runs"]]
