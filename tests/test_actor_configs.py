@@ -1,4 +1,4 @@
-"""configs/quick/actor*.yaml and configs/cpu/actor*.yaml through train.py (LightningCLI): fit, resume with
+"""configs/{quick,cpu,gpu}/actor*.yaml through train.py (LightningCLI): fit, resume with
 --ckpt_path last, test, and the recognition config on the resulting checkpoint. Tiny dataset and tiny
 layer sizes."""
 
@@ -49,7 +49,13 @@ RUN_DIRS = {
     "configs/quick/actor_noattn.yaml": "runs/actor_quick_noattn",
     "configs/cpu/actor.yaml": "runs/actor_cpu",
     "configs/cpu/actor_noattn.yaml": "runs/actor_cpu_noattn",
+    "configs/gpu/actor.yaml": "runs/actor_gpu",
 }
+
+
+def _device(config: str) -> list[str]:
+    """configs/gpu name the GPU; the tests run them on the CPU."""
+    return ["--trainer.accelerator=cpu"] if "/gpu/" in config else []
 
 
 @pytest.mark.parametrize(
@@ -59,6 +65,7 @@ RUN_DIRS = {
         pytest.param("configs/quick/actor_noattn.yaml", marks=pytest.mark.slow),
         "configs/cpu/actor.yaml",  # cosine schedule + tactile_fraction through the CLI
         pytest.param("configs/cpu/actor_noattn.yaml", marks=pytest.mark.slow),
+        "configs/gpu/actor.yaml",  # thesis hyper-parameters, checkpoints every 5th epoch, max_time
     ],
 )
 def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeypatch):
@@ -66,14 +73,16 @@ def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeyp
 
     monkeypatch.chdir(tmp_path)
     ckpt_dir = tmp_path / RUN_DIRS[config] / "checkpoints"
-    base = _common(tiny_data) + TINY_ARGS
+    base = _common(tiny_data) + TINY_ARGS + _device(config)
     cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=1", *base])
     last = ckpt_dir / "last.ckpt"
     assert last.is_file() and list(ckpt_dir.glob("best-*.ckpt"))
-    assert torch.load(last, map_location="cpu", weights_only=True)["epoch"] == 0
+    # the state after the last step: saved at that epoch's end, or at the end of training by the
+    # configs that checkpoint only every few epochs (configs/gpu)
+    assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == 1
     cli = cli_main(["fit", f"--config={ROOT / config}", "--trainer.max_epochs=2", "--ckpt_path=last", *base])
     assert cli.trainer.current_epoch == 2 and cli.trainer.global_step == 2  # resumed: one more step only
-    assert torch.load(last, map_location="cpu", weights_only=True)["epoch"] == 1
+    assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == 2
     cli = cli_main(["test", f"--config={ROOT / config}", f"--ckpt_path={last}", *base])
     assert "test/cd_mm" in cli.trainer.callback_metrics
     assert cli.model.hparams.attention == ("noattn" not in config)
@@ -85,7 +94,7 @@ def test_quick_actor_config_fit_resume_test(config, tiny_data, tmp_path, monkeyp
 
 
 @pytest.mark.slow  # the recognition module itself is covered by tests/test_actor_recognition.py
-@pytest.mark.parametrize("kind", ["quick", "cpu"])
+@pytest.mark.parametrize("kind", ["quick", "cpu", "gpu"])
 def test_recognition_config(kind, tiny_data, tmp_path, monkeypatch):
     from train import cli_main
 
@@ -98,10 +107,12 @@ def test_recognition_config(kind, tiny_data, tmp_path, monkeypatch):
             "--trainer.max_epochs=1",
             *_common(tiny_data),
             *TINY_ARGS,
+            *_device(f"configs/{kind}/"),
         ]
     )
     assert (tmp_path / actor_dir / "checkpoints/last.ckpt").is_file()  # the recognition config's actor_ckpt
-    rec_dir = tmp_path / ("runs/actor_recognition_quick" if kind == "quick" else "runs/actor_cpu_recognition")
+    rec_dir = tmp_path / {"quick": "runs/actor_recognition_quick", "cpu": "runs/actor_cpu_recognition",
+                          "gpu": "runs/actor_gpu_recognition"}[kind]
     cli = cli_main(
         [
             "fit",
@@ -109,6 +120,7 @@ def test_recognition_config(kind, tiny_data, tmp_path, monkeypatch):
             "--trainer.max_epochs=1",
             "--model.init_args.num_classes=3",
             *_common(tiny_data),
+            *_device(f"configs/{kind}/"),
         ]
     )
     assert "val/acc" in cli.trainer.callback_metrics
