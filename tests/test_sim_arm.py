@@ -1,4 +1,5 @@
-"""Arm mode: pytorch-kinematics FK of the Panda agrees with pybullet's link state; arm touches land on the surface."""
+"""Arm mode: pytorch-kinematics FK of the Panda agrees with pybullet's link state; arm touches land on
+the surface."""
 
 import numpy as np
 import pytest

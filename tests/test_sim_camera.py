@@ -1,4 +1,5 @@
-"""RGB-D camera: intrinsics, back-projection accuracy, noise bound, transparency failure, eq. 5.3-5.5 views."""
+"""RGB-D camera: intrinsics, back-projection accuracy, noise bound, transparency failure, eq. 5.3-5.5
+views."""
 
 import numpy as np
 import pytest

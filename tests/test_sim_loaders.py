@@ -1,4 +1,5 @@
-"""Real-dataset loaders: ShapeNet / ModelNet / category folders / pybullet_data; broken meshes skipped with a reason."""
+"""Real-dataset loaders: ShapeNet / ModelNet / category folders / pybullet_data; broken meshes skipped
+with a reason."""
 
 import logging
 
