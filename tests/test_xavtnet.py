@@ -1,5 +1,6 @@
 """Tests for the xAVTNet LightningModule and its PointNet components (thesis ch.7)."""
 
+import math
 import os
 
 import lightning as L
@@ -191,6 +192,30 @@ def test_single_stream_labelled_batch_trains(tmp_path):
                         enable_model_summary=False, default_root_dir=tmp_path)
     trainer.fit(model, train_dataloaders=loader, val_dataloaders=loader)
     assert "val/acc" in trainer.callback_metrics
+
+
+def test_cosine_schedule_decays_the_learning_rate_to_zero(tmp_path):
+    loader = DataLoader(_Clouds(8, 5, 20, 3), batch_size=4, collate_fn=_collate)
+    lrs = []
+
+    class Record(L.Callback):
+        def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+            lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
+
+    model = XAVTNet(**TINY, lr=1e-2, lr_schedule="cosine")
+    trainer = L.Trainer(max_epochs=3, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path, callbacks=[Record()])
+    trainer.fit(model, train_dataloaders=loader)
+    steps = len(lrs)  # 3 epochs x 2 batches
+    assert steps == 6
+    expected = [1e-2 * 0.5 * (1 + math.cos(math.pi * i / steps)) for i in range(steps)]
+    assert lrs == pytest.approx(expected, rel=1e-6)
+    assert trainer.optimizers[0].param_groups[0]["lr"] == pytest.approx(0.0, abs=1e-12)
+    # the thesis default keeps Adam's rate constant
+    assert XAVTNet(**TINY).configure_optimizers().param_groups[0]["lr"] == 1e-3
+    with pytest.raises(ValueError, match="lr_schedule"):
+        XAVTNet(**TINY, lr_schedule="step")
 
 
 def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():

@@ -45,6 +45,7 @@ from vtlearn.models.components.xavtnet_backbone import (
 __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 
 DA_METHODS = ("none", "vtloss", "dann")
+LR_SCHEDULES = ("constant", "cosine")
 
 
 def subsample_padded(points: torch.Tensor, lengths: torch.Tensor, max_points: int, random: bool):
@@ -100,6 +101,11 @@ class XAVTNet(L.LightningModule):
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
         dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
         lr, weight_decay: Adam (thesis: lr 1e-3).
+        lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
+            run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
+            rate the final weights are one point of a noisy trajectory, so the test accuracy of two
+            short trainings of the same data differs by several points; the cosine decay settles them,
+            which the active-learning curves need (docs/xavtnet.md).
         max_points: if set, clouds with more points are subsampled to this many (random in training,
             strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
         normalize_clouds: centre each cloud and scale it into the unit ball before the network.
@@ -128,6 +134,7 @@ class XAVTNet(L.LightningModule):
         dann_gamma: float = 10.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
+        lr_schedule: str = "constant",
         max_points: int | None = None,
         normalize_clouds: bool = False,
     ) -> None:
@@ -138,6 +145,8 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"da_method must be one of {DA_METHODS}, got {da_method!r}")
         if lr <= 0:
             raise ValueError(f"lr must be > 0, got {lr}")
+        if lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
         unknown = set(da_layers) - {"fc1", "fc2"}
@@ -307,4 +316,9 @@ class XAVTNet(L.LightningModule):
         return {**out.features, "logits": out.logits}
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        if self.hparams.get("lr_schedule", "constant") == "constant":
+            return opt
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=total)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
