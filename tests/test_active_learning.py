@@ -18,7 +18,9 @@ from vtlearn.active.mc_dropout import (
     predictive_entropy,
     random_query,
     score_pool,
+    select_power,
     select_top_k,
+    split_strategy,
 )
 from vtlearn.models.xavtnet import XAVTNet
 
@@ -138,6 +140,43 @@ def test_select_top_k_and_random_query():
     assert len(set(picked.tolist())) == 3 and set(picked.tolist()) <= set(pool.tolist())
 
 
+def test_select_power_draws_in_proportion_to_the_scores():
+    scores = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    g = torch.Generator().manual_seed(0)
+    n = 20000
+    counts = torch.bincount(torch.stack([select_power(scores, 1, 1.0, g) for _ in range(n)]).reshape(-1),
+                            minlength=4)
+    # Binomial std of each frequency is at most 0.0035; 0.015 is over 4 sigma.
+    assert torch.allclose(counts / n, scores / scores.sum(), atol=0.015)
+    # beta = 0 is uniform
+    counts0 = torch.bincount(torch.stack([select_power(scores, 1, 0.0, g) for _ in range(n)]).reshape(-1))
+    assert torch.allclose(counts0 / n, torch.full((4,), 0.25), atol=0.015)
+
+
+def test_select_power_large_beta_is_top_k_and_zero_scores_come_last():
+    scores = torch.tensor([0.1, 0.9, 0.5, 0.7, 0.0])
+    g = torch.Generator().manual_seed(1)
+    for _ in range(20):
+        assert select_power(scores, 3, 1e4, g).tolist() == [1, 3, 2]
+        picked = select_power(scores, 4, 1.0, g).tolist()
+        assert len(set(picked)) == 4 and 4 not in picked  # without replacement, zero score last
+    with pytest.raises(ValueError, match="k"):
+        select_power(scores, 6)
+    with pytest.raises(ValueError, match="beta"):
+        select_power(scores, 2, -1.0)
+    with pytest.raises(ValueError, match="scores"):
+        select_power(torch.tensor([0.5, -0.1]), 1)
+    with pytest.raises(ValueError, match="scores"):
+        select_power(torch.tensor([0.5, float("nan")]), 1)
+
+
+def test_split_strategy():
+    assert split_strategy("power_bald") == ("bald", "power")
+    assert split_strategy("entropy") == ("entropy", "top_k")
+    with pytest.raises(ValueError, match="strategy"):
+        split_strategy("power_random")
+
+
 class _Stub(nn.Module):
     """Logits read from the first point; the dropout only makes the module MC-dropout capable."""
 
@@ -179,7 +218,8 @@ def test_labels_to_reach_hand_case():
         labels_to_reach(n, acc, 0.0)
 
 
-@pytest.mark.parametrize("strategy,warm", [("entropy", False), ("bald", True), ("random", False)])
+@pytest.mark.parametrize("strategy,warm", [("entropy", False), ("bald", True), ("random", False),
+                                           ("power_entropy", False)])
 def test_active_learning_loop_queries_kappa_per_round(strategy, warm):
     dm = TinyPoolDM()
     before = set(dm.unlabelled_indices)
@@ -201,6 +241,8 @@ def test_active_learning_loop_queries_kappa_per_round(strategy, warm):
     assert made == ([5] if warm else [5, 6])
     with pytest.raises(ValueError, match="strategy"):
         ActiveLearningLoop(dm, factory, strategy="margin")
+    with pytest.raises(ValueError, match="power_beta"):
+        ActiveLearningLoop(dm, factory, strategy="power_bald", power_beta=float("inf"))
 
 
 def test_active_learning_loop_fast_dev_run_module():

@@ -26,12 +26,17 @@ def test_ablation_configs_match_bench_variants():
 
 @pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "cpu/xavtnet.yaml",
                                   "gpu/xavtnet.yaml", "cpu/xavtnet_lam500.yaml",
-                                  "active_learning.yaml", "quick/active_learning.yaml"])
+                                  "active_learning.yaml", "quick/active_learning.yaml",
+                                  "cpu/active_learning.yaml"])
 def test_configs_build_the_model(path):
     cfg = load_config(str(ROOT / "configs" / path))
     model = XAVTNet(**cfg["model"])
     assert model.hparams.num_classes == 12
     assert cfg["trainer"]["max_epochs"] >= 1
+    if cfg.get("active"):
+        from vtlearn.active.mc_dropout import QUERY_STRATEGIES
+
+        assert set(cfg["active"]["strategies"].split(",")) <= set(QUERY_STRATEGIES)
 
 
 @pytest.fixture(scope="module")
@@ -99,6 +104,14 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--json", str(out2)]) == 2
 
 
+def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):
+    from vtlearn.cli import main
+
+    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    assert main(["bench", "active-learning", "--config", str(cfg), "--strategies", "entropy,margin"]) == 2
+    assert "strategies" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
     from vtlearn.cli import main
@@ -109,6 +122,7 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
                "--plot", str(tmp_path / "al.png")])
     assert rc == 0
     res = json.loads(out.read_text())
+    assert set(res["ratios_2pct"]) == {"entropy"}
     for strategy in ("entropy", "random"):
         assert res["curves"][strategy]["n_labels"] == [3, 5]
         assert set(res["curves"][strategy]["labels_to_reach"]) == {"10%", "5%", "3%", "2%"}

@@ -32,7 +32,7 @@ import lightning as L
 import torch
 from tqdm.auto import tqdm
 
-from vtlearn.active.mc_dropout import STRATEGIES, score_pool, select_top_k
+from vtlearn.active.mc_dropout import QUERY_STRATEGIES, score_pool, select_power, select_top_k, split_strategy
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach"]
 
@@ -85,13 +85,15 @@ class ActiveLearningLoop:
             ``unlabelled_dataloader`` yielding ``{"points", "lengths", "index"}``, ``query(indices)``,
             ``labelled_indices``, ``unlabelled_indices``, ``test_dataloader``). It is mutated.
         model_factory: ``seed -> LightningModule`` with dropout layers (e.g. an ``XAVTNet``).
-        strategy: "entropy" (thesis), "bald" or "random".
+        strategy: "entropy" (thesis), "bald", "random", or "power_entropy" / "power_bald" (draw κ
+            samples ∝ score^``power_beta`` instead of the top κ; see ``vtlearn.active.mc_dropout``).
         kappa: κ, clouds queried per round.
         rounds: number of query rounds (the loop trains ``rounds + 1`` times).
         mc_passes: T of eq. 7.3.
         max_epochs: epochs per (re)training.
         min_steps: at least this many optimiser steps per (re)training (more epochs on small sets).
         warm_start: keep the weights between rounds instead of retraining from scratch.
+        power_beta: β of the power strategies.
         seed: base seed; round r trains with ``seed + r``.
         trainer_kwargs: extra ``Trainer`` arguments (e.g. ``limit_train_batches``).
     """
@@ -107,12 +109,15 @@ class ActiveLearningLoop:
         max_epochs: int = 10,
         min_steps: int = 0,
         warm_start: bool = False,
+        power_beta: float = 1.0,
         seed: int = 0,
         trainer_kwargs: dict | None = None,
         show_progress: bool = True,
     ) -> None:
-        if strategy not in STRATEGIES:
-            raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+        if strategy not in QUERY_STRATEGIES:
+            raise ValueError(f"strategy must be one of {QUERY_STRATEGIES}, got {strategy!r}")
+        if not (power_beta >= 0 and math.isfinite(power_beta)):
+            raise ValueError(f"power_beta must be a finite number >= 0, got {power_beta}")
         if kappa < 1:
             raise ValueError(f"kappa must be >= 1, got {kappa}")
         if rounds < 0:
@@ -128,6 +133,7 @@ class ActiveLearningLoop:
             raise ValueError(f"min_steps must be >= 0, got {min_steps}")
         self.mc_passes, self.max_epochs, self.min_steps = int(mc_passes), int(max_epochs), int(min_steps)
         self.warm_start, self.seed = bool(warm_start), int(seed)
+        self.power_beta = float(power_beta)
         self.trainer_kwargs = dict(trainer_kwargs or {})
         self.show_progress = show_progress
         self.history: list[RoundResult] = []
@@ -137,9 +143,12 @@ class ActiveLearningLoop:
         unlabelled = list(self.dm.unlabelled_indices)
         k = min(self.kappa, len(unlabelled))
         gen = torch.Generator().manual_seed(self.seed * 7919 + round_idx)
-        idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), self.strategy,
+        score, selection = split_strategy(self.strategy)
+        idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), score,
                                  self.mc_passes, generator=gen)
-        chosen = idx[select_top_k(scores, k)].tolist()
+        pick = (select_power(scores, k, self.power_beta, generator=gen) if selection == "power"
+                else select_top_k(scores, k))
+        chosen = idx[pick].tolist()
         self.dm.query(chosen)
         return [int(i) for i in chosen]
 

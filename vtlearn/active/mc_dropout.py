@@ -8,10 +8,16 @@ eq. (7.3)-(7.4) (Gal and Ghahramani, 2016).
 * Query: the top-κ samples by score. ``"entropy"`` is the thesis strategy, ``"bald"`` (Houlsby et al.
   2011; Gal et al. 2017) is the mutual information ``H[mean_t p_t] − mean_t H[p_t]``, and ``"random"``
   is the baseline.
+* Stochastic batch query (beyond the thesis): ``"power_entropy"`` and ``"power_bald"`` draw the κ
+  samples without replacement with probability ∝ score^β (Kirsch et al. 2023, "Stochastic Batch
+  Acquisition: A Simple Baseline for Deep Active Learning", TMLR; β = 1 by default). Top-κ takes the κ
+  highest scores of one model, and those are often near-duplicates (views of the same confusing
+  instance); sampling spreads the batch at no extra cost.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
@@ -26,11 +32,25 @@ __all__ = [
     "bald_score",
     "acquisition_scores",
     "select_top_k",
+    "select_power",
+    "QUERY_STRATEGIES",
+    "split_strategy",
     "random_query",
     "score_pool",
 ]
 
 STRATEGIES = ("entropy", "bald", "random")
+# Strategies of the active-learning loop: a score (STRATEGIES) plus a selection rule.
+QUERY_STRATEGIES = (*STRATEGIES, "power_entropy", "power_bald")
+
+
+def split_strategy(strategy: str) -> tuple[str, str]:
+    """``"power_bald"`` -> ``("bald", "power")``; ``"entropy"`` -> ``("entropy", "top_k")``."""
+    if strategy not in QUERY_STRATEGIES:
+        raise ValueError(f"strategy must be one of {QUERY_STRATEGIES}, got {strategy!r}")
+    if strategy.startswith("power_"):
+        return strategy.removeprefix("power_"), "power"
+    return strategy, "top_k"
 
 
 @contextmanager
@@ -123,6 +143,33 @@ def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
     order = torch.sort(-scores, stable=True).indices
     return order[:k]
+
+
+def select_power(
+    scores: torch.Tensor, k: int, beta: float = 1.0, generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """``k`` indices drawn without replacement with probability ∝ ``scores**beta`` (power acquisition,
+    Kirsch et al. 2023), by the Gumbel-top-k trick: the top ``k`` of ``beta·log(score) + Gumbel``.
+
+    Scores must be ≥ 0; a zero score is only drawn once every positive one is. β → ∞ gives top-k and
+    β = 0 uniform sampling.
+
+    Shapes:
+        scores (U,) -> (k,) indices, in draw order
+    """
+    if scores.dim() != 1:
+        raise ValueError(f"scores must be 1-D, got {tuple(scores.shape)}")
+    if not 1 <= k <= scores.numel():
+        raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
+    if not (beta >= 0 and math.isfinite(beta)):
+        raise ValueError(f"beta must be a finite number >= 0, got {beta}")
+    if not torch.isfinite(scores).all() or (scores < 0).any():
+        raise ValueError("scores must be finite and >= 0 for power acquisition")
+    u = torch.rand(scores.shape, generator=generator, dtype=torch.float64).clamp(1e-300, 1.0 - 1e-16)
+    gumbel = -torch.log(-torch.log(u))
+    log_s = torch.log(scores.to(torch.float64))  # -inf for zero scores: drawn last
+    keys = torch.where(scores > 0, beta * log_s + gumbel, -1e300 + gumbel)
+    return torch.sort(-keys, stable=True).indices[:k]
 
 
 def random_query(pool_indices: torch.Tensor, k: int, generator: torch.Generator | None = None):
