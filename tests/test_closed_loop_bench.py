@@ -73,6 +73,9 @@ def test_active_recognition_bench(ckpts, tmp_path):
             "10",
             "--gain-mode",
             "raycast",
+            "--recognition-gain",
+            "--recognition-top-m",
+            "2",
             "--json",
             str(out),
             *TINY,
@@ -80,7 +83,7 @@ def test_active_recognition_bench(ckpts, tmp_path):
     )
     assert rc == 0 and out.with_suffix(".png").is_file()
     r = json.loads(out.read_text())
-    assert set(r["summary"]) == {"active", "random", "uniform"}
+    assert set(r["summary"]) == {"active", "random", "uniform", "active_recognition"}
     for s in r["summary"].values():
         assert 1 <= s["actions_mean"] <= 10 and 0 <= s["accuracy_after_10"] <= 1
     assert len(r["per_object"][0]["active"]["confidence"]) == 10
@@ -131,6 +134,9 @@ def test_bench_bad_input(ckpts, tmp_path, capsys):
     assert "categories" in capsys.readouterr().err
     assert main(["bench", "active-reconstruction", "--ckpt", ckpts["xavtnet"]]) == 2  # not an ACTOR
     assert "ckpt" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--recognition-gain",
+                 "--recognition-top-m", "0"]) == 2
+    assert "top_m" in capsys.readouterr().err
     assert main(["bench", "active-recognition", "--ckpt", ckpts["actor"]]) == 2  # not an xAVTNet
     assert "ckpt" in capsys.readouterr().err
     assert main(["bench", "active-reconstruction", "--ckpt", str(tmp_path / "none.ckpt")]) == 2

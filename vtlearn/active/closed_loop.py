@@ -66,12 +66,14 @@ __all__ = [
     "SimObject",
     "TouchWorld",
     "choose_action",
+    "classify_clouds",
     "held_out_objects",
     "make_object",
     "run_episode",
 ]
 
 STRATEGIES = ("active", "random", "uniform")
+GAIN_MODES = ("raycast", "probabilistic", "recognition")
 TACTILE_KINDS = ("touch", "pinch")
 # Base seed of held-out instances; gen-data uses the dataset seed (0 by default), so these instance seeds
 # come from another SeedSequence and differ from every training instance.
@@ -331,6 +333,7 @@ def run_episode(
     view_radius: float = 0.45,
     seed: int = 0,
     progress=None,
+    recognizer=None,
 ) -> Episode:
     """Explore ``world.obj`` with ``strategy`` for ``n_views`` views and ``n_tactile`` touches/pinches.
 
@@ -339,7 +342,10 @@ def run_episode(
         n_candidates: Monte-Carlo tactile candidates per active step (half pinches with ``pinch``).
         n_view_candidates: hemisphere view candidates per active step while views are left.
         cells: grid cells per axis over a cube around the bounding box.
-        gain_mode: ``"raycast"`` (thesis) or ``"probabilistic"``, see the module docstring.
+        gain_mode: ``"raycast"`` (thesis) or ``"probabilistic"``, see the module docstring, or
+            ``"recognition"``: touches by expected class-entropy reduction with ``recognizer``
+            (:class:`~vtlearn.active.recognition_nbt.ExpectedClassEntropyGain`; touch only, no views or
+            pinches).
         n_init: leading random touches shared by every strategy (not with views).
         progress: optional callable ``(step, n_steps)`` after every action (e.g. a tqdm update).
     """
@@ -353,8 +359,13 @@ def run_episode(
         raise ValueError(f"n_init: need 0 <= n_init <= n_tactile, got {n_init}")
     if int(n_candidates) < 2:
         raise ValueError(f"n_candidates: need >= 2, got {n_candidates}")
-    if gain_mode not in ("raycast", "probabilistic"):
-        raise ValueError(f"gain_mode: expected 'raycast' or 'probabilistic', got {gain_mode!r}")
+    if gain_mode not in GAIN_MODES:
+        raise ValueError(f"gain_mode: expected one of {GAIN_MODES}, got {gain_mode!r}")
+    if gain_mode == "recognition" and strategy == "active":
+        if recognizer is None:
+            raise ValueError("recognizer: gain_mode='recognition' needs an ExpectedClassEntropyGain")
+        if pinch or int(n_views):
+            raise ValueError("gain_mode: 'recognition' scores touches only; set pinch=False and n_views=0")
     obj = world.obj
     lo, hi = obj.bounds
     box = OrientedBox.from_aabb(lo - 0.003, hi + 0.003)
@@ -399,6 +410,14 @@ def run_episode(
                 chosen = sample_pinch_actions(box, 1, seed=rng)
             else:
                 chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng)
+        elif gain_mode == "recognition":
+            cands_t = sample_touch_actions(box, int(n_candidates), standoff=standoff, seed=rng)
+            measured = np.concatenate(pts) if pts else np.zeros((0, 3))
+            gains_r = recognizer.gains(
+                obj, measured, touch, cands_t.T_world_sensor, world.sim.config, seed=step
+            )
+            best = int(np.argmax(gains_r))
+            chosen, gain = cands_t.subset([best]), float(gains_r[best])
         else:
             cands = []
             if budget["tactile"]:
@@ -500,13 +519,13 @@ def reconstruct_prefixes(
     return out, cd
 
 
-def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 256) -> np.ndarray:
-    """xAVTNet class probabilities ``(len(ks), C)`` of the tactile points of the first ``k`` actions,
-    canonical frame and centred (the ``normalize="center"`` of the crossmodal datamodule). Rows with no
-    point are NaN."""
+def classify_clouds(model, obj: SimObject, clouds_world, max_points: int = 256, seed: int = 0) -> np.ndarray:
+    """xAVTNet class probabilities ``(len(clouds_world), C)`` of world-frame tactile clouds: canonical
+    frame and centred (the ``normalize="center"`` of the crossmodal datamodule), at most ``max_points``
+    points each. Rows of clouds with fewer than 3 points are NaN."""
     import torch
 
-    clouds = [network_input(obj, ep.prefix(k, "tactile"), max_points, seed=k) for k in ks]
+    clouds = [network_input(obj, c, max_points, seed=seed + i) for i, c in enumerate(clouds_world)]
     clouds = [c - c.mean(0) if len(c) else c for c in clouds]
     probs = np.full((len(clouds), int(model.hparams.num_classes)), np.nan)
     ok = [i for i, c in enumerate(clouds) if len(c) >= 3]
@@ -516,6 +535,15 @@ def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 
         with torch.no_grad():
             p = torch.softmax(model(x, lengths).logits, dim=-1).numpy()
         probs[ok] = p
+    return probs
+
+
+def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 256) -> np.ndarray:
+    """xAVTNet class probabilities ``(len(ks), C)`` of the tactile points of the first ``k`` actions
+    (:func:`classify_clouds`). Rows with no point are NaN."""
+    probs = np.full((len(ks), int(model.hparams.num_classes)), np.nan)
+    for j, k in enumerate(ks):  # one cloud at a time keeps the subsampling seed k of each prefix
+        probs[j] = classify_clouds(model, obj, [ep.prefix(k, "tactile")], max_points, seed=k)[0]
     return probs
 
 

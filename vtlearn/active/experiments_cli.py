@@ -7,10 +7,12 @@
 - ``vtlearn bench active-recognition --ckpt XAVTNET.ckpt``: thesis Fig. 7.5b analogue (7.2.4,
   eq. 7.9-7.12, Algorithm 5). Touches are chosen by the grid's expected information gain; xAVTNet
   classifies the tactile cloud once it holds ``--min-points`` points and stops at confidence ``zeta``.
-  The action selection does not depend on the classifier, so one episode of ``--max-actions`` is run
-  per object and strategy and the stopping rule is applied to its prefixes (the same actions a
-  stopping loop would take). Reports actions to the stop (censored at ``--max-actions``), accuracy at
-  the stop and accuracy after 10 touches.
+  ``--recognition-gain`` adds the row ``active_recognition``: touches chosen by the classifier's own
+  expected information (:mod:`vtlearn.active.recognition_nbt`, beyond the thesis). An action depends
+  only on the actions before it, so one episode of ``--max-actions`` is run per object and strategy
+  and the stopping rule is applied to its prefixes (the same actions a stopping loop would take).
+  Reports actions to the stop (censored at ``--max-actions``), accuracy at the stop and accuracy after
+  10 touches.
 - ``vtlearn bench shared-exploration --ckpt ACTOR.ckpt``: thesis Fig. 5.13 and 5.18 analogue (5.2.3,
   eq. 5.10). Opaque objects get 3 views and 5 touches, transparent ones 20 touches; CD of ACTOR from
   vision only and from vision + touch (the thesis' +17 % from touch), and the ADI (eq. 5.24, cm) of
@@ -223,6 +225,13 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
     objs = held_out_objects(cats, args.objects_per_category, transparent=None)
     rows = _strategies(args)
+    recognizer = None
+    if args.recognition_gain:
+        from vtlearn.active.recognition_nbt import ExpectedClassEntropyGain
+
+        recognizer = ExpectedClassEntropyGain(model, class_names, top_m=args.recognition_top_m,
+                                              max_points=args.max_input)
+        rows.append(("active_recognition", "active", "recognition"))
     ks = list(range(1, args.max_actions + 1))
     res = {
         label: {"actions": [], "correct_at_stop": [], "correct_at_10": [], "stopped": []}
@@ -246,6 +255,7 @@ def run_active_recognition(args: argparse.Namespace) -> int:
                     gain_mode=mode,
                     n_init=1,
                     seed=args.seed + oi,
+                    recognizer=recognizer,
                 )
                 probs = classify_prefixes(model, obj, ep, ks, max_points=args.max_input)
                 npts = ep.n_points()[1:]
@@ -581,6 +591,10 @@ def register_bench(sub) -> None:
     p.add_argument("--zeta", type=float, default=0.8)
     p.add_argument("--min-points", type=int, default=10)
     p.add_argument("--max-actions", type=int, default=30)
+    p.add_argument("--recognition-gain", action="store_true",
+                   help="add active_recognition: touches by the classifier's expected information "
+                        "(vtlearn.active.recognition_nbt; beyond the thesis)")
+    p.add_argument("--recognition-top-m", type=int, default=4, help="class hypotheses per step")
     _common(p)
     p.set_defaults(func=run_active_recognition, max_input=256)
 

@@ -1,0 +1,115 @@
+"""Next-best-touch for recognition (vtlearn.active.recognition_nbt)."""
+
+import numpy as np
+import pytest
+import torch
+
+from vtlearn.active.actions import OrientedBox, sample_touch_actions
+from vtlearn.active.closed_loop import TouchWorld, classify_clouds, held_out_objects, run_episode
+from vtlearn.active.recognition_nbt import ExpectedClassEntropyGain, fit_to_box
+from vtlearn.active.sensors import TactileArray
+from vtlearn.models.xavtnet import XAVTNet
+
+NAMES = ["mug", "wineglass", "box"]
+
+
+@pytest.fixture(scope="module")
+def mug():
+    return held_out_objects(["mug"], 1, transparent=False, sections=16)[0]
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    return XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8], da_method="none").eval()
+
+
+def _candidates(obj, n, seed=0):
+    lo, hi = obj.bounds
+    box = OrientedBox.from_aabb(lo - 0.003, hi + 0.003)
+    sensor = TactileArray("xela_4x4", ray_length=0.02 + float(box.extents.max()) + 0.01)
+    return sensor, sample_touch_actions(box, n, standoff=0.02, seed=seed).T_world_sensor
+
+
+def test_fit_to_box_maps_the_bounds():
+    v = np.random.default_rng(0).normal(size=(50, 3))
+    out = fit_to_box(v, [0.0, 1.0, 2.0], [1.0, 3.0, 2.5])
+    np.testing.assert_allclose(out.min(0), [0.0, 1.0, 2.0], atol=1e-12)
+    np.testing.assert_allclose(out.max(0), [1.0, 3.0, 2.5], atol=1e-12)
+    with pytest.raises(ValueError, match="vertices"):
+        fit_to_box(np.zeros((10, 3)), [0, 0, 0], [1, 1, 1])
+    with pytest.raises(ValueError, match="vertices"):
+        fit_to_box(np.zeros((10, 2)), [0, 0, 0], [1, 1, 1])
+    with pytest.raises(ValueError, match="lo, hi"):
+        fit_to_box(v, [0, 0, 0], [1, 0, 1])
+
+
+def test_expected_contacts_on_the_true_shape_equal_the_simulated_touch(mug, model):
+    """Noiseless case: with the object itself as the template, the predicted contacts are the ones the
+    pybullet guarded touch reports."""
+    gain = ExpectedClassEntropyGain(model, NAMES)
+    gain._templates[0] = mug.mesh  # class 0 ("mug") hypothesis = the object itself
+    sensor, T = _candidates(mug, 40, seed=3)
+    # pads whose housing reaches into the table slab are outside the replayed model (see its docstring)
+    local = np.concatenate([sensor.layout.taxel_positions(), sensor.layout.housing_positions()])
+    T = T[(np.einsum("nj,aij->ani", local, T[:, :3, :3])[..., 2] + T[:, None, 2, 3]).min(1) >= 0][:12]
+    with TouchWorld(mug) as world:
+        predicted = gain.expected_contacts(mug, 0, sensor, T, world.sim.config)
+        n_touching = 0
+        for a in range(len(T)):
+            _, _, measured = world.press(T[a : a + 1], sensor.ray_length)
+            assert len(predicted[a]) == len(measured)
+            if len(measured):
+                n_touching += 1
+                np.testing.assert_allclose(np.sort(predicted[a], 0), np.sort(measured, 0), atol=1e-4)
+    assert n_touching >= 3  # the check is not vacuous
+
+
+def test_gains_criteria_hand_cases(mug, model):
+    sensor, T = _candidates(mug, 6, seed=1)
+    with TouchWorld(mug) as world:
+        cfg = world.sim.config
+        _, _, P = world.press(T[:1], sensor.ray_length)
+        one = ExpectedClassEntropyGain(model, NAMES, top_m=1)
+        # one hypothesis: nothing to tell apart
+        np.testing.assert_allclose(one.gains(mug, P, sensor, T, cfg), 0.0, atol=1e-12)
+        ee = ExpectedClassEntropyGain(model, NAMES, top_m=1, criterion="expected_entropy")
+        p0 = ee.posterior(mug, P)
+        c = int(np.argmax(p0))
+        ys = ee.expected_contacts(mug, c, sensor, T, cfg)
+        q = classify_clouds(model, mug, [np.concatenate([P, y]) for y in ys], 256, seed=0)
+
+        def h(p):
+            return -(p * np.log(np.clip(p, 1e-12, 1))).sum(-1)
+
+        np.testing.assert_allclose(ee.gains(mug, P, sensor, T, cfg), h(p0) - h(q), atol=1e-5)
+        mi = ExpectedClassEntropyGain(model, NAMES, top_m=3)
+        g = mi.gains(mug, P, sensor, T, cfg)
+        assert g.shape == (6,) and (g >= -1e-9).all()  # mutual information is >= 0
+        # batched candidates score as one at a time
+        single = [mi.gains(mug, P, sensor, T[a : a + 1], cfg)[0] for a in range(len(T))]
+        np.testing.assert_allclose(g, single, atol=1e-5)
+
+
+def test_bad_arguments(mug, model):
+    with pytest.raises(ValueError, match="class_names"):
+        ExpectedClassEntropyGain(model, ["mug", "box"])
+    with pytest.raises(ValueError, match="criterion"):
+        ExpectedClassEntropyGain(model, NAMES, criterion="margin")
+    with pytest.raises(ValueError, match="top_m"):
+        ExpectedClassEntropyGain(model, NAMES, top_m=0)
+    g = ExpectedClassEntropyGain(model, NAMES)
+    with pytest.raises(ValueError, match="T_world_pad"):
+        g.gains(mug, np.zeros((0, 3)), TactileArray(), np.eye(4), None)
+
+
+def test_recognition_episode_runs_and_validates(mug, model):
+    gain = ExpectedClassEntropyGain(model, NAMES, top_m=2)
+    with TouchWorld(mug) as world:
+        ep = run_episode(world, "active", 3, pinch=False, n_candidates=6, cells=16, gain_mode="recognition",
+                         recognizer=gain, seed=0)
+        assert ep.n_steps == 3 and np.isnan(ep.gains[0]) and np.isfinite(ep.gains[1:]).all()
+        with pytest.raises(ValueError, match="recognizer"):
+            run_episode(world, "active", 2, pinch=False, gain_mode="recognition")
+        with pytest.raises(ValueError, match="pinch"):
+            run_episode(world, "active", 2, pinch=True, gain_mode="recognition", recognizer=gain)
