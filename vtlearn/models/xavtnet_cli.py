@@ -433,6 +433,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
         ax.plot(c["n_labels"], m, marker="o", label=strategy)
         ax.fill_between(c["n_labels"], m - s, m + s, alpha=0.2)
     ax.axhline(100 * acc_full, color="k", ls="--", lw=1, label="full pool")
+    ax.axhline(100 * acc_full * (1 - 0.02), color="k", ls=":", lw=1, label="2 % relative error")
     ax.set_xlabel("labelled clouds")
     ax.set_ylabel("test accuracy (%)")
     ax.set_title("MC-dropout active learning (Fig. 7.5a analogue)")
