@@ -343,7 +343,7 @@ def run_episode(
         n_view_candidates: hemisphere view candidates per active step while views are left.
         cells: grid cells per axis over a cube around the bounding box.
         gain_mode: ``"raycast"`` (thesis) or ``"probabilistic"``, see the module docstring, or
-            ``"recognition"``: touches by expected class-entropy reduction with ``recognizer``
+            ``"recognition"``: touches by the classifier's expected information with ``recognizer``
             (:class:`~vtlearn.active.recognition_nbt.ExpectedClassEntropyGain`; touch only, no views or
             pinches).
         n_init: leading random touches shared by every strategy (not with views).
@@ -519,13 +519,17 @@ def reconstruct_prefixes(
     return out, cd
 
 
-def classify_clouds(model, obj: SimObject, clouds_world, max_points: int = 256, seed: int = 0) -> np.ndarray:
+def classify_clouds(
+    model, obj: SimObject, clouds_world, max_points: int = 256, seed: int = 0, seeds=None
+) -> np.ndarray:
     """xAVTNet class probabilities ``(len(clouds_world), C)`` of world-frame tactile clouds: canonical
     frame and centred (the ``normalize="center"`` of the crossmodal datamodule), at most ``max_points``
-    points each. Rows of clouds with fewer than 3 points are NaN."""
+    points each, subsampled with ``seeds[i]`` (default ``seed + i``). Rows of clouds with fewer than 3
+    points are NaN. One batched forward pass."""
     import torch
 
-    clouds = [network_input(obj, c, max_points, seed=seed + i) for i, c in enumerate(clouds_world)]
+    seeds = [seed + i for i in range(len(clouds_world))] if seeds is None else list(seeds)
+    clouds = [network_input(obj, c, max_points, seed=s) for c, s in zip(clouds_world, seeds, strict=True)]
     clouds = [c - c.mean(0) if len(c) else c for c in clouds]
     probs = np.full((len(clouds), int(model.hparams.num_classes)), np.nan)
     ok = [i for i, c in enumerate(clouds) if len(c) >= 3]
@@ -541,10 +545,7 @@ def classify_clouds(model, obj: SimObject, clouds_world, max_points: int = 256, 
 def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 256) -> np.ndarray:
     """xAVTNet class probabilities ``(len(ks), C)`` of the tactile points of the first ``k`` actions
     (:func:`classify_clouds`). Rows with no point are NaN."""
-    probs = np.full((len(ks), int(model.hparams.num_classes)), np.nan)
-    for j, k in enumerate(ks):  # one cloud at a time keeps the subsampling seed k of each prefix
-        probs[j] = classify_clouds(model, obj, [ep.prefix(k, "tactile")], max_points, seed=k)[0]
-    return probs
+    return classify_clouds(model, obj, [ep.prefix(k, "tactile") for k in ks], max_points, seeds=ks)
 
 
 def load_xavtnet(ckpt):
