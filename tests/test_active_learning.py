@@ -252,3 +252,28 @@ def test_active_learning_loop_fast_dev_run_module():
                         enable_model_summary=False)
     trainer.fit(model, train_dataloaders=dm.train_dataloader(), val_dataloaders=dm.test_dataloader())
     assert "val/acc" in trainer.callback_metrics
+
+
+def test_train_steps_gives_every_round_the_same_number_of_optimiser_steps():
+    """Equal-budget protocol: 6 labels (2 batches/epoch) and 14 labels (4 batches/epoch) both train
+    exactly 7 optimiser steps, so accuracy at n labels is not confounded with training length."""
+    dm = TinyPoolDM()
+    steps = []
+
+    class Counting(XAVTNet):
+        def on_train_end(self):
+            steps.append(self.trainer.global_step)
+
+    loop = ActiveLearningLoop(dm, lambda s: Counting(**TINY), strategy="random", kappa=8, rounds=1,
+                              mc_passes=1, max_epochs=50, min_steps=100, train_steps=7, seed=0,
+                              show_progress=False)
+    history = loop.run()
+    assert [h.n_labels for h in history] == [6, 14]
+    assert steps == [7, 7]
+    # Without it, max_epochs sets the length and the larger set trains longer.
+    steps.clear()
+    ActiveLearningLoop(TinyPoolDM(), lambda s: Counting(**TINY), strategy="random", kappa=8, rounds=1,
+                       mc_passes=1, max_epochs=2, seed=0, show_progress=False).run()
+    assert steps == [4, 8]
+    with pytest.raises(ValueError, match="train_steps"):
+        ActiveLearningLoop(dm, lambda s: Counting(**TINY), train_steps=-1)

@@ -63,14 +63,23 @@ def epochs_for(max_epochs: int, min_steps: int, steps_per_epoch: int) -> int:
 
 def train_and_test(
     model: L.LightningModule, train_loader, test_loader, max_epochs: int, min_steps: int = 0,
-    **trainer_kwargs,
+    train_steps: int = 0, **trainer_kwargs,
 ) -> float:
     """Fit ``model`` on ``train_loader`` (no validation) and return ``test/acc`` on ``test_loader``.
 
     The run lasts ``max_epochs`` epochs, or more if that would be fewer than ``min_steps`` optimiser
-    steps: small labelled sets otherwise get only a handful of updates and stay near chance.
+    steps: small labelled sets otherwise get only a handful of updates and stay near chance. With
+    ``train_steps > 0`` it lasts exactly ``train_steps`` optimiser steps whatever the set's size (the
+    equal-budget protocol: every round, and the full-pool reference, train equally long), and
+    ``max_epochs``/``min_steps`` are ignored.
     """
-    epochs = epochs_for(max_epochs, min_steps, len(train_loader))
+    if train_steps < 0:
+        raise ValueError(f"train_steps must be >= 0, got {train_steps}")
+    if train_steps:
+        epochs = math.ceil(train_steps / max(1, len(train_loader)))
+        trainer_kwargs = {**trainer_kwargs, "max_steps": int(train_steps)}
+    else:
+        epochs = epochs_for(max_epochs, min_steps, len(train_loader))
     trainer = _trainer(epochs, limit_val_batches=0, **trainer_kwargs)
     trainer.fit(model, train_dataloaders=train_loader)
     metrics = trainer.test(model, dataloaders=test_loader, verbose=False)
@@ -92,6 +101,9 @@ class ActiveLearningLoop:
         mc_passes: T of eq. 7.3.
         max_epochs: epochs per (re)training.
         min_steps: at least this many optimiser steps per (re)training (more epochs on small sets).
+        train_steps: if > 0, every (re)training runs exactly this many optimiser steps instead
+            (``max_epochs`` and ``min_steps`` are then unused), so that the accuracy at ``n`` labels
+            is not confounded with training length.
         warm_start: keep the weights between rounds instead of retraining from scratch.
         power_beta: β of the power strategies.
         seed: base seed; round r trains with ``seed + r``.
@@ -108,6 +120,7 @@ class ActiveLearningLoop:
         mc_passes: int = 20,
         max_epochs: int = 10,
         min_steps: int = 0,
+        train_steps: int = 0,
         warm_start: bool = False,
         power_beta: float = 1.0,
         seed: int = 0,
@@ -131,6 +144,9 @@ class ActiveLearningLoop:
         self.strategy, self.kappa, self.rounds = strategy, int(kappa), int(rounds)
         if min_steps < 0:
             raise ValueError(f"min_steps must be >= 0, got {min_steps}")
+        if train_steps < 0:
+            raise ValueError(f"train_steps must be >= 0, got {train_steps}")
+        self.train_steps = int(train_steps)
         self.mc_passes, self.max_epochs, self.min_steps = int(mc_passes), int(max_epochs), int(min_steps)
         self.warm_start, self.seed = bool(warm_start), int(seed)
         self.power_beta = float(power_beta)
@@ -160,7 +176,7 @@ class ActiveLearningLoop:
             if self.model is None or not self.warm_start:
                 self.model = self.model_factory(self.seed + r)
             acc = train_and_test(self.model, self.dm.train_dataloader(), self.dm.test_dataloader(),
-                                 self.max_epochs, self.min_steps, **self.trainer_kwargs)
+                                 self.max_epochs, self.min_steps, self.train_steps, **self.trainer_kwargs)
             result = RoundResult(r, len(self.dm.labelled_indices), acc)
             self.history.append(result)
             bar.set_postfix(labels=result.n_labels, acc=f"{acc:.3f}")

@@ -41,7 +41,7 @@ VARIANTS: dict[str, dict] = {
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
-               "warm_start": False, "min_steps": 0, "power_beta": 1.0}
+               "warm_start": False, "min_steps": 0, "power_beta": 1.0, "equal_steps": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
                     "vtloss": 81.25}
 
@@ -306,10 +306,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
 
 
 def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
-                         threads: int, pool: int):
+                         threads: int, pool: int, train_steps: int = 0, accelerator: str = "cpu"):
     """One seed of one strategy of the Fig. 7.5a analogue, or (``strategy="full"``) the reference model
     trained on the whole labelled pool of ``pool`` clouds. Returns (strategy, seed, history dicts or the
-    full-pool accuracy).
+    full-pool accuracy). ``train_steps > 0``: every training runs exactly that many optimiser steps.
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
@@ -328,7 +328,7 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
         dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
         model = XAVTNet(num_classes=dm.num_classes, **base)
         return strategy, seed, train_and_test(model, dm.train_dataloader(), dm.test_dataloader(), max_epochs,
-                                              min_steps)
+                                              min_steps, train_steps, accelerator=accelerator)
     dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
 
     def factory(round_seed: int):
@@ -336,8 +336,9 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
 
     loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
                               mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
-                              warm_start=bool(al["warm_start"]), power_beta=float(al["power_beta"]),
-                              seed=seed, show_progress=False)
+                              train_steps=train_steps, warm_start=bool(al["warm_start"]),
+                              power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
+                              trainer_kwargs={"accelerator": accelerator})
     return strategy, seed, (loop.history_dicts() if loop.run() else [])
 
 
@@ -373,11 +374,21 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     base = {k: v for k, v in cfg["model"].items() if k != "num_classes"}
     base.setdefault("da_method", "none")
     pool = ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs).pool_size
+    # Equal-budget protocol: every round trains as many optimiser steps as the full-pool reference
+    # (max_epochs over the whole pool), so the relative error measures labels, not training length.
+    train_steps = 0
+    if al["equal_steps"]:
+        full_batches = len(ActivePoolDataModule(initial_labels=pool, seed=seeds[0], **data_kwargs)
+                           .train_dataloader())
+        train_steps = max_epochs * full_batches
+        print(f"equal steps: every training runs {train_steps} optimiser steps "
+              f"({max_epochs} epochs of the {pool}-cloud pool)")
 
     # The reference is the model trained on the fully labelled pool (Table 7.1 "fully trained network").
     jobs = [(s, seed) for s in ["full", *strategies] for seed in seeds]
     outputs = _map_jobs(_active_learning_job, [
-        (s, seed, data_kwargs, base, al, max_epochs, args.threads, pool) for s, seed in jobs], args.workers)
+        (s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps, args.accelerator)
+        for s, seed in jobs], args.workers)
     results: dict = {}
     bar = tqdm(total=len(jobs), desc="bench active-learning")
     for strategy, seed, res in outputs:
@@ -443,7 +454,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     print(f"plot: {plot}")
     write_json(args.json, {
         "bench": "active-learning", "config": args.config, "data": data_kwargs, "pool_size": pool,
-        "active": al, "max_epochs": max_epochs, "seeds": seeds, "full_acc": full,
+        "active": al, "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds,
+        "full_acc": full, "accelerator": args.accelerator,
         "curves": curves, "table_7_1": rows, "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios,
         "machine": machine_info(),
     })
@@ -494,6 +506,12 @@ def register_bench(sub) -> None:
                    help="fine-tune between rounds (default: retrain from scratch)")
     q.add_argument("--min-steps", dest="min_steps", type=int, default=None,
                    help="at least this many optimiser steps per training (more epochs on small sets)")
+    q.add_argument("--equal-steps", dest="equal_steps", action="store_const", const=True, default=None,
+                   help="every training (each round and the full-pool reference) runs the same number of "
+                        "optimiser steps: max_epochs over the whole pool (default: max_epochs over the "
+                        "labelled set, at least --min-steps)")
+    q.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
+                   help="Lightning accelerator of every training (default cpu)")
     q.add_argument("--seeds", type=int, default=2)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--max-epochs", type=int, default=None)
