@@ -611,7 +611,43 @@ def register_bench(sub) -> None:
     p.set_defaults(func=run_shared_exploration)
 
 
+def _cmd_gen_episodes(args: argparse.Namespace) -> int:
+    from vtlearn.active.episode_data import EpisodeDataConfig, generate_episode_dataset
+
+    cfg = EpisodeDataConfig(
+        source=args.source, split=args.split, strategies=_csv(args.strategies), touches=args.touches,
+        prefixes=[int(k) for k in _csv(args.prefixes)], min_points=args.min_points,
+        n_candidates=args.candidates, cells=args.cells, gain_mode=args.gain_mode, seed=args.seed,
+        shard_size=args.shard_size,
+    )
+    manifest = generate_episode_dataset(cfg, args.out, workers=args.workers)
+    split = manifest["splits"][args.split]
+    print(json.dumps({args.split: {k: v for k, v in split.items() if k != "shards"}}))
+    print(f"episode clouds in {args.out} (manifest.json); train with "
+          f"--data.target_data_dir {args.out} --data.target_split {args.split}")
+    return 0
+
+
 def register(sub) -> None:
     from vtlearn.pipeline import register as register_quickstart
 
     register_quickstart(sub)
+    p = sub.add_parser(
+        "gen-episodes",
+        help="tactile clouds from closed-loop episodes on a crossmodal dataset's instances "
+        "(an xAVTNet target stream)",
+    )
+    p.add_argument("--source", required=True, help="a `gen-data crossmodal` dataset folder")
+    p.add_argument("--out", required=True)
+    p.add_argument("--split", default="train", help="source split whose instances are explored")
+    p.add_argument("--strategies", default="active,random", help="closed-loop strategies, one episode each")
+    p.add_argument("--touches", type=int, default=20, help="actions per episode")
+    p.add_argument("--prefixes", default="4,10,20", help="prefix lengths that each give one cloud")
+    p.add_argument("--min-points", type=int, default=10, help="smaller prefixes give no cloud")
+    p.add_argument("--candidates", type=int, default=100, help="candidate touches per active step")
+    p.add_argument("--cells", type=int, default=40, help="occupancy grid cells per axis")
+    p.add_argument("--gain-mode", default="probabilistic", help="probabilistic | raycast")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shard-size", type=int, default=16, help="instances per shard")
+    p.add_argument("--workers", type=int, default=1)
+    p.set_defaults(func=_cmd_gen_episodes)

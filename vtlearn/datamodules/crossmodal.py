@@ -120,6 +120,7 @@ class CrossModalDataModule(ShardedDataModule):
         units: str = "canonical",
         rotate_z: bool = True,
         target_split: str = "train",
+        target_data_dir: str | None = None,
         num_workers: int = 0,
         seed: int = 0,
         verify: bool = True,
@@ -136,6 +137,22 @@ class CrossModalDataModule(ShardedDataModule):
         self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
         self.target_split = target_split
         self._open_dataset(data_dir, verify, kind="crossmodal")
+        self.target_data_dir = target_data_dir
+        self._target_split_data: dict | None = None
+        if target_data_dir is not None:
+            from vtlearn.datamodules.shards import load_manifest
+
+            other = load_manifest(target_data_dir)
+            if list(other["class_names"]) != self.class_names:
+                raise ValueError(
+                    f"target_data_dir: class names {other['class_names']} differ from data_dir's "
+                    f"{self.class_names}"
+                )
+            if target_split not in other["splits"]:
+                raise ValueError(
+                    f"target_data_dir: no {target_split!r} split in {target_data_dir} "
+                    f"(it has {sorted(other['splits'])}); set target_split to one of them"
+                )
 
     def dataset(
         self, split: str, modality: str, with_label: bool = True, train: bool | None = None
@@ -154,11 +171,22 @@ class CrossModalDataModule(ShardedDataModule):
             with_label=with_label,
         )
 
+    def target_dataset(self) -> CloudDataset:
+        """The unlabelled, yaw-augmented tactile clouds of the target stream (``target_split`` of
+        ``data_dir``, or of ``target_data_dir`` when set)."""
+        if self.target_data_dir is None:
+            return self.dataset(self.target_split, "tactile", with_label=False, train=True)
+        if self._target_split_data is None:
+            from vtlearn.datamodules.shards import load_split
+
+            self._target_split_data = load_split(self.target_data_dir, self.target_split, self.verify)
+        clouds, labels, scales = modality_clouds(self._target_split_data, "tactile", self.units == "metres")
+        return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
+                            seed=self.seed, scales=scales, with_label=False)
+
     def train_dataloader(self) -> CombinedLoader:
         source = self._loader(self.dataset("train", "visual"), shuffle=True)
-        target = self._loader(
-            self.dataset(self.target_split, "tactile", with_label=False, train=True), shuffle=True
-        )
+        target = self._loader(self.target_dataset(), shuffle=True)
         return CombinedLoader({"source": source, "target": target}, mode="max_size_cycle")
 
     def val_dataloader(self) -> DataLoader:

@@ -220,6 +220,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["batch_size"] = args.batch_size
     if args.target_split:
         data_kwargs["target_split"] = args.target_split
+    if args.target_data:
+        data_kwargs["target_data_dir"] = args.target_data
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
@@ -480,6 +482,9 @@ def register_bench(sub) -> None:
     p.add_argument("--target-split", choices=["train", "test"], default=None,
                    help="unlabelled tactile clouds for adaptation: train instances (inductive) or the "
                         "test instances themselves (transductive UDA protocol); default from the config")
+    p.add_argument("--target-data", default=None,
+                   help="dataset whose tactile clouds of the target split form the unlabelled target stream "
+                        "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
