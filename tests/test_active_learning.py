@@ -213,6 +213,12 @@ def test_labels_to_reach_hand_case():
     assert got == {0.10: 30, 0.05: 40, 0.03: 40, 0.02: 40}
     got = labels_to_reach(n, acc, 0.95, thresholds=(0.2, 0.06))
     assert got == {0.2: 20, 0.06: 30}
+    # A lucky round that later falls back out counts only without sustained.
+    noisy = [0.5, 0.94, 0.85, 0.94]  # rel. errors 0.47, 0.011, 0.105, 0.011
+    assert labels_to_reach(n, noisy, 0.95, thresholds=(0.02, 0.2)) == {0.02: 20, 0.2: 20}
+    assert labels_to_reach(n, noisy, 0.95, thresholds=(0.02, 0.2), sustained=True) == {0.02: 40, 0.2: 20}
+    falls = [0.5, 0.94, 0.94, 0.8]
+    assert labels_to_reach(n, falls, 0.95, thresholds=(0.02,), sustained=True) == {0.02: None}
     assert labels_to_reach([5], [0.1], 1.0) == {0.10: None, 0.05: None, 0.03: None, 0.02: None}
     with pytest.raises(ValueError, match="full_accuracy"):
         labels_to_reach(n, acc, 0.0)

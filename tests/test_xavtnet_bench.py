@@ -2,6 +2,7 @@
 and consistency of the ablation configs with the bench's variant table."""
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -135,6 +136,14 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
     assert res2["full_acc"] == res["full_acc"]
     for strategy in ("entropy", "random"):
         assert res2["curves"][strategy]["runs"] == res["curves"][strategy]["runs"]
+        assert set(res["curves"][strategy]["labels_to_stay"]) == {"10%", "5%", "3%", "2%"}
+    assert res["train_steps"] is None and set(res["ratios_2pct_sustained"]) == {"entropy"}
+    # equal-budget protocol: every training runs max_epochs over the whole pool, whatever its labels
+    out3 = tmp_path / "al3.json"
+    assert main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--equal-steps",
+                 "--json", str(out3), "--plot", str(tmp_path / "al3.png")]) == 0
+    res3 = json.loads(out3.read_text())
+    assert res3["train_steps"] == res3["max_epochs"] * math.ceil(res3["pool_size"] / 4)
 
 
 @pytest.mark.slow  # a fresh interpreter importing lightning + train.py: tens of seconds on shared cores

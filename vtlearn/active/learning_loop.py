@@ -196,9 +196,14 @@ def labels_to_reach(
     accuracy: Sequence[float],
     full_accuracy: float,
     thresholds: Sequence[float] = (0.10, 0.05, 0.03, 0.02),
+    sustained: bool = False,
 ) -> dict[float, int | None]:
     """Table 7.1 analogue: the first label count whose relative error ``(full − acc)/full`` ≤ each
     threshold, or ``None`` if the curve never gets there.
+
+    With ``sustained=True`` it is the first label count from which the curve *stays* within the
+    threshold up to its last point: a stricter reading for noisy curves, where a single lucky round
+    would otherwise count.
 
     Shapes:
         n_labels (R,) increasing, accuracy (R,) -> {threshold: labels or None}
@@ -209,10 +214,10 @@ def labels_to_reach(
     if not full_accuracy > 0:
         raise ValueError(f"full_accuracy must be > 0, got {full_accuracy}")
     out: dict[float, int | None] = {}
-    for t in thresholds:
-        out[t] = next(
-            (int(n) for n, a in zip(n_labels, accuracy, strict=True)
-             if (full_accuracy - a) / full_accuracy <= t),
-            None,
-        )
+    within = [[(full_accuracy - a) / full_accuracy <= t for a in accuracy] for t in thresholds]
+    for t, ok in zip(thresholds, within, strict=True):
+        if sustained:
+            out[t] = next((int(n) for i, n in enumerate(n_labels) if all(ok[i:])), None)
+        else:
+            out[t] = next((int(n) for n, w in zip(n_labels, ok, strict=True) if w), None)
     return out
