@@ -4,12 +4,13 @@ import math
 import os
 
 import lightning as L
+import numpy as np
 import pytest
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from vtlearn.active.learning_loop import ActiveLearningLoop, epochs_for, labels_to_reach
+from vtlearn.active.learning_loop import ActiveLearningLoop, epochs_for, labels_to_reach, paired_advantage
 from vtlearn.active.mc_dropout import (
     acquisition_scores,
     bald_score,
@@ -222,6 +223,27 @@ def test_labels_to_reach_hand_case():
     assert labels_to_reach([5], [0.1], 1.0) == {0.10: None, 0.05: None, 0.03: None, 0.02: None}
     with pytest.raises(ValueError, match="full_accuracy"):
         labels_to_reach(n, acc, 0.0)
+
+
+def test_paired_advantage_hand_case():
+    base = np.array([[0.5, 0.80, 0.85, 0.90], [0.6, 0.82, 0.84, 0.88]])
+    ahead = base + np.array([[0.0, 0.02, 0.03, -0.01], [0.0, 0.04, 0.01, 0.02]])
+    got = paired_advantage(ahead, base)
+    # round 0 skipped (same n0 labels): differences 2, 3, -1, 4, 1, 2 points
+    assert got["pairs"] == 6 and got["ahead"] == 5
+    assert got["mean_diff"] == pytest.approx(11 / 6)
+    assert 0 < got["wilcoxon_p"] < 0.2
+    same = paired_advantage(base, base)
+    assert same["mean_diff"] == 0 and same["ahead"] == 0 and same["wilcoxon_p"] is None
+    # a strategy ahead by 3 points in every one of 30 pairs is significant
+    rng = np.random.default_rng(0)
+    b = rng.uniform(0.6, 0.9, size=(3, 11))
+    strong = paired_advantage(b + 0.03, b)
+    assert strong["ahead"] == 30 and strong["wilcoxon_p"] < 1e-4
+    with pytest.raises(ValueError, match="same shape"):
+        paired_advantage(base, base[:, :3])
+    with pytest.raises(ValueError, match="at least one round"):
+        paired_advantage(base[:, :1], base[:, :1])
 
 
 @pytest.mark.parametrize("strategy,warm", [("entropy", False), ("bald", True), ("random", False),

@@ -138,6 +138,7 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
         assert res2["curves"][strategy]["runs"] == res["curves"][strategy]["runs"]
         assert set(res["curves"][strategy]["labels_to_stay"]) == {"10%", "5%", "3%", "2%"}
     assert res["train_steps"] is None and set(res["ratios_2pct_sustained"]) == {"entropy"}
+    assert res["paired_vs_random"]["entropy"]["pairs"] == 1  # one seed, one query round
     # equal-budget protocol: every training runs max_epochs over the whole pool, whatever its labels
     out3 = tmp_path / "al3.json"
     assert main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--equal-steps",

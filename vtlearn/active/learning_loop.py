@@ -29,6 +29,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 
 import lightning as L
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
@@ -221,3 +222,35 @@ def labels_to_reach(
         else:
             out[t] = next((int(n) for n, w in zip(n_labels, ok, strict=True) if w), None)
     return out
+
+
+def paired_advantage(accuracy: np.ndarray, baseline: np.ndarray, skip_first: bool = True) -> dict:
+    """How far a query strategy is ahead of a baseline (random) on the same seeds and rounds.
+
+    The Table 7.1 columns read one point of a noisy mean curve; this uses every (seed, round) pair.
+    Both runs of a seed start from the same n₀ random labels, so round 0 is identical and is skipped
+    by default. The p-value is the two-sided Wilcoxon signed-rank test of the paired differences
+    (``None`` when every difference is zero).
+
+    Shapes:
+        accuracy (S, R), baseline (S, R) in [0, 1] -> {"mean_diff", "std_diff" (points),
+        "ahead", "pairs", "wilcoxon_p"}
+    """
+    a, b = np.asarray(accuracy, dtype=float), np.asarray(baseline, dtype=float)
+    if a.ndim != 2 or a.shape != b.shape:
+        raise ValueError(f"accuracy and baseline must both be (seeds, rounds) of the same shape, got "
+                         f"{a.shape} and {b.shape}")
+    if skip_first:
+        a, b = a[:, 1:], b[:, 1:]
+    if a.size == 0:
+        raise ValueError("accuracy: need at least one round after the first to compare")
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        raise ValueError("accuracy and baseline must be finite")
+    diff = 100.0 * (a - b).ravel()
+    p = None
+    if np.any(diff != 0):
+        from scipy.stats import wilcoxon
+
+        p = float(wilcoxon(diff).pvalue)
+    return {"mean_diff": float(diff.mean()), "std_diff": float(diff.std()), "ahead": int((diff > 0).sum()),
+            "pairs": int(diff.size), "wilcoxon_p": p}
