@@ -30,9 +30,7 @@ Shapes (per shard):
 
 from __future__ import annotations
 
-import json
 import logging
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -187,52 +185,24 @@ def generate_episode_dataset(
     A rerun skips every shard whose side file's sha256 matches; a folder made with another config is
     refused (ValueError), so two configs never mix.
     """
-    from tqdm.auto import tqdm
-
-    from vtlearn.sim_data.writer import FORMAT, _shard_done, write_json_atomic
+    from vtlearn.sim_data.writer import FORMAT, claim_out_dir, run_shard_jobs, write_json_atomic
 
     cfg.validate()
     source_manifest, items = _source_plan(cfg)
     sections = int(source_manifest["config"]["sections"])
     sensor = str(source_manifest["config"]["sensor"])
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cfg_dict = asdict(cfg)
-    cfg_path = out / "config.json"
-    if cfg_path.exists():
-        if json.loads(cfg_path.read_text()) != json.loads(json.dumps(cfg_dict)):
-            raise ValueError(f"out_dir: {out} holds episodes made with another config; use a new directory")
-    else:
-        write_json_atomic(cfg_path, cfg_dict)
-    for stale in out.glob("*.tmp*"):
-        stale.unlink()
+    claim_out_dir(out, cfg_dict, what="set of episodes")
     size = int(cfg.shard_size)
     jobs = [
         {"name": f"{cfg.split}-{k // size:05d}.npz", "split": cfg.split, "items": items[k : k + size]}
         for k in range(0, len(items), size)
     ]
-    done = {j["name"]: _shard_done(out, j["name"]) for j in jobs}
-    todo = [j for j in jobs if done[j["name"]] is None]
-    if max_shards is not None:
-        todo = todo[: int(max_shards)]
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="gen-episodes", disable=not progress)
-    if workers <= 1:
-        for j in todo:
-            done[j["name"]] = _run_shard(cfg_dict, sections, sensor, j, str(out))
-            bar.update()
-    else:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(int(workers), mp_context=mp.get_context("spawn")) as ex:
-            futs = [ex.submit(_run_shard, cfg_dict, sections, sensor, j, str(out)) for j in todo]
-            for f in as_completed(futs):
-                meta = f.result()
-                done[meta["file"]] = meta
-                bar.update()
-    bar.close()
-    if any(v is None for v in done.values()):
+    shards = run_shard_jobs(out, jobs, _run_shard, (cfg_dict, sections, sensor), workers, max_shards,
+                            desc="gen-episodes", progress=progress)
+    if shards is None:
         return {}
-    shards = [done[j["name"]] for j in jobs]
     manifest = {
         "format": FORMAT,
         "kind": KIND,

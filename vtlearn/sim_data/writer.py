@@ -194,6 +194,59 @@ def _shard_done(out: Path, name: str) -> dict | None:
     return meta if meta.get("sha256") == sha256_file(shard) else None
 
 
+def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, what: str = "dataset") -> None:
+    """Create ``out`` and record ``config.json``, or refuse (ValueError) a folder made with another config.
+
+    ``old_defaults`` fills keys that older config files lack, so their datasets still resume. Leftover
+    ``*.tmp*`` files of a killed run are removed; their shards are redone.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        old = {**(old_defaults or {}), **json.loads(cfg_path.read_text())}
+        if old != json.loads(json.dumps(cfg_dict)):
+            raise ValueError(f"out_dir: {out} holds a {what} made with another config; use a new directory")
+    else:
+        write_json_atomic(cfg_path, cfg_dict)
+    for stale in out.glob("*.tmp*"):
+        stale.unlink()
+
+
+def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, workers: int = 1,
+                   max_shards: int | None = None, desc: str = "shards", progress: bool = True) -> list | None:
+    """Run ``worker(*worker_args, job, str(out))`` for every job whose shard is not already on disk.
+
+    A shard counts as done when its side file's sha256 matches the shard, so a rerun resumes. With
+    ``workers > 1`` the jobs run in spawned processes. Returns every shard's side-file metadata in job
+    order, or None when ``max_shards`` stopped the run before the end.
+    """
+    from tqdm.auto import tqdm
+
+    done = {j["name"]: _shard_done(out, j["name"]) for j in jobs}
+    todo = [j for j in jobs if done[j["name"]] is None]
+    if max_shards is not None:
+        todo = todo[: int(max_shards)]
+    log.info("%s: %d shards, %d already done", desc, len(jobs), len(jobs) - len(todo))
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, disable=not progress)
+    if workers <= 1:
+        for j in todo:
+            done[j["name"]] = worker(*worker_args, j, str(out))
+            bar.update()
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(int(workers), mp_context=mp.get_context("spawn")) as ex:
+            futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
+            for f in as_completed(futs):
+                meta = f.result()
+                done[meta["file"]] = meta
+                bar.update()
+    bar.close()
+    if any(v is None for v in done.values()):
+        return None
+    return [done[j["name"]] for j in jobs]
+
+
 # --------------------------------------------------------------------------- one shard
 def _load_mesh(item: dict, cfg: GenConfig):
     if "file" in item:
@@ -383,52 +436,21 @@ def generate_dataset(
     max_shards: int | None = None,
 ) -> dict:
     """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests)."""
-    from tqdm import tqdm
 
     cfg.validate()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cfg_dict = asdict(cfg)
-    cfg_path = out / "config.json"
-    if cfg_path.exists():
-        old = {"visual_crop_margin": None, **json.loads(cfg_path.read_text())}  # pre-crop datasets
-        if old != json.loads(json.dumps(cfg_dict)):
-            raise ValueError(f"out_dir: {out} holds a dataset made with another config; use a new directory")
-    else:
-        write_json_atomic(cfg_path, cfg_dict)
-    for stale in out.glob("*.tmp*"):
-        stale.unlink()  # leftovers of a killed run; their shards are redone below
+    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
     mesh_items = None
     if cfg.mesh_source != "procedural":
         from vtlearn.sim_data.loaders import scan_mesh_folder
 
         mesh_items = [m for m in scan_mesh_folder(cfg.mesh_source) if m["category"] in cfg.categories]
     jobs = plan_shards(cfg, plan_instances(cfg, mesh_items))
-    done = {j["name"]: _shard_done(out, j["name"]) for j in jobs}
-    todo = [j for j in jobs if done[j["name"]] is None]
-    if max_shards is not None:
-        todo = todo[:max_shards]
-    log.info("gen-data %s: %d shards, %d already done", cfg.kind, len(jobs), len(jobs) - len(todo))
-    bar = tqdm(
-        total=len(jobs), initial=len(jobs) - len(todo), desc=f"gen-data {cfg.kind}", disable=not progress
-    )
-    if workers <= 1:
-        for j in todo:
-            done[j["name"]] = _run_job(cfg_dict, j, str(out))
-            bar.update()
-    else:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
-            futs = [ex.submit(_run_job, cfg_dict, j, str(out)) for j in todo]
-            for f in as_completed(futs):
-                meta = f.result()
-                done[meta["file"]] = meta
-                bar.update()
-    bar.close()
-    if any(v is None for v in done.values()):
+    shards = run_shard_jobs(out, jobs, _run_job, (cfg_dict,), workers, max_shards,
+                            desc=f"gen-data {cfg.kind}", progress=progress)
+    if shards is None:
         return {}
-    shards = [done[j["name"]] for j in jobs]
     manifest = {
         "format": FORMAT,
         "kind": cfg.kind,
