@@ -28,7 +28,8 @@ def test_ablation_configs_match_bench_variants():
 @pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "cpu/xavtnet.yaml",
                                   "gpu/xavtnet.yaml", "cpu/xavtnet_lam500.yaml",
                                   "active_learning.yaml", "quick/active_learning.yaml",
-                                  "cpu/active_learning.yaml"])
+                                  "cpu/active_learning.yaml", "cpu/active_learning_equal.yaml",
+                                  "cpu/xavtnet_episodes.yaml"])
 def test_configs_build_the_model(path):
     cfg = load_config(str(ROOT / "configs" / path))
     model = XAVTNet(**cfg["model"])
