@@ -115,7 +115,7 @@ def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmo
 
 
 @pytest.mark.slow
-def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
+def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 
     cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
@@ -146,6 +146,27 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal):
                  "--json", str(out3), "--plot", str(tmp_path / "al3.png")]) == 0
     res3 = json.loads(out3.read_text())
     assert res3["train_steps"] == res3["max_epochs"] * math.ceil(res3["pool_size"] / 4)
+    # --merge pools the seeds of runs with the same protocol, and refuses anything else
+    out4 = tmp_path / "al4.json"
+    assert main(["bench", "active-learning", "--config", str(cfg), "--seed", "1", "--seeds", "1",
+                 "--json", str(out4), "--plot", str(tmp_path / "al4.png")]) == 0
+    res4 = json.loads(out4.read_text())
+    merged = tmp_path / "merged.json"
+    assert main(["bench", "active-learning", "--merge", str(out), str(out4), "--json", str(merged),
+                 "--plot", str(tmp_path / "merged.png")]) == 0
+    m = json.loads(merged.read_text())
+    assert m["seeds"] == [0, 1] and m["full_acc"] == res["full_acc"] + res4["full_acc"]
+    for strategy in ("entropy", "random"):
+        runs = res["curves"][strategy]["runs"] + res4["curves"][strategy]["runs"]
+        assert m["curves"][strategy]["runs"] == runs
+        assert m["curves"][strategy]["acc_mean"] == pytest.approx(
+            [(a["accuracy"] + b["accuracy"]) / 2 for a, b in zip(*runs, strict=True)])
+    assert m["paired_vs_random"]["entropy"]["pairs"] == 2
+    for bad, what in (([str(out), str(out2)], "repeat seeds"), ([str(out4), str(out3)], "train_steps"),
+                      ([str(out), str(tmp_path / "none.json")], "no such file")):
+        assert main(["bench", "active-learning", "--merge", *bad, "--json", str(tmp_path / "x.json"),
+                     "--plot", str(tmp_path / "x.png")]) == 2
+        assert what in capsys.readouterr().err
 
 
 @pytest.mark.slow  # a fresh interpreter importing lightning + train.py: tens of seconds on shared cores

@@ -17,6 +17,7 @@ Both read a LightningCLI-style YAML (``--config``) for the model's ``init_args``
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import time
 from pathlib import Path
@@ -347,9 +348,12 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
 def run_active_learning_bench(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from vtlearn.active.learning_loop import labels_to_reach, paired_advantage
-    from vtlearn.bench_utils import machine_info, print_table, write_json
     from vtlearn.datamodules import ActivePoolDataModule
+
+    if getattr(args, "merge", None):
+        meta, runs = merge_active_learning_runs(args.merge)
+        print(f"merged {len(args.merge)} results: seeds {meta['seeds']}, strategies {list(runs)}")
+        return _summarize_active_learning(args, meta, runs)
 
     cfg = load_config(args.config)
     data_kwargs = _data_kwargs(cfg, args.data)
@@ -403,14 +407,75 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
                 f"{h['n_labels']}: {100 * h['accuracy']:.1f}%" for h in res))
     bar.close()
     full = [results["full", seed] for seed in seeds]
+    runs = {strategy: [results[strategy, seed] for seed in seeds] for strategy in strategies}
+    meta = {"config": args.config, "data": data_kwargs, "pool_size": pool, "active": al,
+            "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds, "full_acc": full,
+            "accelerator": args.accelerator}
+    return _summarize_active_learning(args, meta, runs)
+
+
+# The keys two bench JSONs must share for their seeds to be pooled (`--merge`).
+_MERGE_KEYS = ("data", "pool_size", "max_epochs", "train_steps")
+_MERGE_ACTIVE_KEYS = ("n0", "kappa", "rounds", "mc_passes", "warm_start", "min_steps", "power_beta",
+                      "equal_steps")
+
+
+def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]:
+    """Pool the seeds of several `bench active-learning` JSONs made with the same protocol.
+
+    Returns the merged metadata and ``{strategy: [per-seed round histories]}`` for the strategies every
+    file has. Raises ValueError if a file is missing, is not an active-learning result, differs in the
+    protocol (data, pool, training length, n₀, κ, rounds, ...) or repeats a seed.
+    """
+    docs = []
+    for path in paths:
+        f = Path(path)
+        if not f.is_file():
+            raise ValueError(f"merge: no such file {path}")
+        doc = json.loads(f.read_text())
+        if doc.get("bench") != "active-learning" or "curves" not in doc:
+            raise ValueError(f"merge: {path} is not a `bench active-learning` result")
+        docs.append(doc)
+    first = docs[0]
+    for path, doc in zip(paths[1:], docs[1:], strict=True):
+        for key in _MERGE_KEYS:
+            if doc.get(key) != first.get(key):
+                raise ValueError(f"merge: {path} has {key}={doc.get(key)!r}, "
+                                 f"{paths[0]} has {first.get(key)!r}")
+        for key in _MERGE_ACTIVE_KEYS:
+            if doc["active"].get(key) != first["active"].get(key):
+                raise ValueError(f"merge: {path} has active.{key}={doc['active'].get(key)!r}, {paths[0]} has "
+                                 f"{first['active'].get(key)!r}")
+    seeds = [s for doc in docs for s in doc["seeds"]]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"merge: the files repeat seeds {sorted(seeds)}; each seed may appear once")
+    strategies = [s for s in first["curves"] if all(s in doc["curves"] for doc in docs)]
+    if not strategies:
+        raise ValueError("merge: the files have no strategy in common")
+    runs = {s: [r for doc in docs for r in doc["curves"][s]["runs"]] for s in strategies}
+    meta = {key: first.get(key) for key in _MERGE_KEYS}
+    meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
+                 "strategies": ",".join(strategies)}, "seeds": seeds,
+                 "full_acc": [a for doc in docs for a in doc["full_acc"]],
+                 "accelerator": [doc.get("accelerator") for doc in docs], "merged_from": list(paths)})
+    return meta, runs
+
+
+def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[str, list]) -> int:
+    """Table 7.1 analogue (first reached and sustained), ratios to random, paired comparison, plot, JSON."""
+    from vtlearn.active.learning_loop import labels_to_reach, paired_advantage
+    from vtlearn.bench_utils import machine_info, print_table, write_json
+
+    seeds, pool, full = meta["seeds"], meta["pool_size"], meta["full_acc"]
     acc_full = float(np.mean(full))
     curves: dict[str, dict] = {}
-    for strategy in strategies:
-        runs = [results[strategy, seed] for seed in seeds]
-        n = [h["n_labels"] for h in runs[0]]
-        acc = np.array([[h["accuracy"] for h in r] for r in runs])
+    for strategy, runs_s in runs.items():
+        n = [h["n_labels"] for h in runs_s[0]]
+        if any([h["n_labels"] for h in r] != n for r in runs_s):
+            raise ValueError(f"{strategy}: the seeds' runs have different label counts; cannot average them")
+        acc = np.array([[h["accuracy"] for h in r] for r in runs_s])
         curves[strategy] = {"n_labels": n, "acc_mean": acc.mean(0).tolist(), "acc_std": acc.std(0).tolist(),
-                            "runs": runs}
+                            "runs": runs_s}
     thresholds = (0.10, 0.05, 0.03, 0.02)
     rows = []
     stay_rows = []
@@ -475,9 +540,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     save_figure(fig, plot, dpi=120)
     print(f"plot: {plot}")
     write_json(args.json, {
-        "bench": "active-learning", "config": args.config, "data": data_kwargs, "pool_size": pool,
-        "active": al, "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds,
-        "full_acc": full, "accelerator": args.accelerator,
+        "bench": "active-learning", **meta,
         "curves": curves, "table_7_1": rows, "table_7_1_sustained": stay_rows,
         "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios, "ratios_2pct_sustained": ratios_stay,
         "paired_vs_random": paired,
@@ -546,6 +609,9 @@ def register_bench(sub) -> None:
     q.add_argument("--threads", type=int, default=1)
     q.add_argument("--workers", type=int, default=1,
                    help="(strategy, seed) loops and full-pool references run in parallel processes")
+    q.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                   help="train nothing: pool the seeds of earlier results made with the same protocol "
+                        "(e.g. --seed 0 --seeds 3 and --seed 3 --seeds 3) into one table, plot and JSON")
     q.add_argument("--plot", default="runs/bench/active_learning.png")
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
