@@ -185,3 +185,41 @@ def test_train_py_parses_config_with_ablation_override():
     printed = yaml.safe_load(proc.stdout)
     args = printed["model"]["init_args"]
     assert args["da_layers"] == ["fc1"] and args["global_dim"] == 1024 and args["alpha"] == 10.0
+
+
+def _al_result(path, seeds, *, model=None, min_steps=250, train_steps=410, kappa=32):
+    """A hand-written `bench active-learning` result: one round history per seed and strategy."""
+    doc = {"bench": "active-learning", "data": {"data_dir": "d"}, "pool_size": 1296, "max_epochs": 10,
+           "train_steps": train_steps, "seeds": seeds, "full_acc": [0.9] * len(seeds),
+           "active": {"n0": 32, "kappa": kappa, "rounds": 2, "mc_passes": 10, "warm_start": False,
+                      "min_steps": min_steps, "power_beta": 1.0, "equal_steps": bool(train_steps)},
+           "curves": {s: {"runs": [[{"n_labels": 32, "accuracy": 0.5 + 0.01 * seed}] for seed in seeds]}
+                      for s in ("entropy", "random")}}
+    if model is not None:
+        doc["model"] = model
+    path.write_text(json.dumps(doc))
+    return str(path)
+
+
+def test_merge_active_learning_runs_protocol_rules(tmp_path):
+    from vtlearn.models.xavtnet_cli import merge_active_learning_runs
+
+    m128, m256 = {"global_dim": 128}, {"global_dim": 256}
+    # under equal steps min_steps is unused, so an older run's min_steps does not block the merge;
+    # a file written before the model was recorded merges with one that records it
+    a = _al_result(tmp_path / "a.json", [0, 1], min_steps=250)
+    b = _al_result(tmp_path / "b.json", [3], model=m128, min_steps=0)
+    meta, runs = merge_active_learning_runs([a, b])
+    assert meta["seeds"] == [0, 1, 3] and meta["model"] == m128 and meta["full_acc"] == [0.9] * 3
+    assert [r[0]["accuracy"] for r in runs["entropy"]] == pytest.approx([0.50, 0.51, 0.53])
+    # different models, or min_steps when training length follows the label count, are other protocols
+    c = _al_result(tmp_path / "c.json", [4], model=m256)
+    with pytest.raises(ValueError, match="different models"):
+        merge_active_learning_runs([b, c])
+    d = _al_result(tmp_path / "d.json", [0], min_steps=250, train_steps=None)
+    e = _al_result(tmp_path / "e.json", [1], min_steps=100, train_steps=None)
+    with pytest.raises(ValueError, match="min_steps"):
+        merge_active_learning_runs([d, e])
+    f = _al_result(tmp_path / "f.json", [5], kappa=64)
+    with pytest.raises(ValueError, match="kappa"):
+        merge_active_learning_runs([a, f])

@@ -408,7 +408,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     bar.close()
     full = [results["full", seed] for seed in seeds]
     runs = {strategy: [results[strategy, seed] for seed in seeds] for strategy in strategies}
-    meta = {"config": args.config, "data": data_kwargs, "pool_size": pool, "active": al,
+    meta = {"config": args.config, "model": base, "data": data_kwargs, "pool_size": pool, "active": al,
             "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds, "full_acc": full,
             "accelerator": args.accelerator}
     return _summarize_active_learning(args, meta, runs)
@@ -425,7 +425,8 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
 
     Returns the merged metadata and ``{strategy: [per-seed round histories]}`` for the strategies every
     file has. Raises ValueError if a file is missing, is not an active-learning result, differs in the
-    protocol (data, pool, training length, n₀, κ, rounds, ...) or repeats a seed.
+    protocol (model, data, pool, training length, n₀, κ, rounds, ...) or repeats a seed. Results
+    written before the model was recorded are compared on everything else.
     """
     docs = []
     for path in paths:
@@ -442,7 +443,11 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
             if doc.get(key) != first.get(key):
                 raise ValueError(f"merge: {path} has {key}={doc.get(key)!r}, "
                                  f"{paths[0]} has {first.get(key)!r}")
+        if "model" in doc and "model" in first and doc["model"] != first["model"]:
+            raise ValueError(f"merge: {path} and {paths[0]} trained different models")
         for key in _MERGE_ACTIVE_KEYS:
+            if key == "min_steps" and first.get("train_steps"):
+                continue  # equal steps: every training runs train_steps, min_steps is not used
             if doc["active"].get(key) != first["active"].get(key):
                 raise ValueError(f"merge: {path} has active.{key}={doc['active'].get(key)!r}, {paths[0]} has "
                                  f"{first['active'].get(key)!r}")
@@ -454,6 +459,7 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
         raise ValueError("merge: the files have no strategy in common")
     runs = {s: [r for doc in docs for r in doc["curves"][s]["runs"]] for s in strategies}
     meta = {key: first.get(key) for key in _MERGE_KEYS}
+    meta["model"] = next((doc["model"] for doc in docs if "model" in doc), None)
     meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
                  "strategies": ",".join(strategies)}, "seeds": seeds,
                  "full_acc": [a for doc in docs for a in doc["full_acc"]],
