@@ -475,11 +475,12 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     seeds, pool, full = meta["seeds"], meta["pool_size"], meta["full_acc"]
     acc_full = float(np.mean(full))
     curves: dict[str, dict] = {}
+    accs: dict[str, np.ndarray] = {}  # (seeds, rounds) accuracy per strategy
     for strategy, runs_s in runs.items():
         n = [h["n_labels"] for h in runs_s[0]]
         if any([h["n_labels"] for h in r] != n for r in runs_s):
             raise ValueError(f"{strategy}: the seeds' runs have different label counts; cannot average them")
-        acc = np.array([[h["accuracy"] for h in r] for r in runs_s])
+        acc = accs[strategy] = np.array([[h["accuracy"] for h in r] for r in runs_s])
         curves[strategy] = {"n_labels": n, "acc_mean": acc.mean(0).tolist(), "acc_std": acc.std(0).tolist(),
                             "runs": runs_s}
     thresholds = (0.10, 0.05, 0.03, 0.02)
@@ -514,11 +515,9 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     # Every (seed, round) pair against random: the table reads one point of a noisy mean curve.
     paired: dict[str, dict] = {}
     if "random" in curves:
-        base_acc = np.array([[h["accuracy"] for h in r] for r in curves["random"]["runs"]])
-        for strategy, c in curves.items():
+        for strategy, acc in accs.items():
             if strategy != "random":
-                paired[strategy] = paired_advantage(
-                    np.array([[h["accuracy"] for h in r] for r in c["runs"]]), base_acc)
+                paired[strategy] = paired_advantage(acc, accs["random"])
         print_table([{"strategy": s, "mean_diff": p["mean_diff"], "ahead": f"{p['ahead']}/{p['pairs']}",
                       "wilcoxon_p": "n/a" if p["wilcoxon_p"] is None else p["wilcoxon_p"]}
                      for s, p in paired.items()],

@@ -436,7 +436,6 @@ def generate_dataset(
     max_shards: int | None = None,
 ) -> dict:
     """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests)."""
-
     cfg.validate()
     out = Path(out_dir)
     cfg_dict = asdict(cfg)
