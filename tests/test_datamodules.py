@@ -145,6 +145,28 @@ def test_crossmodal_target_split(cross_dir):
         CrossModalDataModule(str(cross_dir), target_split="val")
 
 
+def test_crossmodal_source_points_thins_training_visual_clouds_only(cross_dir):
+    """``source_points`` thins each drawn visual training cloud to the tactile density; the labelled
+    visual and tactile evaluation clouds stay as stored, and a bad range is refused by name."""
+    dense = CrossModalDataModule(str(cross_dir), batch_size=4)
+    thin = CrossModalDataModule(str(cross_dir), batch_size=4, source_points=[30, 60])
+    src = next(iter(thin.train_dataloader()))[0]["source"]
+    assert ((src["lengths"] >= 30) & (src["lengths"] <= 60)).all()
+    assert src["label"].dtype == torch.int64
+    for a, b in ((dense.source_test_dataloader(), thin.source_test_dataloader()),
+                 (dense.test_dataloader(), thin.test_dataloader())):
+        ba, bb = next(iter(a)), next(iter(b))
+        assert torch.equal(ba["lengths"], bb["lengths"]) and torch.equal(ba["points"], bb["points"])
+    # The thinned points are voxel centroids of the (rotated, then centred) dense cloud: inside its hull.
+    cloud = thin.source_train_dataset().clouds[0]
+    r_dense = np.linalg.norm(cloud - cloud.mean(0), axis=1).max()
+    item = thin.source_train_dataset()[0]["points"]
+    assert 30 <= len(item) <= 60 and np.linalg.norm(item, axis=1).max() <= 2 * r_dense
+    for bad, match in (([60, 30], "source_points"), ([0, 10], "source_points"), ("x", "source_points")):
+        with pytest.raises(ValueError, match=match):
+            CrossModalDataModule(str(cross_dir), source_points=bad)
+
+
 def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
     with pytest.raises(ValueError, match="data_dir"):
         CrossModalDataModule(str(recon_dir))

@@ -110,3 +110,31 @@ def test_crossmodal_target_data_dir_streams_the_episode_clouds(cross_dir, episod
     (tmp_path / "manifest.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="class names"):
         CrossModalDataModule(str(cross_dir), target_data_dir=str(tmp_path))
+
+
+def test_train_on_tactile_trains_on_labelled_touches_and_adds_episode_clouds(cross_dir, episodes, tmp_path):
+    """``train_on="tactile"``: the training stream is the labelled tactile training clouds (plus the labelled
+    episode clouds of ``target_data_dir``), with the dataset's true labels; it fits through Lightning."""
+    import lightning as L
+
+    from vtlearn.models.xavtnet import XAVTNet
+
+    _, out, _ = episodes
+    plain = CrossModalDataModule(str(cross_dir), batch_size=4, train_on="tactile")
+    both = CrossModalDataModule(str(cross_dir), batch_size=4, train_on="tactile", target_data_dir=str(out))
+    d_train, d_ep = load_split(cross_dir, "train"), load_split(out, "train")
+    n_train, n_ep = len(d_train["tactile_label"]), len(d_ep["tactile_label"])
+    assert len(plain.train_dataloader().dataset) == n_train
+    assert len(both.train_dataloader().dataset) == n_train + n_ep
+    labels = sorted(int(both.train_dataloader().dataset[i]["label"]) for i in range(n_train + n_ep))
+    assert labels == sorted(np.concatenate([d_train["tactile_label"], d_ep["tactile_label"]]).tolist())
+    batch = next(iter(plain.train_dataloader()))
+    assert set(batch) == {"points", "lengths", "label"} and (batch["lengths"] <= 120).all()
+    with pytest.raises(ValueError, match="train_on"):
+        CrossModalDataModule(str(cross_dir), train_on="audio")
+    model = XAVTNet(num_classes=plain.num_classes, global_dim=32, fc_dims=[32, 16], max_points=32)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=both)
+    # the single-stream branch of training_step: cross-entropy only, no domain terms
+    assert "train/ce" in trainer.callback_metrics and "train/mmd" not in trainer.callback_metrics

@@ -29,10 +29,16 @@ def test_ablation_configs_match_bench_variants():
                                   "gpu/xavtnet.yaml", "cpu/xavtnet_lam500.yaml",
                                   "active_learning.yaml", "quick/active_learning.yaml",
                                   "cpu/active_learning.yaml", "cpu/active_learning_equal.yaml",
-                                  "cpu/xavtnet_episodes.yaml"])
+                                  "cpu/xavtnet_episodes.yaml", "cpu/xavtnet_tactile.yaml"])
 def test_configs_build_the_model(path):
+    import inspect
+
+    from vtlearn.datamodules import CrossModalDataModule
+
     cfg = load_config(str(ROOT / "configs" / path))
     model = XAVTNet(**cfg["model"])
+    if "active" not in path:  # the crossmodal configs name only arguments the datamodule takes
+        assert set(cfg["data"]) <= set(inspect.signature(CrossModalDataModule).parameters), path
     assert model.hparams.num_classes == 12
     assert cfg["trainer"]["max_epochs"] >= 1
     if cfg.get("active"):

@@ -25,10 +25,22 @@ from torch.utils.data import DataLoader, Dataset
 from vtlearn.datamodules.shards import (
     ShardedDataModule,
     normalize_cloud,
+    random_voxel_subsample,
     rotation_z,
     split_clouds,
     worker_rng,
 )
+
+
+def _check_points_range(value, name: str) -> tuple[int, int]:
+    """``(n_min, n_max)`` with ``1 <= n_min <= n_max``, or a ValueError naming ``name``."""
+    try:
+        lo, hi = (int(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected two integers [n_min, n_max], got {value!r}") from None
+    if not 1 <= lo <= hi:
+        raise ValueError(f"{name}: need 1 <= n_min <= n_max, got [{lo}, {hi}]")
+    return lo, hi
 
 
 class CloudDataset(Dataset):
@@ -46,10 +58,14 @@ class CloudDataset(Dataset):
         scales: np.ndarray | None = None,
         with_label: bool = True,
         with_index: bool = False,
+        subsample: tuple[int, int] | None = None,
     ):
         if len(clouds) == 0:
             raise ValueError("clouds: empty dataset")
         normalize_cloud(np.zeros((1, 3)), normalize)  # validates the mode early
+        if subsample is not None:
+            subsample = _check_points_range(subsample, "subsample")
+        self.subsample = subsample
         self.clouds, self.labels = clouds, labels
         self.indices = np.arange(len(clouds)) if indices is None else np.asarray(indices)
         self.train, self.normalize, self.rotate_z, self.seed = train, normalize, rotate_z, seed
@@ -63,8 +79,12 @@ class CloudDataset(Dataset):
         pts = self.clouds[j].astype(np.float64)
         if self.scales is not None:
             pts = pts * float(self.scales[j])
-        if self.rotate_z and self.train:
-            pts = pts @ rotation_z(worker_rng(True, self.seed, j).uniform(0, 2 * np.pi)).T
+        if self.train and (self.rotate_z or self.subsample is not None):
+            rng = worker_rng(True, self.seed, j)
+            if self.rotate_z:
+                pts = pts @ rotation_z(rng.uniform(0, 2 * np.pi)).T
+            if self.subsample is not None:
+                pts = random_voxel_subsample(pts, *self.subsample, rng)
         item = {"points": normalize_cloud(pts, self.normalize).astype(np.float32)}
         if self.with_label:
             item["label"] = int(self.labels[j])
@@ -104,11 +124,23 @@ class CrossModalDataModule(ShardedDataModule):
         normalize: per-cloud normalisation, ``none`` | ``center`` | ``unit_sphere``.
         units: ``canonical`` (unit cube per instance) or ``metres``.
         rotate_z: random yaw augmentation in training.
+        source_points: ``[n_min, n_max]`` or None (default). When set, every visual training cloud is
+            thinned, each time it is drawn, to a size drawn uniformly from that range by random voxel-grid
+            subsampling (:func:`~vtlearn.datamodules.shards.random_voxel_subsample`), so the source has the
+            tactile clouds' density (30-120 points, thesis 7.3.1). It uses no tactile data, only the
+            sensor's known point count; visual test clouds stay dense.
         target_split: the split whose tactile clouds, without labels, form the target stream.
             ``"train"`` (default, inductive): the test instances are never seen in training at all.
             ``"test"`` (transductive, the usual UDA protocol of DAN / Deep CORAL / DANN and the
             thesis's 900 + 300 tactile clouds of the same 12 objects): the unlabelled tactile clouds of
             the test instances adapt the model that is then scored on them with their labels.
+        train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
+            unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
+            tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
+            is set), with no target stream. In simulation the touch labels are free, so this gives the
+            supervised upper bound of cross-modal transfer, a classifier that separates the quality of an
+            active-touch criterion from the quality of the domain adaptation (docs/active_perception.md).
+            Evaluation loaders are the same for both.
         num_workers, seed, verify: see :class:`ReconstructionDataModule`.
     """
 
@@ -121,6 +153,8 @@ class CrossModalDataModule(ShardedDataModule):
         rotate_z: bool = True,
         target_split: str = "train",
         target_data_dir: str | None = None,
+        source_points: tuple[int, int] | list[int] | None = None,
+        train_on: str = "visual",
         num_workers: int = 0,
         seed: int = 0,
         verify: bool = True,
@@ -130,12 +164,17 @@ class CrossModalDataModule(ShardedDataModule):
             raise ValueError(f"target_split: expected 'train' or 'test', got {target_split!r}")
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
+        if train_on not in ("visual", "tactile"):
+            raise ValueError(f"train_on: expected 'visual' or 'tactile', got {train_on!r}")
         if units not in ("canonical", "metres"):
             raise ValueError(f"units: expected 'canonical' or 'metres', got {units!r}")
         normalize_cloud(np.zeros((1, 3)), normalize)
         self.batch_size, self.normalize, self.units = batch_size, normalize, units
         self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
-        self.target_split = target_split
+        self.target_split, self.train_on = target_split, train_on
+        self.source_points = (
+            None if source_points is None else _check_points_range(source_points, "source_points")
+        )
         self._open_dataset(data_dir, verify, kind="crossmodal")
         self.target_data_dir = target_data_dir
         self._target_split_data: dict | None = None
@@ -148,6 +187,9 @@ class CrossModalDataModule(ShardedDataModule):
                     f"target_data_dir: class names {other['class_names']} differ from data_dir's "
                     f"{self.class_names}"
                 )
+            if train_on == "tactile" and "train" not in other["splits"]:
+                raise ValueError(f"target_data_dir: train_on='tactile' needs its 'train' split, "
+                                 f"{target_data_dir} has {sorted(other['splits'])}")
             if target_split not in other["splits"]:
                 raise ValueError(
                     f"target_data_dir: no {target_split!r} split in {target_data_dir} "
@@ -184,8 +226,18 @@ class CrossModalDataModule(ShardedDataModule):
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, with_label=False)
 
-    def train_dataloader(self) -> CombinedLoader:
-        source = self._loader(self.dataset("train", "visual"), shuffle=True)
+    def source_train_dataset(self) -> CloudDataset:
+        """Labelled, yaw-augmented visual training clouds, thinned to ``source_points`` when it is set."""
+        clouds, labels, scales = modality_clouds(self._split("train"), "visual", self.units == "metres")
+        return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
+                            seed=self.seed, scales=scales, subsample=self.source_points)
+
+    def train_dataloader(self) -> CombinedLoader | DataLoader:
+        """Source and target streams (``train_on="visual"``), or the labelled tactile training clouds
+        (``train_on="tactile"``)."""
+        if self.train_on == "tactile":
+            return self.labelled_target_train_dataloader()
+        source = self._loader(self.source_train_dataset(), shuffle=True)
         target = self._loader(self.target_dataset(), shuffle=True)
         return CombinedLoader({"source": source, "target": target}, mode="max_size_cycle")
 
@@ -205,8 +257,20 @@ class CrossModalDataModule(ShardedDataModule):
 
     def labelled_target_train_dataloader(self) -> DataLoader:
         """Labelled, yaw-augmented tactile training clouds. Only for the train-on-target upper bound
-        (``bench crossmodal --variants tactile_oracle``); UDA training never sees tactile labels."""
-        return self._loader(self.dataset("train", "tactile"), shuffle=True)
+        (``bench crossmodal --variants tactile_oracle``, ``train_on="tactile"``); UDA training never sees
+        tactile labels. With ``target_data_dir`` set, its labelled ``train`` tactile clouds are added."""
+        ds = self.dataset("train", "tactile")
+        if self.target_data_dir is not None:
+            from torch.utils.data import ConcatDataset
+
+            from vtlearn.datamodules.shards import load_split
+
+            clouds, labels, scales = modality_clouds(
+                load_split(self.target_data_dir, "train", self.verify), "tactile", self.units == "metres"
+            )
+            ds = ConcatDataset([ds, CloudDataset(clouds, labels, train=True, normalize=self.normalize,
+                                                 rotate_z=self.rotate_z, seed=self.seed, scales=scales)])
+        return self._loader(ds, shuffle=True)
 
     def source_val_dataloader(self) -> DataLoader:
         return self._loader(self.dataset("val", "visual"), shuffle=False)
