@@ -57,6 +57,7 @@ def test_active_reconstruction_bench(ckpts, tmp_path):
         assert len(s["cd_mm_mean"]) == 3
     assert r["actions"] == [1, 2, 3] and r["thesis"]["cd_mm_at_20"]["active"] == 20.0
     assert len(r["per_object"]) == 1 and len(r["per_object"][0]["random"]["cd_mm"]) == 3
+    assert set(r["paired_at_max_actions"]) == {"active vs random", "active vs uniform"}
 
 
 def test_active_recognition_bench(ckpts, tmp_path):
@@ -87,6 +88,24 @@ def test_active_recognition_bench(ckpts, tmp_path):
     for s in r["summary"].values():
         assert 1 <= s["actions_mean"] <= 10 and 0 <= s["accuracy_after_10"] <= 1
     assert len(r["per_object"][0]["active"]["confidence"]) == 10
+    assert set(r["paired_actions"]) == {"active vs random", "uniform vs random", "active_recognition vs random"}
+    q = r["paired_actions"]["active vs random"]
+    a, b = r["per_object"][0]["active"]["actions"], r["per_object"][0]["random"]["actions"]
+    assert (q["pairs"], q["lower"], q["higher"]) == (1, int(a < b), int(a > b))
+    assert q["wilcoxon_p"] is None  # one object: no test
+
+
+def test_paired_vs_baseline_hand_case():
+    from vtlearn.active.experiments_cli import paired_vs_baseline
+
+    q = paired_vs_baseline([1, 2, 3, 4, 5, 6, float("nan")], [2, 3, 4, 5, 6, 6, 1.0])
+    assert (q["lower"], q["higher"], q["ties"], q["pairs"]) == (5, 0, 1, 6)  # the NaN pair is left out
+    assert q["mean_diff"] == pytest.approx(-5 / 6)
+    # scipy drops the zero difference and has five equal ranks of one sign: exact p = 2 / 2**5
+    assert q["wilcoxon_p"] == pytest.approx(0.0625)
+    assert paired_vs_baseline([1, 2], [1, 2])["wilcoxon_p"] is None
+    with pytest.raises(ValueError, match="same length"):
+        paired_vs_baseline([1, 2], [1, 2, 3])
 
 
 def test_shared_exploration_bench(ckpts, tmp_path):
