@@ -110,6 +110,14 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in json.loads(out2.read_text())["runs"]] == ["tactile_oracle"]
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "bogus",
                  "--json", str(out2)]) == 2
+    # --source-points reaches the datamodule and is recorded; a bad range is refused by name
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--source-points", "10", "20", "--no-figures", "--json", str(out2)]) == 0
+    assert json.loads(out2.read_text())["data"]["source_points"] == [10, 20]
+    capsys.readouterr()
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--source-points", "20", "10", "--no-figures", "--json", str(out2)]) == 2
+    assert "source_points" in capsys.readouterr().err
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):

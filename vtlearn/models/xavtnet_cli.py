@@ -78,8 +78,16 @@ def _data_kwargs(cfg: dict, data_dir: str | None) -> dict:
 
 
 def _quiet_lightning() -> None:
+    """Lightning's info logs, and two warnings that say nothing about the run: the torch 2.13 ``LeafSpec``
+    deprecation inside Lightning's pytree helper, and the missing validation loader the bench's trainers
+    turn off on purpose. Called in every (spawned) worker, whose warning filters start afresh."""
+    import warnings
+
     for name in ("lightning", "lightning.pytorch", "lightning.fabric"):
         logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
+                            category=FutureWarning)
+    warnings.filterwarnings("ignore", message=r"You defined a `validation_step` but have no `val_dataloader`")
 
 
 def _trainer(max_epochs: int, accelerator: str = "cpu"):
@@ -223,6 +231,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["target_split"] = args.target_split
     if args.target_data:
         data_kwargs["target_data_dir"] = args.target_data
+    if args.source_points:
+        data_kwargs["source_points"] = list(args.source_points)
+    if args.source_views:
+        data_kwargs["source_views"] = args.source_views
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
@@ -572,6 +584,12 @@ def register_bench(sub) -> None:
     p.add_argument("--target-split", choices=["train", "test"], default=None,
                    help="unlabelled tactile clouds for adaptation: train instances (inductive) or the "
                         "test instances themselves (transductive UDA protocol); default from the config")
+    p.add_argument("--source-points", nargs=2, type=int, default=None, metavar=("N_MIN", "N_MAX"),
+                   help="thin every visual training cloud to N_MIN..N_MAX points (the tactile density; "
+                        "CrossModalDataModule source_points); default from the config: dense")
+    p.add_argument("--source-views", type=int, default=None, metavar="K",
+                   help="fuse K views of the instance into every visual training cloud (CrossModalDataModule "
+                        "source_views); default from the config: 1, the single view")
     p.add_argument("--target-data", default=None,
                    help="dataset whose tactile clouds of the target split form the unlabelled target stream "
                         "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
