@@ -167,6 +167,29 @@ def test_crossmodal_source_points_thins_training_visual_clouds_only(cross_dir):
             CrossModalDataModule(str(cross_dir), source_points=bad)
 
 
+def test_crossmodal_source_views_fuses_views_of_the_same_instance(cross_dir):
+    """``source_views=k`` joins each drawn visual training cloud with other views of its own instance (never
+    another instance's), keeps its point count, and leaves the evaluation clouds alone."""
+    dm = CrossModalDataModule(str(cross_dir), batch_size=4, source_views=2, rotate_z=False, normalize="none")
+    d = load_split(cross_dir, "train")
+    ds = dm.source_train_dataset()
+    inst = d["visual_instance"]
+    for j in range(len(inst)):
+        item = ds[j]["points"]
+        assert item.shape == d["visual"][j].shape
+        own = {tuple(p) for p in np.round(d["visual"][j], 5)}
+        mates = {tuple(p) for o in np.flatnonzero(inst == inst[j]) for p in np.round(d["visual"][o], 5)}
+        pts = {tuple(p) for p in np.round(item, 5)}
+        assert pts <= mates  # only views of the same instance
+        if (inst == inst[j]).sum() > 1:
+            assert not pts <= own  # another view was fused in
+    plain = CrossModalDataModule(str(cross_dir), batch_size=4)
+    a, b = next(iter(plain.source_test_dataloader())), next(iter(dm.source_test_dataloader()))
+    assert torch.equal(a["lengths"], b["lengths"])
+    with pytest.raises(ValueError, match="source_views"):
+        CrossModalDataModule(str(cross_dir), source_views=0)
+
+
 def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
     with pytest.raises(ValueError, match="data_dir"):
         CrossModalDataModule(str(recon_dir))

@@ -44,7 +44,13 @@ def _check_points_range(value, name: str) -> tuple[int, int]:
 
 
 class CloudDataset(Dataset):
-    """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}."""
+    """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}.
+
+    Training-time options (``train=True`` only): ``rotate_z``, a random yaw; ``subsample=(n_min, n_max)``,
+    random voxel-grid thinning; ``fuse_views=k`` with ``groups`` (one instance id per cloud), the cloud
+    fused with ``k - 1`` other clouds of its instance drawn at random (all are in the instance's frame),
+    then resampled to the cloud's own point count.
+    """
 
     def __init__(
         self,
@@ -59,13 +65,24 @@ class CloudDataset(Dataset):
         with_label: bool = True,
         with_index: bool = False,
         subsample: tuple[int, int] | None = None,
+        fuse_views: int = 1,
+        groups: np.ndarray | None = None,
     ):
         if len(clouds) == 0:
             raise ValueError("clouds: empty dataset")
         normalize_cloud(np.zeros((1, 3)), normalize)  # validates the mode early
         if subsample is not None:
             subsample = _check_points_range(subsample, "subsample")
-        self.subsample = subsample
+        self.subsample, self.fuse_views = subsample, int(fuse_views)
+        self._members: dict[int, np.ndarray] = {}
+        if self.fuse_views < 1:
+            raise ValueError(f"fuse_views: need >= 1, got {fuse_views}")
+        if self.fuse_views > 1:
+            if groups is None or len(groups) != len(clouds):
+                raise ValueError("groups: fuse_views > 1 needs one instance id per cloud")
+            self.groups = np.asarray(groups)
+            for g in np.unique(self.groups):
+                self._members[int(g)] = np.flatnonzero(self.groups == g)
         self.clouds, self.labels = clouds, labels
         self.indices = np.arange(len(clouds)) if indices is None else np.asarray(indices)
         self.train, self.normalize, self.rotate_z, self.seed = train, normalize, rotate_z, seed
@@ -77,10 +94,18 @@ class CloudDataset(Dataset):
     def __getitem__(self, i: int) -> dict:
         j = int(self.indices[i])
         pts = self.clouds[j].astype(np.float64)
+        fuse = self.train and self.fuse_views > 1
+        if self.train and (self.rotate_z or self.subsample is not None or fuse):
+            rng = worker_rng(True, self.seed, j)
+        if fuse:
+            others = self._members[int(self.groups[j])]
+            others = others[others != j]
+            pick = rng.choice(others, size=min(self.fuse_views - 1, len(others)), replace=False)
+            fused = np.concatenate([pts, *(self.clouds[int(o)] for o in pick)])
+            pts = fused[rng.choice(len(fused), size=len(pts), replace=False)]
         if self.scales is not None:
             pts = pts * float(self.scales[j])
         if self.train and (self.rotate_z or self.subsample is not None):
-            rng = worker_rng(True, self.seed, j)
             if self.rotate_z:
                 pts = pts @ rotation_z(rng.uniform(0, 2 * np.pi)).T
             if self.subsample is not None:
@@ -134,6 +159,10 @@ class CrossModalDataModule(ShardedDataModule):
             ``"test"`` (transductive, the usual UDA protocol of DAN / Deep CORAL / DANN and the
             thesis's 900 + 300 tactile clouds of the same 12 objects): the unlabelled tactile clouds of
             the test instances adapt the model that is then scored on them with their labels.
+        source_views: views fused into each visual training cloud (default 1: the single view, as in the
+            thesis). With ``k > 1`` every drawn cloud is joined with ``k - 1`` other views of its instance,
+            picked at random (views share the instance frame), and resampled to its point count: the
+            coverage of a camera that looks from several sides. Visual test clouds stay single views.
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
@@ -154,6 +183,7 @@ class CrossModalDataModule(ShardedDataModule):
         target_split: str = "train",
         target_data_dir: str | None = None,
         source_points: tuple[int, int] | list[int] | None = None,
+        source_views: int = 1,
         train_on: str = "visual",
         num_workers: int = 0,
         seed: int = 0,
@@ -172,6 +202,9 @@ class CrossModalDataModule(ShardedDataModule):
         self.batch_size, self.normalize, self.units = batch_size, normalize, units
         self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
         self.target_split, self.train_on = target_split, train_on
+        if int(source_views) < 1:
+            raise ValueError(f"source_views: need >= 1, got {source_views}")
+        self.source_views = int(source_views)
         self.source_points = (
             None if source_points is None else _check_points_range(source_points, "source_points")
         )
@@ -227,10 +260,13 @@ class CrossModalDataModule(ShardedDataModule):
                             seed=self.seed, scales=scales, with_label=False)
 
     def source_train_dataset(self) -> CloudDataset:
-        """Labelled, yaw-augmented visual training clouds, thinned to ``source_points`` when it is set."""
-        clouds, labels, scales = modality_clouds(self._split("train"), "visual", self.units == "metres")
+        """Labelled, yaw-augmented visual training clouds; fused over ``source_views`` views and thinned to
+        ``source_points`` when they are set."""
+        d = self._split("train")
+        clouds, labels, scales = modality_clouds(d, "visual", self.units == "metres")
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, scales=scales, subsample=self.source_points)
+                            seed=self.seed, scales=scales, subsample=self.source_points,
+                            fuse_views=self.source_views, groups=d["visual_instance"])
 
     def train_dataloader(self) -> CombinedLoader | DataLoader:
         """Source and target streams (``train_on="visual"``), or the labelled tactile training clouds
