@@ -88,7 +88,8 @@ def test_active_recognition_bench(ckpts, tmp_path):
     for s in r["summary"].values():
         assert 1 <= s["actions_mean"] <= 10 and 0 <= s["accuracy_after_10"] <= 1
     assert len(r["per_object"][0]["active"]["confidence"]) == 10
-    assert set(r["paired_actions"]) == {"active vs random", "uniform vs random", "active_recognition vs random"}
+    pairs = {"active vs random", "uniform vs random", "active_recognition vs random"}
+    assert set(r["paired_actions"]) == pairs
     q = r["paired_actions"]["active vs random"]
     a, b = r["per_object"][0]["active"]["actions"], r["per_object"][0]["random"]["actions"]
     assert (q["pairs"], q["lower"], q["higher"]) == (1, int(a < b), int(a > b))

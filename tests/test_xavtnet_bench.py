@@ -112,7 +112,8 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--json", str(out2)]) == 2
     # --source-points reaches the datamodule and is recorded; a bad range is refused by name
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
-                 "--source-points", "10", "20", "--source-views", "2", "--no-figures", "--json", str(out2)]) == 0
+                 "--source-points", "10", "20", "--source-views", "2", "--no-figures",
+                 "--json", str(out2)]) == 0
     data = json.loads(out2.read_text())["data"]
     assert (data["source_points"], data["source_views"]) == ([10, 20], 2)
     capsys.readouterr()
