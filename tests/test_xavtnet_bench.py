@@ -120,6 +120,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-points", "20", "10", "--no-figures", "--json", str(out2)]) == 2
     assert "source_points" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--source-views", "0", "--no-figures", "--json", str(out2)]) == 2
+    assert "source_views" in capsys.readouterr().err
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):

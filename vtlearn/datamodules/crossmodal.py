@@ -149,16 +149,18 @@ class CrossModalDataModule(ShardedDataModule):
         normalize: per-cloud normalisation, ``none`` | ``center`` | ``unit_sphere``.
         units: ``canonical`` (unit cube per instance) or ``metres``.
         rotate_z: random yaw augmentation in training.
-        source_points: ``[n_min, n_max]`` or None (default). When set, every visual training cloud is
-            thinned, each time it is drawn, to a size drawn uniformly from that range by random voxel-grid
-            subsampling (:func:`~vtlearn.datamodules.shards.random_voxel_subsample`), so the source has the
-            tactile clouds' density (30-120 points, thesis 7.3.1). It uses no tactile data, only the
-            sensor's known point count; visual test clouds stay dense.
         target_split: the split whose tactile clouds, without labels, form the target stream.
             ``"train"`` (default, inductive): the test instances are never seen in training at all.
             ``"test"`` (transductive, the usual UDA protocol of DAN / Deep CORAL / DANN and the
             thesis's 900 + 300 tactile clouds of the same 12 objects): the unlabelled tactile clouds of
             the test instances adapt the model that is then scored on them with their labels.
+        target_data_dir: another dataset with the same class names (e.g. from ``vtlearn gen-episodes``)
+            whose ``target_split`` tactile clouds form the target stream instead of ``data_dir``'s.
+        source_points: ``[n_min, n_max]`` or None (default). When set, every visual training cloud is
+            thinned, each time it is drawn, to a size drawn uniformly from that range by random voxel-grid
+            subsampling (:func:`~vtlearn.datamodules.shards.random_voxel_subsample`), so the source has the
+            tactile clouds' density (30-120 points, thesis 7.3.1). It uses no tactile data, only the
+            sensor's known point count; visual test clouds stay dense.
         source_views: views fused into each visual training cloud (default 1: the single view, as in the
             thesis). With ``k > 1`` every drawn cloud is joined with ``k - 1`` other views of its instance,
             picked at random (views share the instance frame), and resampled to its point count: the

@@ -233,7 +233,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["target_data_dir"] = args.target_data
     if args.source_points:
         data_kwargs["source_points"] = list(args.source_points)
-    if args.source_views:
+    if args.source_views is not None:
         data_kwargs["source_views"] = args.source_views
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
