@@ -190,6 +190,30 @@ def test_crossmodal_source_views_fuses_views_of_the_same_instance(cross_dir):
         CrossModalDataModule(str(cross_dir), source_views=0)
 
 
+def test_crossmodal_source_touch_turns_visual_clouds_into_pad_contacts(cross_dir):
+    """``source_touch``: each visual training cloud becomes 30-120 pad contacts on its fused views (points
+    of the instance's surface, up to the cell averaging), with the Xela pitch in canonical units."""
+    from scipy.spatial import cKDTree
+
+    dm = CrossModalDataModule(str(cross_dir), source_views=2, source_touch=True, rotate_z=False,
+                              normalize="none")
+    ds = dm.source_train_dataset()
+    d = load_split(cross_dir, "train")
+    scale = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
+    assert ds.touch_pitch[0] == pytest.approx(0.0047 / scale[int(d["visual_instance"][0])])
+    for j in range(len(ds)):
+        pts = ds[j]["points"]
+        assert 30 <= len(pts) <= 120
+        views = np.concatenate([d["visual"][o] for o in np.flatnonzero(d["visual_instance"] ==
+                                                                      d["visual_instance"][j])])
+        # a contact is the mean of a taxel cell's points: within a cell's diagonal of the views
+        assert cKDTree(views).query(pts)[0].max() <= 1.5 * ds.touch_pitch[j]
+    with pytest.raises(ValueError, match="touch_pitch"):
+        from vtlearn.datamodules.crossmodal import CloudDataset
+
+        CloudDataset([np.zeros((4, 3))], np.zeros(1), train=True, touch_pitch=np.ones(1))
+
+
 def test_crossmodal_rejects_reconstruction_dataset(recon_dir):
     with pytest.raises(ValueError, match="data_dir"):
         CrossModalDataModule(str(recon_dir))

@@ -49,7 +49,9 @@ class CloudDataset(Dataset):
     Training-time options (``train=True`` only): ``rotate_z``, a random yaw; ``subsample=(n_min, n_max)``,
     random voxel-grid thinning; ``fuse_views=k`` with ``groups`` (one instance id per cloud), the cloud
     fused with ``k - 1`` other clouds of its instance drawn at random (all are in the instance's frame),
-    then resampled to the cloud's own point count.
+    then resampled to the cloud's own point count; ``touch_pitch`` (one taxel pitch per cloud, in the
+    cloud's units) with ``subsample``, the (fused) cloud replaced by the contacts of simulated pad touches
+    (:func:`~vtlearn.sim_data.cloud_touch.touch_cloud`), as many as ``subsample`` draws.
     """
 
     def __init__(
@@ -67,6 +69,7 @@ class CloudDataset(Dataset):
         subsample: tuple[int, int] | None = None,
         fuse_views: int = 1,
         groups: np.ndarray | None = None,
+        touch_pitch: np.ndarray | None = None,
     ):
         if len(clouds) == 0:
             raise ValueError("clouds: empty dataset")
@@ -74,6 +77,12 @@ class CloudDataset(Dataset):
         if subsample is not None:
             subsample = _check_points_range(subsample, "subsample")
         self.subsample, self.fuse_views = subsample, int(fuse_views)
+        if touch_pitch is not None:
+            touch_pitch = np.asarray(touch_pitch, dtype=np.float64)
+            if subsample is None or touch_pitch.shape != (len(clouds),) or not (touch_pitch > 0).all():
+                raise ValueError("touch_pitch: needs subsample (the contact count) and one positive pitch "
+                                 "per cloud")
+        self.touch_pitch = touch_pitch
         self._members: dict[int, np.ndarray] = {}
         if self.fuse_views < 1:
             raise ValueError(f"fuse_views: need >= 1, got {fuse_views}")
@@ -95,20 +104,29 @@ class CloudDataset(Dataset):
         j = int(self.indices[i])
         pts = self.clouds[j].astype(np.float64)
         fuse = self.train and self.fuse_views > 1
-        if self.train and (self.rotate_z or self.subsample is not None or fuse):
+        touch = self.train and self.touch_pitch is not None
+        if self.train and (self.rotate_z or self.subsample is not None or fuse or touch):
             rng = worker_rng(True, self.seed, j)
         if fuse:
             others = self._members[int(self.groups[j])]
             others = others[others != j]
             pick = rng.choice(others, size=min(self.fuse_views - 1, len(others)), replace=False)
             fused = np.concatenate([pts, *(self.clouds[int(o)] for o in pick)])
-            pts = fused[rng.choice(len(fused), size=len(pts), replace=False)]
+            pts = fused if self.touch_pitch is not None else fused[rng.choice(len(fused), len(pts), False)]
+        touched = False
+        if touch:
+            from vtlearn.sim_data.cloud_touch import touch_cloud
+
+            n = int(rng.integers(self.subsample[0], self.subsample[1] + 1))
+            contacts = touch_cloud(pts, n, rng, float(self.touch_pitch[j]))
+            if len(contacts) >= self.subsample[0]:  # else (every touch missed): thin the cloud instead
+                pts, touched = contacts, True
         if self.scales is not None:
             pts = pts * float(self.scales[j])
         if self.train and (self.rotate_z or self.subsample is not None):
             if self.rotate_z:
                 pts = pts @ rotation_z(rng.uniform(0, 2 * np.pi)).T
-            if self.subsample is not None:
+            if self.subsample is not None and not touched:
                 pts = random_voxel_subsample(pts, *self.subsample, rng)
         item = {"points": normalize_cloud(pts, self.normalize).astype(np.float32)}
         if self.with_label:
@@ -165,6 +183,10 @@ class CrossModalDataModule(ShardedDataModule):
             thesis). With ``k > 1`` every drawn cloud is joined with ``k - 1`` other views of its instance,
             picked at random (views share the instance frame), and resampled to its point count: the
             coverage of a camera that looks from several sides. Visual test clouds stay single views.
+        source_touch: replace each visual training cloud (fused over ``source_views`` first; use all
+            views, since a touch on a one-sided cloud passes through its missing back) by the contacts of
+            simulated Xela 4x4 pad touches on it (:func:`~vtlearn.sim_data.cloud_touch.touch_cloud`),
+            ``source_points`` of them (default 30-120). No tactile data are used.
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
@@ -186,6 +208,7 @@ class CrossModalDataModule(ShardedDataModule):
         target_data_dir: str | None = None,
         source_points: tuple[int, int] | list[int] | None = None,
         source_views: int = 1,
+        source_touch: bool = False,
         train_on: str = "visual",
         num_workers: int = 0,
         seed: int = 0,
@@ -206,7 +229,7 @@ class CrossModalDataModule(ShardedDataModule):
         self.target_split, self.train_on = target_split, train_on
         if int(source_views) < 1:
             raise ValueError(f"source_views: need >= 1, got {source_views}")
-        self.source_views = int(source_views)
+        self.source_views, self.source_touch = int(source_views), bool(source_touch)
         self.source_points = (
             None if source_points is None else _check_points_range(source_points, "source_points")
         )
@@ -266,9 +289,17 @@ class CrossModalDataModule(ShardedDataModule):
         ``source_points`` when they are set."""
         d = self._split("train")
         clouds, labels, scales = modality_clouds(d, "visual", self.units == "metres")
+        subsample, pitch = self.source_points, None
+        if self.source_touch:
+            from vtlearn.sim_data.sensors import SENSORS
+
+            subsample = subsample or (30, 120)
+            scale = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
+            # clouds are touched in the instance's canonical frame: the pitch in canonical units
+            pitch = np.array([SENSORS["xela_4x4"].pitch / scale[int(k)] for k in d["visual_instance"]])
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, scales=scales, subsample=self.source_points,
-                            fuse_views=self.source_views, groups=d["visual_instance"])
+                            seed=self.seed, scales=scales, subsample=subsample, fuse_views=self.source_views,
+                            groups=d["visual_instance"], touch_pitch=pitch)
 
     def train_dataloader(self) -> CombinedLoader | DataLoader:
         """Source and target streams (``train_on="visual"``), or the labelled tactile training clouds

@@ -235,6 +235,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["source_points"] = list(args.source_points)
     if args.source_views is not None:
         data_kwargs["source_views"] = args.source_views
+    if args.source_touch:
+        data_kwargs["source_touch"] = True
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
@@ -590,6 +592,9 @@ def register_bench(sub) -> None:
     p.add_argument("--source-views", type=int, default=None, metavar="K",
                    help="fuse K views of the instance into every visual training cloud (CrossModalDataModule "
                         "source_views); default from the config: 1, the single view")
+    p.add_argument("--source-touch", action="store_true",
+                   help="replace each visual training cloud by simulated pad touches on it "
+                        "(CrossModalDataModule source_touch; use with --source-views 6)")
     p.add_argument("--target-data", default=None,
                    help="dataset whose tactile clouds of the target split form the unlabelled target stream "
                         "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
