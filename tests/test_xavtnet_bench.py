@@ -29,7 +29,8 @@ def test_ablation_configs_match_bench_variants():
                                   "gpu/xavtnet.yaml", "cpu/xavtnet_lam500.yaml",
                                   "active_learning.yaml", "quick/active_learning.yaml",
                                   "cpu/active_learning.yaml", "cpu/active_learning_equal.yaml",
-                                  "cpu/xavtnet_episodes.yaml", "cpu/xavtnet_tactile.yaml"])
+                                  "cpu/xavtnet_episodes.yaml", "cpu/xavtnet_tactile.yaml",
+                                  "cpu/xavtnet_touchsim.yaml"])
 def test_configs_build_the_model(path):
     import inspect
 
