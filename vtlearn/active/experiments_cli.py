@@ -119,7 +119,7 @@ def _print_paired(title: str, paired: dict) -> None:
     for label, q in paired.items():
         p = "n/a" if q["wilcoxon_p"] is None else f"{q['wilcoxon_p']:.3f}"
         d = "n/a" if q["mean_diff"] is None else f"{q['mean_diff']:+.1f}"
-        print(f"  {label:<24} lower on {q['lower']:>2}, higher on {q['higher']:>2} of {q['pairs']}; "
+        print(f"  {label:<30} lower on {q['lower']:>2}, higher on {q['higher']:>2} of {q['pairs']}; "
               f"mean diff {d}; Wilcoxon p {p}")
 
 
