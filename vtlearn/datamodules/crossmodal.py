@@ -151,11 +151,17 @@ def modality_clouds(
         labels, inst = d["tactile_label"], d["tactile_instance"]
     else:
         raise ValueError(f"modality: expected 'visual' or 'tactile', got {modality!r}")
-    scales = None
-    if metres:
-        lookup = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
-        scales = np.array([lookup[int(k)] for k in inst])
-    return clouds, labels, scales
+    return clouds, labels, instance_scales(d, inst) if metres else None
+
+
+def instance_scales(d: dict, instances) -> np.ndarray:
+    """Metres per canonical unit of each listed instance id, from a loaded split's ``scale_m``.
+
+    Shapes:
+        instances (n,) -> (n,)
+    """
+    lookup = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
+    return np.array([lookup[int(k)] for k in instances], dtype=np.float64)
 
 
 class CrossModalDataModule(ShardedDataModule):
@@ -235,7 +241,7 @@ class CrossModalDataModule(ShardedDataModule):
         )
         self._open_dataset(data_dir, verify, kind="crossmodal")
         self.target_data_dir = target_data_dir
-        self._target_split_data: dict | None = None
+        self._target_splits: dict[str, dict] = {}
         if target_data_dir is not None:
             from vtlearn.datamodules.shards import load_manifest
 
@@ -276,13 +282,19 @@ class CrossModalDataModule(ShardedDataModule):
         ``data_dir``, or of ``target_data_dir`` when set)."""
         if self.target_data_dir is None:
             return self.dataset(self.target_split, "tactile", with_label=False, train=True)
-        if self._target_split_data is None:
-            from vtlearn.datamodules.shards import load_split
-
-            self._target_split_data = load_split(self.target_data_dir, self.target_split, self.verify)
-        clouds, labels, scales = modality_clouds(self._target_split_data, "tactile", self.units == "metres")
+        clouds, labels, scales = modality_clouds(
+            self._target_data_split(self.target_split), "tactile", self.units == "metres"
+        )
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, with_label=False)
+
+    def _target_data_split(self, split: str) -> dict:
+        """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
+        if split not in self._target_splits:
+            from vtlearn.datamodules.shards import load_split
+
+            self._target_splits[split] = load_split(self.target_data_dir, split, self.verify)
+        return self._target_splits[split]
 
     def source_train_dataset(self) -> CloudDataset:
         """Labelled, yaw-augmented visual training clouds; fused over ``source_views`` views and thinned to
@@ -294,9 +306,8 @@ class CrossModalDataModule(ShardedDataModule):
             from vtlearn.sim_data.sensors import SENSORS
 
             subsample = subsample or (30, 120)
-            scale = dict(zip(d["instance"].tolist(), d["scale_m"].tolist(), strict=True))
             # clouds are touched in the instance's canonical frame: the pitch in canonical units
-            pitch = np.array([SENSORS["xela_4x4"].pitch / scale[int(k)] for k in d["visual_instance"]])
+            pitch = SENSORS["xela_4x4"].pitch / instance_scales(d, d["visual_instance"])
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, subsample=subsample, fuse_views=self.source_views,
                             groups=d["visual_instance"], touch_pitch=pitch)
@@ -332,10 +343,8 @@ class CrossModalDataModule(ShardedDataModule):
         if self.target_data_dir is not None:
             from torch.utils.data import ConcatDataset
 
-            from vtlearn.datamodules.shards import load_split
-
             clouds, labels, scales = modality_clouds(
-                load_split(self.target_data_dir, "train", self.verify), "tactile", self.units == "metres"
+                self._target_data_split("train"), "tactile", self.units == "metres"
             )
             ds = ConcatDataset([ds, CloudDataset(clouds, labels, train=True, normalize=self.normalize,
                                                  rotate_z=self.rotate_z, seed=self.seed, scales=scales)])
