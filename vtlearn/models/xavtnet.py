@@ -18,12 +18,21 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 * ``"dann"``: DANN (Ganin et al. 2016), beyond the thesis: a domain discriminator on fc2 behind a
   gradient reversal layer whose λ follows Ganin's ramp over training; loss ``α·CE + dann_weight·L_dom``.
 
+``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
+(:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
+separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
+``model.bn_domain("source")``. With ``da_method="none"`` the target batches only update the target
+statistics (no loss, no gradient): AdaBN as a baseline. Without ``domain_bn`` the two streams share one
+forward and pooled statistics, as in DAN and Deep CORAL.
+
 Shapes:
     forward: points (B, N, 3) zero-padded, lengths (B,) int64 -> :class:`XAVTNetOutput`
     (logits (B, k), features {"fc1": (B, 512), "fc2": (B, 256)}).
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import lightning as L
 import torch
@@ -33,6 +42,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.vtloss import VTLoss
+from vtlearn.models.components.domain_bn import DOMAINS, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
@@ -109,6 +119,7 @@ class XAVTNet(L.LightningModule):
         max_points: if set, clouds with more points are subsampled to this many (random in training,
             strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
         normalize_clouds: centre each cloud and scale it into the unit ball before the network.
+        domain_bn: batch-norm statistics per domain (module docstring); needs two-stream batches.
     """
 
     def __init__(
@@ -137,6 +148,7 @@ class XAVTNet(L.LightningModule):
         lr_schedule: str = "constant",
         max_points: int | None = None,
         normalize_clouds: bool = False,
+        domain_bn: bool = False,
     ) -> None:
         super().__init__()
         if num_classes < 2:
@@ -156,6 +168,11 @@ class XAVTNet(L.LightningModule):
         self.save_hyperparameters()
         self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform)
         self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
+        self._bn_domain = "target"  # evaluation clouds are tactile unless bn_domain("source") says otherwise
+        if domain_bn:
+            convert_batchnorm(self.encoder)
+            convert_batchnorm(self.head)
+            set_bn_domain(self, self._bn_domain)
         vt = da_method == "vtloss"
         self.vtloss = VTLoss(
             alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
@@ -185,6 +202,24 @@ class XAVTNet(L.LightningModule):
         logits, feats = self.head(g)
         return XAVTNetOutput(logits, feats, trans_input, trans_feat)
 
+    @contextlib.contextmanager
+    def bn_domain(self, domain: str):
+        """Normalise with ``domain``'s batch-norm statistics (``"source"``: visual, ``"target"``: tactile)
+        inside the block, then restore the previous domain. A no-op without ``domain_bn``."""
+        if domain not in DOMAINS:
+            raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
+        previous = self._bn_domain
+        self._set_bn_domain(domain)
+        try:
+            yield self
+        finally:
+            self._set_bn_domain(previous)
+
+    def _set_bn_domain(self, domain: str) -> None:
+        self._bn_domain = domain
+        if self.hparams.get("domain_bn", False):
+            set_bn_domain(self, domain)
+
     def _regulariser(self, out: XAVTNetOutput) -> torch.Tensor:
         if out.trans_feat is None or self.hparams.feature_transform_weight == 0:
             return out.logits.new_zeros(())
@@ -202,7 +237,11 @@ class XAVTNet(L.LightningModule):
         labelled = batch["source"] if "source" in batch else batch
         if labelled["points"].shape[0] < 2:
             return None  # batch norm needs >= 2 clouds; Lightning skips a step that returns None
+        domain_bn = self.hparams.get("domain_bn", False)
         if "source" not in batch:
+            if domain_bn:
+                raise ValueError("batch: domain_bn needs two-stream batches {'source': ..., 'target': ...}, "
+                                 "got one labelled stream (no domain to normalise it as)")
             out = self(batch["points"], batch.get("lengths"))
             y = batch["label"]
             ce = F.cross_entropy(out.logits, y)  # no target stream without a "target" batch: α·CE only
@@ -215,9 +254,14 @@ class XAVTNet(L.LightningModule):
         adapts = self.vtloss.adapts or self.discriminator is not None
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         if use_target:
-            out_s, out_t = self._joint_forward(src, tgt)
+            out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
         else:
-            out_s = self(src["points"], src.get("lengths"))
+            with self.bn_domain("source"):
+                out_s = self(src["points"], src.get("lengths"))
+            if domain_bn and tgt is not None and tgt["points"].shape[0] >= 2:
+                # AdaBN: the target batch only updates the target statistics (no loss, no gradient)
+                with torch.no_grad(), self.bn_domain("target"):
+                    self(tgt["points"], tgt.get("lengths"))
         parts: dict[str, torch.Tensor] = {}
         if use_target and self.hparams.da_method == "vtloss":
             loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features)
@@ -236,6 +280,14 @@ class XAVTNet(L.LightningModule):
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    def _split_forward(self, src: dict, tgt: dict) -> tuple[XAVTNetOutput, XAVTNetOutput]:
+        """One forward per domain, each normalised with its own batch statistics (``domain_bn``)."""
+        with self.bn_domain("source"):
+            out_s = self(src["points"], src.get("lengths"))
+        with self.bn_domain("target"):
+            out_t = self(tgt["points"], tgt.get("lengths"))
+        return out_s, out_t
 
     def _joint_forward(self, src: dict, tgt: dict) -> tuple[XAVTNetOutput, XAVTNetOutput]:
         """One forward of source and target clouds together, split afterwards.

@@ -37,6 +37,12 @@ VARIANTS: dict[str, dict] = {
     "vtloss_fc2": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc2"]},
     "vtloss": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"]},
     "dann": {"da_method": "dann"},
+    # Beyond the thesis: batch-norm statistics per domain (models/components/domain_bn.py). "adabn" is
+    # no-DA whose target statistics follow the unlabelled tactile stream (AdaBN); "vtloss_dbn" is VTLoss
+    # with each domain normalised by its own statistics (DSBN with shared affine parameters).
+    "adabn": {"da_method": "none", "domain_bn": True},
+    "vtloss_dbn": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"],
+                   "domain_bn": True},
 }
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
@@ -180,7 +186,7 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     L.seed_everything(seed, verbose=False)
     dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
     oracle = variant == ORACLE
-    model = XAVTNet(num_classes=dm.num_classes, **base, **VARIANTS["noda" if oracle else variant])
+    model = XAVTNet(num_classes=dm.num_classes, **{**base, **VARIANTS["noda" if oracle else variant]})
     t0 = time.perf_counter()
     trainer = _trainer(max_epochs, accelerator)
     loader = dm.labelled_target_train_dataloader() if oracle else dm.train_dataloader()
@@ -188,14 +194,16 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     fit_s = time.perf_counter() - t0
     tactile = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
     conf = model.last_test_confusion.numpy()
-    visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
+    with model.bn_domain("source"):  # visual clouds: the source statistics (only differ with domain_bn)
+        visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
     row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
            "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
     feats = None
     if features:
         with torch.no_grad():
-            feats = (*_collect_features(model, dm.source_test_dataloader()),
-                     *_collect_features(model, dm.test_dataloader()))
+            with model.bn_domain("source"):
+                source = _collect_features(model, dm.source_test_dataloader())
+            feats = (*source, *_collect_features(model, dm.test_dataloader()))
     return row, feats, dm.class_names
 
 

@@ -1,0 +1,133 @@
+"""Tests for batch norm with statistics per domain (AdaBN / DSBN) and its use in xAVTNet."""
+
+import os
+
+import lightning as L
+import pytest
+import torch
+from torch import nn
+
+from vtlearn.models.components.domain_bn import DomainBatchNorm, convert_batchnorm, set_bn_domain
+from vtlearn.models.xavtnet import XAVTNet
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+TINY = dict(num_classes=3, global_dim=32, fc_dims=[16, 8], dropout=0.0)
+
+
+@pytest.mark.parametrize("shape", [(6, 4), (5, 4, 7)])
+def test_domain_bn_matches_batchnorm_in_each_domain(shape):
+    """Each domain alone behaves exactly like a BatchNorm1d (train and eval), and leaves the other alone."""
+    torch.manual_seed(0)
+    ref = nn.BatchNorm1d(4)
+    with torch.no_grad():
+        ref.weight.uniform_(0.5, 2.0)
+        ref.bias.uniform_(-1.0, 1.0)
+    dbn = DomainBatchNorm.from_batchnorm(ref)
+    x_s, x_t = torch.randn(*shape), 3.0 + 0.5 * torch.randn(*shape)
+    ref_t = nn.BatchNorm1d(4)
+    ref_t.load_state_dict(ref.state_dict())
+    for _ in range(3):
+        dbn.domain = "source"
+        assert torch.allclose(dbn(x_s), ref(x_s), atol=1e-6)
+        dbn.domain = "target"
+        assert torch.allclose(dbn(x_t), ref_t(x_t), atol=1e-6)
+    assert torch.allclose(dbn.running_mean_source, ref.running_mean)
+    assert torch.allclose(dbn.running_var_target, ref_t.running_var)
+    assert not torch.allclose(dbn.running_mean_source, dbn.running_mean_target)
+    dbn.eval(), ref.eval(), ref_t.eval()
+    y = torch.randn(*shape)
+    dbn.domain = "source"
+    assert torch.allclose(dbn(y), ref(y), atol=1e-6)
+    dbn.domain = "target"
+    assert torch.allclose(dbn(y), ref_t(y), atol=1e-6)
+
+
+def test_convert_and_set_domain_and_bad_input():
+    net = nn.Sequential(nn.Linear(3, 4), nn.BatchNorm1d(4), nn.Sequential(nn.BatchNorm1d(4)))
+    convert_batchnorm(net)
+    assert not any(isinstance(m, nn.BatchNorm1d) for m in net.modules())
+    assert set_bn_domain(net, "target") == 2
+    assert all(m.domain == "target" for m in net.modules() if isinstance(m, DomainBatchNorm))
+    with pytest.raises(ValueError, match="domain"):
+        set_bn_domain(net, "visual")
+    with pytest.raises(ValueError, match="x: need shape"):
+        DomainBatchNorm(4)(torch.randn(2, 5))
+    with pytest.raises(ValueError, match="num_features"):
+        DomainBatchNorm(0)
+
+
+def _two_stream(seed=0):
+    g = torch.Generator().manual_seed(seed)
+    src = {"points": torch.randn(6, 40, 3, generator=g), "lengths": torch.full((6,), 40),
+           "label": torch.tensor([0, 1, 2, 0, 1, 2])}
+    tgt = {"points": 0.3 * torch.randn(6, 12, 3, generator=g) + 1.0, "lengths": torch.full((6,), 12)}
+    return {"source": src, "target": tgt}
+
+
+def _bn_state(model):
+    return {k: v.clone() for k, v in model.state_dict().items() if "running_" in k}
+
+
+def test_adabn_target_stream_updates_only_target_statistics():
+    """No-DA with domain_bn: the tactile batch moves the target statistics and contributes no gradient."""
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, da_method="none", domain_bn=True).train()
+    model._log_train = lambda *a, **k: None
+    batch = _two_stream()
+    before = _bn_state(model)
+    loss = model.training_step(batch, 0)
+    after = _bn_state(model)
+    moved = {k for k in before if not torch.equal(before[k], after[k])}
+    assert any(k.endswith("_target") for k in moved) and any(k.endswith("_source") for k in moved)
+    # the same loss as a forward of the source batch alone: the target stream adds nothing to it
+    torch.manual_seed(0)
+    plain = XAVTNet(**TINY, da_method="none", domain_bn=True).train()
+    plain._log_train = lambda *a, **k: None
+    with plain.bn_domain("source"):
+        out = plain(batch["source"]["points"], batch["source"]["lengths"])
+    ce = torch.nn.functional.cross_entropy(out.logits, batch["source"]["label"])
+    assert loss.item() == pytest.approx(10.0 * ce.item() + plain._regulariser(out).item(), rel=1e-5)
+    # eval defaults to the target statistics; bn_domain("source") switches and restores
+    model.eval()
+    x = batch["target"]["points"]
+    with model.bn_domain("source"):
+        s = model(x).logits
+    assert model._bn_domain == "target"
+    assert not torch.allclose(model(x).logits, s)
+
+
+def test_vtloss_domain_bn_normalises_each_domain_with_its_own_batch():
+    """In training mode the target features do not depend on the source batch (split forward)."""
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, domain_bn=True).train()
+    b1, b2 = _two_stream(0), _two_stream(1)
+    b2["target"] = b1["target"]
+    _, t1 = model._split_forward(b1["source"], b1["target"])
+    _, t2 = model._split_forward(b2["source"], b2["target"])
+    assert torch.allclose(t1.features["fc1"], t2.features["fc1"], atol=1e-6)
+    # pooled statistics (domain_bn off) do mix them
+    plain = XAVTNet(**TINY).train()
+    _, p1 = plain._joint_forward(b1["source"], b1["target"])
+    _, p2 = plain._joint_forward(b2["source"], b2["target"])
+    assert not torch.allclose(p1.features["fc1"], p2.features["fc1"], atol=1e-4)
+
+
+def test_domain_bn_refuses_single_stream_and_round_trips(tmp_path):
+    from tests.test_xavtnet import TinyCrossModalDM
+
+    model = XAVTNet(**TINY, domain_bn=True)
+    single = {"points": torch.randn(4, 10, 3), "lengths": torch.full((4,), 10),
+              "label": torch.zeros(4).long()}
+    with pytest.raises(ValueError, match="domain_bn needs two-stream batches"):
+        model.training_step(single, 0)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    path = tmp_path / "dbn.ckpt"
+    trainer.save_checkpoint(path)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True).eval()
+    model.eval()
+    x = torch.randn(2, 12, 3)
+    assert torch.equal(again(x).logits, model(x).logits)
+    with model.bn_domain("source"), again.bn_domain("source"):
+        assert torch.equal(again(x).logits, model(x).logits)
