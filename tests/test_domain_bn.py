@@ -131,3 +131,50 @@ def test_domain_bn_refuses_single_stream_and_round_trips(tmp_path):
     assert torch.equal(again(x).logits, model(x).logits)
     with model.bn_domain("source"), again.bn_domain("source"):
         assert torch.equal(again(x).logits, model(x).logits)
+
+
+def test_adapt_bn_statistics_averages_the_target_batches_exactly(tmp_path):
+    """AdaBN after training: target statistics = the mean of the batch statistics; source ones unchanged."""
+    from tests.test_xavtnet import TinyCrossModalDM
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, da_method="none")
+    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    model.eval()
+    x = torch.randn(3, 15, 3)
+    before = model(x).logits
+    fc1_stats = (model.head.fc1[1].running_mean.clone(), model.head.fc1[1].running_var.clone())
+    batches = [next(iter(TinyCrossModalDM().train_dataloader()))[0]["target"] for _ in range(1)]
+    batches = batches + [{"points": 2.0 * b["points"], "lengths": b["lengths"]} for b in batches]
+    batches.append({"points": torch.randn(1, 5, 3), "lengths": torch.tensor([5])})  # too small: skipped
+    seen = []
+    # the fc1 Linear's output is what fc1's batch norm normalises
+    hook = model.head.fc1[0].register_forward_hook(lambda m, inp, out: seen.append(out.detach().clone()))
+    n = model.adapt_bn_statistics(batches)
+    hook.remove()
+    assert n == sum(int(b["points"].shape[0]) for b in batches[:2])
+    assert model.hparams.domain_bn and model.training is False
+    fc1 = model.head.fc1[1]
+    assert isinstance(fc1, DomainBatchNorm)
+    assert len(seen) == 2
+    assert torch.allclose(fc1.running_mean_target, torch.stack([s.mean(0) for s in seen]).mean(0), atol=1e-6)
+    assert torch.allclose(fc1.running_var_target, torch.stack([s.var(0) for s in seen]).mean(0), atol=1e-5)
+    assert torch.equal(fc1.running_mean_source, fc1_stats[0])
+    assert torch.equal(fc1.running_var_source, fc1_stats[1])
+    with model.bn_domain("source"):  # the trained network, as it was
+        assert torch.allclose(model(x).logits, before, atol=1e-6)
+    assert not torch.allclose(model(x).logits, before, atol=1e-4)  # tactile clouds: the new statistics
+    # reloads from a plain state dict + the updated hyperparameters
+    again = XAVTNet(**dict(model.hparams))
+    again.load_state_dict(model.state_dict())
+    again.eval()
+    assert torch.equal(again(x).logits, model(x).logits)
+    with pytest.raises(ValueError, match="no batch of >= 2 clouds"):
+        model.adapt_bn_statistics([batches[-1]])
+    with pytest.raises(ValueError, match="passes"):
+        model.adapt_bn_statistics(batches, passes=0)
+    with pytest.raises(ValueError, match="domain"):
+        model.adapt_bn_statistics(batches, domain="tactile")

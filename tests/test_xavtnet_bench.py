@@ -124,6 +124,13 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-views", "0", "--no-figures", "--json", str(out2)]) == 2
     assert "source_views" in capsys.readouterr().err
+    # --adabn scores every row a second time with target statistics; the *_dbn rows train with them
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_dbn", "--seeds", "1",
+                 "--adabn", "--no-figures", "--json", str(out2)]) == 0
+    res3 = json.loads(out2.read_text())
+    assert all(0 <= r["tactile_acc_adabn"] <= 100 for r in res3["runs"])
+    assert "noda_adabn_minus_noda" in res3["checks"]
+    assert "tactile_acc_adabn" in capsys.readouterr().out
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):

@@ -288,6 +288,11 @@ class CrossModalDataModule(ShardedDataModule):
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, with_label=False)
 
+    def target_dataloader(self, shuffle: bool = True) -> DataLoader:
+        """The unlabelled target stream on its own (:meth:`target_dataset`), e.g. for
+        :meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`."""
+        return self._loader(self.target_dataset(), shuffle=shuffle)
+
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
         if split not in self._target_splits:

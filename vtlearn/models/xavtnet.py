@@ -215,6 +215,66 @@ class XAVTNet(L.LightningModule):
         finally:
             self._set_bn_domain(previous)
 
+    @torch.no_grad()
+    def adapt_bn_statistics(self, loader, domain: str = "target", passes: int = 1) -> int:
+        """AdaBN (Li et al., Pattern Recognition 2018): re-estimate ``domain``'s batch-norm statistics on
+        unlabelled clouds after training; no weight changes.
+
+        A model trained without ``domain_bn`` is converted first, with its trained statistics kept as the
+        source statistics and ``hparams.domain_bn`` set, so a checkpoint saved afterwards reloads as is.
+        Every batch norm of ``domain`` is reset and set to the exact average of the batch statistics over
+        ``passes`` passes of ``loader`` (training-mode forwards; batches of fewer than 2 clouds are
+        skipped). Evaluation then uses them for that domain (``bn_domain``).
+
+        Args:
+            loader: batches ``{"points", "lengths"}`` (labels are not read), e.g.
+                :meth:`~vtlearn.datamodules.CrossModalDataModule.target_dataloader`.
+            domain: ``"target"`` (tactile) or ``"source"``.
+            passes: passes over ``loader``.
+
+        Returns:
+            the number of clouds the statistics were averaged over (counted once per pass).
+
+        Shapes:
+            loader batches: points (B, N, 3), lengths (B,)
+        """
+        from vtlearn.models.components.domain_bn import DomainBatchNorm
+
+        if domain not in DOMAINS:
+            raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
+        if int(passes) < 1:
+            raise ValueError(f"passes: need >= 1, got {passes}")
+        if not self.hparams.get("domain_bn", False):
+            convert_batchnorm(self.encoder)
+            convert_batchnorm(self.head)
+            self.hparams["domain_bn"] = True
+            set_bn_domain(self, self._bn_domain)
+        bns = [m for m in self.modules() if isinstance(m, DomainBatchNorm)]
+        momentum = bns[0].momentum
+        for m in bns:
+            getattr(m, f"running_mean_{domain}").zero_()
+            getattr(m, f"running_var_{domain}").fill_(1.0)
+        was_training, n_batches, n_clouds = self.training, 0, 0
+        self.train()
+        try:
+            with self.bn_domain(domain):
+                for _ in range(int(passes)):
+                    for batch in loader:
+                        if batch["points"].shape[0] < 2:
+                            continue
+                        for m in bns:  # running = mean of the batch statistics so far
+                            m.momentum = 1.0 / (n_batches + 1)
+                        self(batch["points"], batch.get("lengths"))
+                        n_batches += 1
+                        n_clouds += int(batch["points"].shape[0])
+        finally:
+            for m in bns:
+                m.momentum = momentum
+            self.train(was_training)
+        if n_batches == 0:
+            raise ValueError("loader: no batch of >= 2 clouds to estimate batch-norm statistics from")
+        return n_clouds
+
     def _set_bn_domain(self, domain: str) -> None:
         self._bn_domain = domain
         if self.hparams.get("domain_bn", False):
