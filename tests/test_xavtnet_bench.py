@@ -250,3 +250,40 @@ def test_merge_active_learning_runs_protocol_rules(tmp_path):
     f = _al_result(tmp_path / "f.json", [5], kappa=64)
     with pytest.raises(ValueError, match="kappa"):
         merge_active_learning_runs([a, f])
+
+
+def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_crossmodal, capsys):
+    import lightning as L
+    import torch
+
+    from vtlearn.cli import main
+    from vtlearn.datamodules import CrossModalDataModule
+
+    dm = CrossModalDataModule(str(tiny_crossmodal), batch_size=4)
+    model = XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8], max_points=64)
+    trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path)
+    trainer.fit(model, train_dataloaders=dm.train_dataloader())
+    ckpt, out = tmp_path / "in.ckpt", tmp_path / "adapted" / "out.ckpt"
+    trainer.save_checkpoint(ckpt)
+    assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "unlabelled tactile clouds" in text and "tactile test accuracy" in text
+    adapted = XAVTNet.load_from_checkpoint(out, map_location="cpu", weights_only=True).eval()
+    assert adapted.hparams.domain_bn
+    original = XAVTNet.load_from_checkpoint(ckpt, map_location="cpu", weights_only=True).eval()
+    x = torch.randn(2, 20, 3)
+    with adapted.bn_domain("source"):  # the visual side is the trained network
+        assert torch.allclose(adapted(x).logits, original(x).logits, atol=1e-6)
+    assert not torch.allclose(adapted(x).logits, original(x).logits, atol=1e-4)
+    assert "optimizer_states" not in torch.load(out, map_location="cpu", weights_only=True)
+    # bad input is refused by name, and the input checkpoint is never overwritten
+    assert main(["adapt-bn", "--ckpt", str(tmp_path / "none.ckpt"), "--data", str(tiny_crossmodal),
+                 "--out", str(out)]) == 2
+    assert "--ckpt" in capsys.readouterr().err
+    assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--out", str(ckpt)]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--passes", "0",
+                 "--out", str(out)]) == 2
+    assert "--passes" in capsys.readouterr().err

@@ -42,7 +42,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.vtloss import VTLoss
-from vtlearn.models.components.domain_bn import DOMAINS, convert_batchnorm, set_bn_domain
+from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
@@ -238,8 +238,6 @@ class XAVTNet(L.LightningModule):
         Shapes:
             loader batches: points (B, N, 3), lengths (B,)
         """
-        from vtlearn.models.components.domain_bn import DomainBatchNorm
-
         if domain not in DOMAINS:
             raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
         if int(passes) < 1:

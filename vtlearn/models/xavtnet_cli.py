@@ -599,6 +599,88 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     return 0
 
 
+def run_adapt_bn(args: argparse.Namespace) -> int:
+    """``vtlearn adapt-bn``: AdaBN for a trained xAVTNet checkpoint (no labels, no weight changes).
+
+    Loads ``--ckpt`` (``weights_only=True``), re-estimates the target batch-norm statistics on the unlabelled
+    tactile clouds of ``--data`` (split ``--split``, or those of ``--target-data``) with
+    :meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`, prints the tactile test accuracy before and
+    after when the dataset has a labelled test split, and writes ``--out`` atomically: the input checkpoint
+    with the new state dict and ``domain_bn: true``, so ``XAVTNet.load_from_checkpoint`` and the runtime
+    load it as before and score tactile clouds with the new statistics.
+    """
+    import os
+
+    import lightning as L
+    import torch
+
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet import XAVTNet
+
+    _quiet_lightning()
+    ckpt_path, out = Path(args.ckpt), Path(args.out)
+    if not ckpt_path.is_file():
+        raise FileNotFoundError(f"--ckpt: no checkpoint at {ckpt_path}")
+    if out.resolve() == ckpt_path.resolve():
+        raise ValueError("--out: must differ from --ckpt (the input checkpoint is kept)")
+    if args.passes < 1:
+        raise ValueError(f"--passes: need >= 1, got {args.passes}")
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    if "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
+        raise ValueError(f"--ckpt: {ckpt_path} is not a Lightning checkpoint "
+                         "(no state_dict / hyper_parameters)")
+    model = XAVTNet.load_from_checkpoint(ckpt_path, map_location="cpu", weights_only=True)
+    L.seed_everything(args.seed, verbose=False)
+    dm = CrossModalDataModule(args.data, batch_size=args.batch_size, target_split=args.split,
+                              target_data_dir=args.target_data, seed=args.seed)
+    if dm.num_classes != model.hparams.num_classes:
+        raise ValueError(f"--data: {dm.num_classes} classes, the checkpoint has {model.hparams.num_classes}")
+    from vtlearn.datamodules.shards import load_manifest
+
+    has_test = "test" in load_manifest(args.data)["splits"]
+
+    def tactile_accuracy() -> float:
+        trainer = L.Trainer(accelerator="cpu", devices=1, logger=False, enable_progress_bar=False,
+                            enable_model_summary=False)
+        result = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]
+        return 100 * float(result["test/acc"])
+
+    before = tactile_accuracy() if has_test else None
+    n = model.adapt_bn_statistics(dm.target_dataloader(), passes=args.passes)
+    after = tactile_accuracy() if has_test else None
+    ckpt["state_dict"] = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    ckpt["hyper_parameters"] = {**ckpt["hyper_parameters"], "domain_bn": True}
+    ckpt.pop("optimizer_states", None)  # the new statistics are not a training state to resume
+    ckpt.pop("lr_schedulers", None)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    torch.save(ckpt, tmp)
+    os.replace(tmp, out)
+    print(f"target statistics from {n} unlabelled tactile clouds x {args.passes} pass(es)")
+    if has_test:
+        print(f"tactile test accuracy: {before:.1f} % before, {after:.1f} % after")
+    print(f"wrote {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("adapt-bn", help="AdaBN: re-estimate an xAVTNet checkpoint's target batch-norm "
+                                        "statistics on unlabelled tactile clouds")
+    p.add_argument("--ckpt", required=True, help="trained XAVTNet checkpoint")
+    p.add_argument("--data", required=True, help="crossmodal dataset dir (vtlearn gen-data crossmodal)")
+    p.add_argument("--split", choices=["train", "test"], default="train",
+                   help="whose unlabelled tactile clouds: train instances (default) or the test instances "
+                        "themselves (transductive)")
+    p.add_argument("--target-data", default=None,
+                   help="read the tactile clouds of --split from this dataset instead (e.g. vtlearn "
+                        "gen-episodes); --data still gives the test clouds")
+    p.add_argument("--passes", type=int, default=1, help="passes over the clouds (default 1)")
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--seed", type=int, default=0, help="order and yaw augmentation of the clouds")
+    p.add_argument("--out", required=True, help="adapted checkpoint (the input is kept)")
+    p.set_defaults(func=run_adapt_bn)
+
+
 def register_bench(sub) -> None:
     p = sub.add_parser("crossmodal", help="Table 7.2/7.4 analogue: V->T accuracy of each DA variant")
     p.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/xavtnet.yaml)")
