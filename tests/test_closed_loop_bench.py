@@ -77,6 +77,8 @@ def test_active_recognition_bench(ckpts, tmp_path):
             "--recognition-gain",
             "--recognition-top-m",
             "2",
+            "--recognition-templates",
+            "2",
             "--json",
             str(out),
             *TINY,
@@ -157,6 +159,9 @@ def test_bench_bad_input(ckpts, tmp_path, capsys):
     assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--recognition-gain",
                  "--recognition-top-m", "0"]) == 2
     assert "top_m" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--recognition-gain",
+                 "--recognition-templates", "0"]) == 2
+    assert "templates_per_class" in capsys.readouterr().err
     assert main(["bench", "active-recognition", "--ckpt", ckpts["actor"]]) == 2  # not an xAVTNet
     assert "ckpt" in capsys.readouterr().err
     assert main(["bench", "active-reconstruction", "--ckpt", str(tmp_path / "none.ckpt")]) == 2

@@ -48,7 +48,7 @@ def test_expected_contacts_on_the_true_shape_equal_the_simulated_touch(mug, mode
     """Noiseless case: with the object itself as the template, the predicted contacts are the ones the
     pybullet guarded touch reports."""
     gain = ExpectedClassEntropyGain(model, NAMES)
-    gain._templates[0] = mug.mesh  # class 0 ("mug") hypothesis = the object itself
+    gain._templates[(0, 0)] = mug.mesh  # class 0 ("mug") hypothesis = the object itself
     sensor, T = _candidates(mug, 40, seed=3)
     # pads whose housing reaches into the table slab are outside the replayed model (see its docstring)
     local = np.concatenate([sensor.layout.taxel_positions(), sensor.layout.housing_positions()])
@@ -89,6 +89,19 @@ def test_gains_criteria_hand_cases(mug, model):
         # batched candidates score as one at a time
         single = [mi.gains(mug, P, sensor, T[a : a + 1], cfg)[0] for a in range(len(T))]
         np.testing.assert_allclose(g, single, atol=1e-5)
+        # two templates per class: hypotheses are (class, template) pairs at half their class's weight
+        two = ExpectedClassEntropyGain(model, NAMES, top_m=2, templates_per_class=2)
+        hyp = [int(c) for c in np.argsort(-two.posterior(mug, P))[:2]]
+        qs = []
+        for c in hyp:
+            for j in range(2):
+                ys = two.expected_contacts(mug, c, sensor, T, cfg, template=j)
+                qs.append(classify_clouds(model, mug, [np.concatenate([P, y]) if len(y) else P for y in ys],
+                                          256, seed=0))
+        qs = np.stack(qs)  # (4, A, C)
+        expected = h(qs.mean(0)) - h(qs).mean(0)
+        np.testing.assert_allclose(two.gains(mug, P, sensor, T, cfg), expected, atol=1e-5)
+        assert two._template(hyp[0], 0) is not two._template(hyp[0], 1)
 
 
 def test_bad_arguments(mug, model):
@@ -98,6 +111,8 @@ def test_bad_arguments(mug, model):
         ExpectedClassEntropyGain(model, NAMES, criterion="margin")
     with pytest.raises(ValueError, match="top_m"):
         ExpectedClassEntropyGain(model, NAMES, top_m=0)
+    with pytest.raises(ValueError, match="templates_per_class"):
+        ExpectedClassEntropyGain(model, NAMES, templates_per_class=0)
     g = ExpectedClassEntropyGain(model, NAMES)
     with pytest.raises(ValueError, match="T_world_pad"):
         g.gains(mug, np.zeros((0, 3)), TactileArray(), np.eye(4), None)

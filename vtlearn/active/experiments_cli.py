@@ -267,7 +267,8 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         from vtlearn.active.recognition_nbt import ExpectedClassEntropyGain
 
         recognizer = ExpectedClassEntropyGain(model, class_names, top_m=args.recognition_top_m,
-                                              max_points=args.max_input)
+                                              max_points=args.max_input,
+                                              templates_per_class=args.recognition_templates)
         rows.append(("active_recognition", "active", "recognition"))
     ks = list(range(1, args.max_actions + 1))
     res = {
@@ -639,6 +640,9 @@ def register_bench(sub) -> None:
                    help="add active_recognition: touches by the classifier's expected information "
                         "(vtlearn.active.recognition_nbt; beyond the thesis)")
     p.add_argument("--recognition-top-m", type=int, default=4, help="class hypotheses per step")
+    p.add_argument("--recognition-templates", type=int, default=1,
+                   help="template shapes per class hypothesis (default 1; the classifier runs top-m x this "
+                        "many times per candidate)")
     _common(p)
     p.set_defaults(func=run_active_recognition, max_input=256)
 

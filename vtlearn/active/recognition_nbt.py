@@ -9,20 +9,22 @@ theoretic sensor data selection for active object recognition and state estimati
 
 1. ``p₀ = p(c | P)``: the xAVTNet posterior of the tactile points ``P`` measured so far (uniform while
    fewer than 3 points are known).
-2. Hypotheses: the ``top_m`` classes under ``p₀``. Each class ``c`` has a template shape, a procedural
-   instance of that category from its own seed range (the robot's library of class models, never a
-   held-out object), fitted into the object's known bounding box (the box the action samplers use).
+2. Hypotheses: the ``top_m`` classes under ``p₀``. Each class ``c`` has ``templates_per_class`` template
+   shapes, procedural instances of that category from their own seed range (the robot's library of class
+   models, never a held-out object), fitted into the object's known bounding box (the box the action
+   samplers use). Every (class, template) pair is a hypothesis ``h``; a class's weight is shared equally
+   by its templates, so several templates marginalise the instance shape out of the class hypothesis.
 3. The expected measurement ``ŷ(a, c)`` of candidate ``a`` under hypothesis ``c`` is the guarded touch of
    :class:`~vtlearn.sim_data.tactile.TactileSimulator` replayed on the template: the taxel rays are cast,
    the pad stops ``τ_f / k`` past the first contact, and every taxel pressed with at least the minimum
    force reports its ray's hit point.
 4. With ``q_c = p(· | P ∪ ŷ(a, c))`` and hypothesis weights ``w_c``, two criteria (nats):
 
-   - ``"mutual_information"`` (default): ``I(a) = H[Σ_c w_c q_c] − Σ_c w_c H[q_c]``, the information the
+   - ``"mutual_information"`` (default): ``I(a) = H[Σ_h w_h q_h] − Σ_h w_h H[q_h]``, the information the
      touch carries about which hypothesis is true, as judged by the classifier. It is zero when every
      hypothesis leads to the same posterior (the touch cannot tell them apart), and it does not reward
      a touch for making an already confident classifier more confident.
-   - ``"expected_entropy"``: ``IG(a) = H[p₀] − Σ_c w_c H[q_c]``, the expected entropy reduction of
+   - ``"expected_entropy"``: ``IG(a) = H[p₀] − Σ_h w_h H[q_h]``, the expected entropy reduction of
      Denzler & Brown. With an over-confident classifier it locks in its first guess (gains ≈ 0 once
      ``p₀`` is peaked), which docs/active_perception.md measures.
 
@@ -88,15 +90,20 @@ class ExpectedClassEntropyGain:
         weights: ``"uniform"`` or ``"posterior"`` hypothesis weights.
         template_seed: base seed of the class templates.
         sections: mesh resolution of the templates.
+        templates_per_class: template instances per class hypothesis (step 2); the classifier is run
+            ``top_m · templates_per_class`` times per candidate.
     """
 
     def __init__(self, model, class_names, top_m: int = 4, max_points: int = 256,
                  criterion: str = "mutual_information", weights: str = "uniform",
-                 template_seed: int = TEMPLATE_SEED, sections: int = 32) -> None:
+                 template_seed: int = TEMPLATE_SEED, sections: int = 32,
+                 templates_per_class: int = 1) -> None:
         from vtlearn.sim_data.shapes import CATEGORIES
 
         if int(top_m) < 1:
             raise ValueError(f"top_m: need >= 1, got {top_m}")
+        if int(templates_per_class) < 1:
+            raise ValueError(f"templates_per_class: need >= 1, got {templates_per_class}")
         if int(max_points) < 3:
             raise ValueError(f"max_points: need >= 3, got {max_points}")
         if criterion not in CRITERIA:
@@ -113,27 +120,28 @@ class ExpectedClassEntropyGain:
         self.class_names = names
         self.top_m, self.max_points = int(top_m), int(max_points)
         self.template_seed, self.sections = int(template_seed), int(sections)
+        self.templates_per_class = int(templates_per_class)
         self.template_classes = [i for i, c in enumerate(names) if c in CATEGORIES]
         if not self.template_classes:
             raise ValueError(f"class_names: none of {names} is a procedural category, so no templates")
-        self._templates: dict[int, object] = {}  # class -> canonical unit-cube trimesh
-        self._scenes: dict = {}  # (object key, class) -> Open3D RaycastingScene in the world frame
+        self._templates: dict[tuple[int, int], object] = {}  # (class, template) -> canonical trimesh
+        self._scenes: dict = {}  # (object key, class, template) -> Open3D RaycastingScene, world frame
 
-    def _template(self, c: int):
-        if c not in self._templates:
+    def _template(self, c: int, j: int = 0):
+        if (c, j) not in self._templates:
             from vtlearn.sim_data.shapes import generate_shape, instance_seed
 
             name = self.class_names[c]
-            mesh, _ = generate_shape(name, instance_seed(self.template_seed, name, 0), self.sections)
-            self._templates[c] = mesh
-        return self._templates[c]
+            mesh, _ = generate_shape(name, instance_seed(self.template_seed, name, j), self.sections)
+            self._templates[(c, j)] = mesh
+        return self._templates[(c, j)]
 
-    def _scene(self, obj, c: int):
+    def _scene(self, obj, c: int, j: int = 0):
         import open3d as o3d
 
-        key = (obj.category, obj.seed, c)
+        key = (obj.category, obj.seed, c, j)
         if key not in self._scenes:
-            mesh = self._template(c)
+            mesh = self._template(c, j)
             lo, hi = obj.bounds
             v = fit_to_box(mesh.vertices, lo, hi)
             scene = o3d.t.geometry.RaycastingScene()
@@ -154,9 +162,10 @@ class ExpectedClassEntropyGain:
         return p
 
     def expected_contacts(
-        self, obj, c: int, sensor, T_world_pad: np.ndarray, touch_config
+        self, obj, c: int, sensor, T_world_pad: np.ndarray, touch_config, template: int = 0
     ) -> list[np.ndarray]:
-        """Contact points ``ŷ(a, c)`` (world) of each pad pose on class ``c``'s template (step 3).
+        """Contact points ``ŷ(a, c)`` (world) of each pad pose on class ``c``'s template number
+        ``template`` (step 3).
 
         Replays :meth:`~vtlearn.sim_data.tactile.TactileSimulator.touch_from` on the template standing on
         the table plane z = 0: taxel and housing rays up to ``max_travel``; the pad stops ``τ_f / k``
@@ -179,7 +188,8 @@ class ExpectedClassEntropyGain:
         d = np.repeat(R[:, :, 2], n, axis=0)  # (A*n, 3)
         starts = (np.einsum("nj,aij->ani", local, R) + o[:, None]).reshape(-1, 3)
         q = np.concatenate([starts, d], 1).astype(np.float32)
-        t_obj = self._scene(obj, c).cast_rays(o3d.core.Tensor(q))["t_hit"].numpy().astype(np.float64)
+        hits = self._scene(obj, c, template).cast_rays(o3d.core.Tensor(q))
+        t_obj = hits["t_hit"].numpy().astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_table = np.where(d[:, 2] < 0, -starts[:, 2] / d[:, 2], np.inf)
         t_obj = np.where(np.isfinite(t_obj) & (t_obj <= touch_config.max_travel), t_obj, np.inf)
@@ -221,13 +231,16 @@ class ExpectedClassEntropyGain:
             w = np.full(len(hyp), 1.0 / len(hyp))
         else:
             w = p0[hyp] / max(p0[hyp].sum(), 1e-12)
+        k = self.templates_per_class
+        w = np.repeat(w / k, k)  # (class, template) hypotheses share their class's weight
         clouds = []
         for c in hyp:
-            for y in self.expected_contacts(obj, int(c), sensor, T, touch_config):
-                clouds.append(np.concatenate([P, y]) if len(y) else P)
+            for j in range(k):
+                for y in self.expected_contacts(obj, int(c), sensor, T, touch_config, template=j):
+                    clouds.append(np.concatenate([P, y]) if len(y) else P)
         probs = classify_clouds(self.model, obj, clouds, self.max_points, seed=seed)
         probs = np.where(np.isfinite(probs).all(1, keepdims=True), probs, p0[None])  # < 3 points: no change
-        q = probs.reshape(len(hyp), len(T), -1)
+        q = probs.reshape(len(w), len(T), -1)
         expected = (w[:, None] * _entropy(q)).sum(0)
         if self.criterion == "expected_entropy":
             return _entropy(p0) - expected
