@@ -5,15 +5,18 @@ The camera is on the end-effector E of one arm (eye-in-hand); a tactile sensor o
 fixed object with guarded motions, so its contacts are known in the world frame W through that arm's
 kinematics (eq. 5.22, ``P_W = T_W_B T_B_T P_T``). Calibration is cast as point-cloud registration: the
 camera-frame visual cloud ``P_C`` of the object is registered to the sparse tactile cloud ``P_W``
-(eq. 5.21, S-TIQF by default, the thesis's choice), giving ``T_W_C``; the arm's kinematics give ``T_W_E``
-for the capture (eq. 5.19, ``T_W_C = T_W_B T_B_E T_E_C``), and the hand-eye matrix is (eq. 5.20)
+(eq. 5.21; S-TIQF by default, the thesis's choice, or any method of
+:func:`vtlearn.classical.registration.register`, so the peers of 5.3.3 too), giving ``T_W_C``. The arm's
+kinematics give ``T_W_E`` for the capture (eq. 5.19, ``T_W_C = T_W_B T_B_E T_E_C``), and the hand-eye
+matrix is (eq. 5.20)
 
     T_E_C = T_W_E⁻¹ · T_W_C.
 
 No calibration target is needed. Several captures (views) are each registered on their own and their
 ``T_E_C`` estimates combined: rotations by the quaternion average of Markley et al. (2007, the
-eigenvector of ``Σ q qᵀ``) and translations by their mean. ``method="tiqf"`` refines from a nominal
-calibration ``T_E_C_init`` with TIQF (eq. 4.1-4.23, local) instead of the global S-TIQF search.
+eigenvector of ``Σ q qᵀ``) and translations by their mean. A nominal calibration ``T_E_C_init``, when
+given, starts every registration at ``T_W_E · T_E_C_init``; local methods (TIQF, eq. 4.1-4.23, ICP, ...)
+need one, global ones (S-TIQF, RANSAC-FPFH, FGR) do not.
 
 Frames: ``T_a_b`` maps points in frame b into frame a; W world, E end-effector of the camera arm, C camera.
 Quaternions are Hamilton (w, x, y, z); metres.
@@ -31,9 +34,11 @@ import numpy as np
 
 from vtlearn.validation import as_points, as_transform
 
-__all__ = ["HandEyeResult", "average_transforms", "hand_eye_from_registration", "in_situ_hand_eye"]
+__all__ = ["HandEyeResult", "average_transforms", "hand_eye_from_registration", "in_situ_hand_eye",
+           "LOCAL_METHODS"]
 
-METHODS = ("stiqf", "tiqf")
+# registration methods that only refine a starting pose: they need T_E_C_init
+LOCAL_METHODS = ("tiqf", "icp", "icp_plane", "sparse_icp", "filterreg", "cpd")
 
 
 @dataclass
@@ -103,8 +108,8 @@ def in_situ_hand_eye(
     *,
     method: str = "stiqf",
     T_E_C_init=None,
-    registrar=None,
     seed: int = 0,
+    **options,
 ) -> HandEyeResult:
     """In-situ visuo-tactile hand-eye calibration (thesis 5.2.5, eq. 5.19-5.22).
 
@@ -112,11 +117,12 @@ def in_situ_hand_eye(
         visual_points_C: the object's visual cloud in the camera frame, or one per view.
         tactile_points_W: tactile contacts on the same (fixed) object in the world frame (eq. 5.22).
         T_W_E: camera-arm end-effector pose of each view from its kinematics (eq. 5.19).
-        method: ``"stiqf"`` (global, thesis) or ``"tiqf"`` (local refinement from ``T_E_C_init``).
-        T_E_C_init: nominal calibration; required by ``"tiqf"``, unused by ``"stiqf"``.
-        registrar: a configured :class:`~vtlearn.classical.stiqf.STIQF` or
-            :class:`~vtlearn.classical.tiqf.TIQF` to use instead of the default one of ``method``.
-        seed: seed of the default registrar.
+        method: a method of :func:`vtlearn.classical.registration.register`; ``"stiqf"`` (global, the
+            thesis's) by default.
+        T_E_C_init: nominal calibration, the start of every registration; required by
+            :data:`LOCAL_METHODS`.
+        seed: seeds the registration.
+        **options: passed to :func:`~vtlearn.classical.registration.register` (e.g. ``restarts``).
 
     Returns:
         :class:`HandEyeResult`.
@@ -124,8 +130,10 @@ def in_situ_hand_eye(
     Shapes:
         visual_points_C (M, 3) or V x (M_v, 3); tactile_points_W (N, 3); T_W_E (4, 4) or (V, 4, 4).
     """
+    from vtlearn.classical.registration import METHODS, register
+
     if method not in METHODS:
-        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+        raise ValueError(f"method: unknown {method!r}; choose from {sorted(METHODS)}")
     views = [visual_points_C] if isinstance(visual_points_C, np.ndarray) and np.ndim(visual_points_C) == 2 \
         else list(visual_points_C)
     if not views:
@@ -137,26 +145,15 @@ def in_situ_hand_eye(
     if T_W_E.ndim != 3 or len(T_W_E) != len(clouds):
         raise ValueError(f"T_W_E: need one (4, 4) pose per view ({len(clouds)}), got shape {T_W_E.shape}")
     T_W_E = np.stack([as_transform(T, f"T_W_E[{i}]") for i, T in enumerate(T_W_E)])
-    if method == "tiqf":
-        if T_E_C_init is None:
-            raise ValueError("T_E_C_init: method='tiqf' refines a nominal calibration, none given")
+    if T_E_C_init is not None:
         T_E_C_init = as_transform(T_E_C_init, "T_E_C_init")
-    if registrar is None:
-        if method == "stiqf":
-            from vtlearn.classical.stiqf import STIQF
-
-            registrar = STIQF(seed=seed)
-        else:
-            from vtlearn.classical.tiqf import TIQF
-
-            registrar = TIQF(seed=seed)
+    elif method in LOCAL_METHODS:
+        raise ValueError(f"T_E_C_init: method {method!r} refines a nominal calibration, none given")
     T_W_C, rmse = [], []
     for cloud, T in zip(clouds, T_W_E, strict=True):
         # eq. 5.21: register the visual cloud (model, frame C) to the tactile cloud (scene, frame W)
-        if method == "tiqf":
-            res = registrar.register(cloud, tactile, T_init=T @ T_E_C_init)
-        else:
-            res = registrar.register(cloud, tactile)
+        T_init = None if T_E_C_init is None else T @ T_E_C_init
+        res = register(cloud, tactile, method, T_init=T_init, seed=seed, **options)
         T_W_C.append(np.asarray(res.T_scene_model, dtype=np.float64))
         rmse.append(float(res.rmse))
     T_W_C = np.stack(T_W_C)

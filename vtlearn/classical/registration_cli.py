@@ -1,4 +1,5 @@
-"""Registration CLI: ``vtlearn register``, ``vtlearn bench registration``, ``vtlearn bench active-touch``."""
+"""Registration CLI: ``vtlearn register``, ``vtlearn hand-eye``, ``vtlearn bench registration``,
+``vtlearn bench active-touch``, ``vtlearn bench hand-eye``."""
 
 from __future__ import annotations
 
@@ -36,8 +37,73 @@ def _cmd_register(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_poses(path: str, name: str):
+    import numpy as np
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{name}: no file at {p}")
+    if p.suffix == ".npy":
+        arr = np.load(p, allow_pickle=False)
+    else:
+        arr = np.loadtxt(p)
+    arr = np.asarray(arr, dtype=np.float64)
+    if arr.ndim == 2 and arr.shape[1] == 4 and arr.shape[0] % 4 == 0:
+        arr = arr.reshape(-1, 4, 4)  # text files: 4x4 blocks stacked
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+        raise ValueError(f"{name}: expected (V, 4, 4) poses (.npy, or 4V x 4 text), got shape {arr.shape}")
+    return arr
+
+
+def _cmd_hand_eye(args: argparse.Namespace) -> int:
+    from vtlearn.bench_utils import to_jsonable
+    from vtlearn.classical.hand_eye import in_situ_hand_eye
+    from vtlearn.io import read_geometry
+
+    visual = [read_geometry(v, n_points=args.visual_points, seed=args.seed + i)
+              for i, v in enumerate(args.visual)]
+    tactile = read_geometry(args.tactile, n_points=args.tactile_points, seed=args.seed)
+    poses = _read_poses(args.poses, "--poses")
+    init = _read_poses(args.init, "--init")[0] if args.init else None
+    res = in_situ_hand_eye(visual, tactile, poses, method=args.method, T_E_C_init=init, seed=args.seed)
+    out = {"T_E_C": res.T_E_C, "T_W_C": res.T_W_C, "T_E_C_views": res.T_E_C_views, "rmse_m": res.rmse,
+           "spread_m": res.spread_m, "spread_deg": res.spread_deg, "method": args.method,
+           "visual": args.visual, "tactile": args.tactile, "poses": args.poses}
+    if args.json:
+        print(json.dumps(to_jsonable(out), indent=2))
+    else:
+        print(f"{len(visual)} view(s), method {args.method}: registration rmse "
+              + ", ".join(f"{1e3 * r:.2f}" for r in res.rmse) + " mm; views agree within "
+              f"{1e3 * res.spread_m:.1f} mm / {res.spread_deg:.2f} deg")
+        print("T_E_C =")
+        for row in res.T_E_C:
+            print("  " + " ".join(f"{v: .6f}" for v in row))
+    if args.out:
+        import numpy as np
+
+        np.save(args.out, res.T_E_C, allow_pickle=False)
+        print(f"wrote {args.out}")
+    return 0
+
+
 def register(subparsers: Any) -> None:
     from vtlearn.classical.registration import METHODS
+
+    h = subparsers.add_parser("hand-eye", help="in-situ visuo-tactile hand-eye calibration (thesis 5.2.5)")
+    h.add_argument("--visual", nargs="+", required=True,
+                   help="the object's visual cloud in the camera frame, one file per view")
+    h.add_argument("--poses", required=True,
+                   help="T_W_E of the camera arm for each view: .npy (V, 4, 4) or text, 4x4 blocks stacked")
+    h.add_argument("--tactile", required=True, help="tactile contacts on the same object, world frame")
+    h.add_argument("--method", default="stiqf", choices=sorted(METHODS),
+                   help="registration (default stiqf, global); local methods need --init")
+    h.add_argument("--init", default=None, help="nominal T_E_C (.npy (4, 4) or text), start of every view")
+    h.add_argument("--visual-points", type=int, default=1024, help="points sampled from a visual mesh input")
+    h.add_argument("--tactile-points", type=int, default=60, help="points sampled from a tactile mesh input")
+    h.add_argument("--seed", type=int, default=0)
+    h.add_argument("--json", action="store_true", help="print the result as JSON")
+    h.add_argument("--out", default=None, help="save T_E_C as .npy")
+    h.set_defaults(func=_cmd_hand_eye)
 
     p = subparsers.add_parser("register", help="register a model to a scene cloud (TIQF, S-TIQF, baselines)")
     p.add_argument(
@@ -141,6 +207,63 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench_hand_eye(args: argparse.Namespace) -> int:
+    from vtlearn.bench_utils import machine_info, print_table, save_figure, write_json
+    from vtlearn.classical.hand_eye_bench import run_hand_eye_benchmark
+    from vtlearn.classical.registration_bench import default_meshes, load_benchmark_mesh
+
+    meshes = [load_benchmark_mesh(s) for s in (args.meshes or default_meshes())]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    result = run_hand_eye_benchmark(meshes, trials=args.trials, views=args.views,
+                                    n_tactile=args.tactile_points, init_trans=args.init_trans,
+                                    init_rot_deg=args.init_rot_deg, methods=methods,
+                                    one_sided=not args.full_surface, seed=args.seed)
+    s = result["summary"]
+    ref = s["stiqf"] if "stiqf" in s else None
+    rows = []
+    for name, r in s.items():
+        rows.append({"method": name, "start": r["start"], "pos_mm_median": r["position_mm_median"],
+                     "rot_deg_median": r["rotation_deg_median"], "pos_mm_mean": r["position_mm_mean"],
+                     "within_1cm_5deg": r["within_thesis_bounds"], "seconds": r["seconds_mean"],
+                     "pos_ratio_to_stiqf": (r["position_mm_median"] / ref["position_mm_median"]
+                                            if ref and ref["position_mm_median"] > 0 else float("nan"))})
+    rows.append({"method": "thesis S-TIQF (real objects)", "start": "none", "pos_mm_median": "< 10",
+                 "rot_deg_median": "< 5"})
+    print_table(rows, ["method", "start", "pos_mm_median", "rot_deg_median", "pos_mm_mean",
+                       "within_1cm_5deg", "seconds", "pos_ratio_to_stiqf"],
+                f"Hand-eye calibration error, {len(meshes)} meshes x {args.trials} trials, {args.views} "
+                f"views ({'whole surface' if args.full_surface else 'one-sided'}), {args.tactile_points} "
+                f"tactile points (thesis 5.3.4)")
+    mesh_names = [n for n, _ in meshes]
+    print_table([{"method": name, **r["position_mm_median_per_mesh"]} for name, r in s.items()],
+                ["method", *mesh_names], "Median position error (mm) per calibration object (a "
+                "near-symmetric object leaves the rotation about its axis unobserved)")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    names = list(s)
+    for ax, key, unit in ((axes[0], "position_mm", "mm"), (axes[1], "rotation_deg", "deg")):
+        data = [[x[key] for x in result["runs"] if x["method"] == n] for n in names]
+        ax.boxplot(data, showfliers=True)
+        ax.set_xticks(range(1, len(names) + 1), names, rotation=30)
+        ax.set_yscale("log")
+        ax.axhline(result["thesis"][key], color="r", ls="--", label="thesis bound")
+        ax.set_ylabel(f"hand-eye error ({unit})")
+        ax.legend()
+    fig.suptitle("In-situ visuo-tactile hand-eye calibration (Fig. 5.20e analogue)")
+    fig.tight_layout()
+    png = Path(args.json).with_suffix(".png")
+    save_figure(fig, png)
+    result["machine"] = machine_info()
+    result["figure"] = str(png)
+    write_json(args.json, result)
+    print(f"wrote {args.json} and {png}")
+    return 0
+
+
 def register_bench(bench_subparsers: Any) -> None:
     p = bench_subparsers.add_parser("registration", help="S-TIQF vs baselines, thesis 5.3.3 / Table 5.1")
     p.add_argument(
@@ -163,6 +286,21 @@ def register_bench(bench_subparsers: Any) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default="runs/bench/registration.json", help="output JSON (.md and .png beside)")
     p.set_defaults(func=_cmd_bench_registration)
+
+    p = bench_subparsers.add_parser("hand-eye", help="in-situ hand-eye calibration, S-TIQF vs peers (5.3.4)")
+    p.add_argument("--meshes", nargs="+", default=None,
+                   help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 shapes)")
+    p.add_argument("--trials", type=int, default=5, help="trials per mesh")
+    p.add_argument("--views", type=int, default=3, help="camera captures per trial")
+    p.add_argument("--tactile-points", type=int, default=60)
+    p.add_argument("--methods", default="stiqf,ransac_fpfh,fgr,tiqf,icp", help="comma-separated methods")
+    p.add_argument("--init-trans", type=float, default=0.02, help="nominal calibration error (m)")
+    p.add_argument("--init-rot-deg", type=float, default=5.0, help="nominal calibration error (deg)")
+    p.add_argument("--full-surface", action="store_true",
+                   help="give every view the whole object surface instead of the side facing the camera")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default="runs/bench/hand_eye.json", help="output JSON (.png beside)")
+    p.set_defaults(func=_cmd_bench_hand_eye)
 
     p = bench_subparsers.add_parser("active-touch", help="active touch look-ahead time and active vs random")
     p.add_argument("--candidates", default="10,100,1000")
