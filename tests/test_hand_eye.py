@@ -123,3 +123,37 @@ def test_bad_input_is_refused_by_name(scene):
         in_situ_hand_eye([], P, T)
     with pytest.raises(ValueError, match="T: need shape"):
         average_transforms(np.zeros((0, 4, 4)))
+
+
+def test_hand_eye_command_and_bench_smoke(tmp_path, scene, capsys):
+    import json
+
+    from vtlearn.cli import main
+    from vtlearn.io import write_cloud
+
+    X, sample = scene
+    P_W = sample(800, 4)
+    T_W_E = random_pose(seed=12)
+    T_W_E[:3, 3] = [0.3, 0.0, 0.5]
+    write_cloud(tmp_path / "v.ply", _camera_cloud(P_W, T_W_E, X))
+    write_cloud(tmp_path / "t.ply", P_W[::20])
+    np.save(tmp_path / "poses.npy", T_W_E[None], allow_pickle=False)
+    np.save(tmp_path / "init.npy", X, allow_pickle=False)
+    out = tmp_path / "X.npy"
+    assert main(["hand-eye", "--visual", str(tmp_path / "v.ply"), "--poses", str(tmp_path / "poses.npy"),
+                 "--tactile", str(tmp_path / "t.ply"), "--method", "tiqf",
+                 "--init", str(tmp_path / "init.npy"), "--out", str(out)]) == 0
+    assert "T_E_C =" in capsys.readouterr().out
+    np.testing.assert_allclose(np.load(out), X, atol=1e-5)  # tactile on the visual samples: exact
+    assert main(["hand-eye", "--visual", str(tmp_path / "v.ply"), "--poses", str(tmp_path / "none.npy"),
+                 "--tactile", str(tmp_path / "t.ply")]) == 2
+    assert "--poses" in capsys.readouterr().err
+    js = tmp_path / "he.json"
+    assert main(["bench", "hand-eye", "--meshes", "bunny", "--trials", "1", "--methods", "stiqf,tiqf",
+                 "--json", str(js)]) == 0
+    res = json.loads(js.read_text())
+    assert set(res["summary"]) == {"nominal", "stiqf", "tiqf"}
+    assert res["summary"]["nominal"]["position_mm_median"] == pytest.approx(20.0)
+    assert js.with_suffix(".png").is_file()
+    assert main(["bench", "hand-eye", "--meshes", "bunny", "--methods", "teaser", "--json", str(js)]) == 2
+    assert "methods" in capsys.readouterr().err
