@@ -134,8 +134,8 @@ def in_situ_hand_eye(
 
     if method not in METHODS:
         raise ValueError(f"method: unknown {method!r}; choose from {sorted(METHODS)}")
-    views = [visual_points_C] if isinstance(visual_points_C, np.ndarray) and np.ndim(visual_points_C) == 2 \
-        else list(visual_points_C)
+    single = hasattr(visual_points_C, "shape") and len(visual_points_C.shape) == 2  # one (M, 3) array/tensor
+    views = [visual_points_C] if single else list(visual_points_C)
     if not views:
         raise ValueError("visual_points_C: no view given")
     clouds = [as_points(v, f"visual_points_C[{i}]", min_points=3) for i, v in enumerate(views)]
