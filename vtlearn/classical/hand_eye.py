@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vtlearn.geometry import rotation_error_deg
 from vtlearn.validation import as_points, as_transform
 
 __all__ = ["HandEyeResult", "average_transforms", "hand_eye_from_registration", "in_situ_hand_eye",
@@ -97,10 +98,6 @@ def average_transforms(T) -> np.ndarray:
     return out
 
 
-def _rotation_angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def in_situ_hand_eye(
     visual_points_C,
     tactile_points_W,
@@ -160,6 +157,6 @@ def in_situ_hand_eye(
     per_view = np.stack([np.linalg.inv(T) @ Tc for T, Tc in zip(T_W_E, T_W_C, strict=True)])  # eq. 5.20
     T_E_C = average_transforms(per_view)
     dev_m = np.linalg.norm(per_view[:, :3, 3] - T_E_C[:3, 3], axis=1)
-    dev_deg = [_rotation_angle_deg(T_E_C[:3, :3].T @ X[:3, :3]) for X in per_view]
+    dev_deg = [rotation_error_deg(T_E_C[:3, :3], X[:3, :3]) for X in per_view]
     return HandEyeResult(T_E_C, T_W_C, per_view, np.asarray(rmse), float(dev_m.max()), float(max(dev_deg)),
                          {"method": method})

@@ -46,17 +46,18 @@ def _look_at(eye: np.ndarray, target: np.ndarray, rng) -> np.ndarray:
 
 
 def _small_rotation(rng, deg: float) -> np.ndarray:
+    """A rotation by ``deg`` degrees about a uniformly random axis."""
+    from vtlearn.geometry import so3_exp
+
     axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    a = np.radians(deg)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+    return np.asarray(so3_exp(np.radians(deg) * axis / np.linalg.norm(axis)), dtype=np.float64)
 
 
 def _errors(T, X) -> tuple[float, float]:
-    R = T[:3, :3].T @ X[:3, :3]
-    return (1e3 * float(np.linalg.norm(T[:3, 3] - X[:3, 3])),
-            float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))))
+    """(position error in mm, rotation error in degrees) of ``T`` against ``X``."""
+    from vtlearn.geometry import rotation_error_deg, translation_error
+
+    return 1e3 * translation_error(T[:3, 3], X[:3, 3]), rotation_error_deg(T[:3, :3], X[:3, :3])
 
 
 def _trial(mesh, rng, views: int, n_visual: int, n_tactile: int, visual_noise: float, tactile_noise: float,

@@ -282,16 +282,19 @@ class CrossModalDataModule(ShardedDataModule):
         ``data_dir``, or of ``target_data_dir`` when set)."""
         if self.target_data_dir is None:
             return self.dataset(self.target_split, "tactile", with_label=False, train=True)
-        clouds, labels, scales = modality_clouds(
-            self._target_data_split(self.target_split), "tactile", self.units == "metres"
-        )
-        return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, scales=scales, with_label=False)
+        return self._target_data_dataset(self.target_split, with_label=False)
 
     def target_dataloader(self, shuffle: bool = True) -> DataLoader:
         """The unlabelled target stream on its own (:meth:`target_dataset`), e.g. for
         :meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`."""
         return self._loader(self.target_dataset(), shuffle=shuffle)
+
+    def _target_data_dataset(self, split: str, with_label: bool) -> CloudDataset:
+        """Yaw-augmented tactile clouds of ``target_data_dir``'s ``split``."""
+        clouds, labels, scales = modality_clouds(self._target_data_split(split), "tactile",
+                                                 self.units == "metres")
+        return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
+                            seed=self.seed, scales=scales, with_label=with_label)
 
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
@@ -348,11 +351,7 @@ class CrossModalDataModule(ShardedDataModule):
         if self.target_data_dir is not None:
             from torch.utils.data import ConcatDataset
 
-            clouds, labels, scales = modality_clouds(
-                self._target_data_split("train"), "tactile", self.units == "metres"
-            )
-            ds = ConcatDataset([ds, CloudDataset(clouds, labels, train=True, normalize=self.normalize,
-                                                 rotate_z=self.rotate_z, seed=self.seed, scales=scales)])
+            ds = ConcatDataset([ds, self._target_data_dataset("train", with_label=True)])
         return self._loader(ds, shuffle=True)
 
     def source_val_dataloader(self) -> DataLoader:

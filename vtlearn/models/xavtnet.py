@@ -170,9 +170,7 @@ class XAVTNet(L.LightningModule):
         self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
         self._bn_domain = "target"  # evaluation clouds are tactile unless bn_domain("source") says otherwise
         if domain_bn:
-            convert_batchnorm(self.encoder)
-            convert_batchnorm(self.head)
-            set_bn_domain(self, self._bn_domain)
+            self._convert_to_domain_bn()
         vt = da_method == "vtloss"
         self.vtloss = VTLoss(
             alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
@@ -243,10 +241,8 @@ class XAVTNet(L.LightningModule):
         if int(passes) < 1:
             raise ValueError(f"passes: need >= 1, got {passes}")
         if not self.hparams.get("domain_bn", False):
-            convert_batchnorm(self.encoder)
-            convert_batchnorm(self.head)
+            self._convert_to_domain_bn()
             self.hparams["domain_bn"] = True
-            set_bn_domain(self, self._bn_domain)
         bns = [m for m in self.modules() if isinstance(m, DomainBatchNorm)]
         momentum = bns[0].momentum
         for m in bns:
@@ -272,6 +268,13 @@ class XAVTNet(L.LightningModule):
         if n_batches == 0:
             raise ValueError("loader: no batch of >= 2 clouds to estimate batch-norm statistics from")
         return n_clouds
+
+    def _convert_to_domain_bn(self) -> None:
+        """Every batch norm of the encoder and head becomes a :class:`DomainBatchNorm` (both domains start
+        from its statistics), set to the current domain."""
+        convert_batchnorm(self.encoder)
+        convert_batchnorm(self.head)
+        set_bn_domain(self, self._bn_domain)
 
     def _set_bn_domain(self, domain: str) -> None:
         self._bn_domain = domain
