@@ -287,3 +287,7 @@ def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_cr
     assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--passes", "0",
                  "--out", str(out)]) == 2
     assert "--passes" in capsys.readouterr().err
+    other = tmp_path / "other.ckpt"  # a Lightning checkpoint of another model
+    torch.save({"state_dict": {"decoder.w": torch.zeros(2)}, "hyper_parameters": {}}, other)
+    assert main(["adapt-bn", "--ckpt", str(other), "--data", str(tiny_crossmodal), "--out", str(out)]) == 2
+    assert "not an xAVTNet checkpoint" in capsys.readouterr().err

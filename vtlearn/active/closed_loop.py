@@ -548,15 +548,16 @@ def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 
     return classify_clouds(model, obj, [ep.prefix(k, "tactile") for k in ks], max_points, seeds=ks)
 
 
-def load_xavtnet(ckpt):
+def load_xavtnet(ckpt, data: dict | None = None):
     """:class:`~vtlearn.models.xavtnet.XAVTNet` from a Lightning checkpoint (``weights_only=True``), in
-    eval mode; ValueError for a checkpoint of another model."""
+    eval mode; ValueError for a checkpoint of another model. ``data``: the checkpoint ``ckpt`` already read
+    by :func:`~vtlearn.models.actor.read_lightning_checkpoint` (then the file is not read again)."""
     import inspect
 
     from vtlearn.models.actor import read_lightning_checkpoint
     from vtlearn.models.xavtnet import XAVTNet
 
-    data = read_lightning_checkpoint(ckpt)
+    data = read_lightning_checkpoint(ckpt) if data is None else data
     if not any(k.startswith("encoder.") for k in data["state_dict"]) or not any(
         k.startswith("head.") for k in data["state_dict"]
     ):

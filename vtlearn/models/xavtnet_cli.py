@@ -614,8 +614,9 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     import lightning as L
     import torch
 
+    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.datamodules import CrossModalDataModule
-    from vtlearn.models.xavtnet import XAVTNet
+    from vtlearn.models.actor import read_lightning_checkpoint
 
     _quiet_lightning()
     ckpt_path, out = Path(args.ckpt), Path(args.out)
@@ -625,11 +626,8 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
         raise ValueError("--out: must differ from --ckpt (the input checkpoint is kept)")
     if args.passes < 1:
         raise ValueError(f"--passes: need >= 1, got {args.passes}")
-    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-    if "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
-        raise ValueError(f"--ckpt: {ckpt_path} is not a Lightning checkpoint "
-                         "(no state_dict / hyper_parameters)")
-    model = XAVTNet.load_from_checkpoint(ckpt_path, map_location="cpu", weights_only=True)
+    ckpt = read_lightning_checkpoint(ckpt_path)  # weights_only=True; clear errors for other files
+    model = load_xavtnet(ckpt_path, ckpt)  # ValueError for a checkpoint of another model
     L.seed_everything(args.seed, verbose=False)
     dm = CrossModalDataModule(args.data, batch_size=args.batch_size, target_split=args.split,
                               target_data_dir=args.target_data, seed=args.seed)
