@@ -113,6 +113,25 @@ def test_views_and_touches_on_opaque_and_transparent(glass, mug):
         assert len(ep.prefix(3, "visual")) == 0
 
 
+def test_feasibility_hook_constrains_every_sampled_action(mug):
+    def top_only(T):  # only pads pressing straight down are reachable
+        return np.asarray(T)[:, 2, 2] < -0.99
+
+    with TouchWorld(mug) as world:
+        for s in ("active", "random"):
+            ep = run_episode(world, s, 4, pinch=False, n_init=1, seed=3, feasible={"touch": top_only}, **FAST)
+            assert all(T[2, 2] < -0.99 for T in ep.T_world_sensor)
+        # without the hook the same seeds press from the sides too
+        ep = run_episode(world, "random", 4, pinch=False, n_init=1, seed=3, **FAST)
+        assert any(T[2, 2] > -0.99 for T in ep.T_world_sensor)
+        with pytest.raises(ValueError, match="feasible"):
+            run_episode(world, "random", 2, pinch=False, feasible=lambda T: np.zeros(len(T), bool), **FAST)
+        with pytest.raises(ValueError, match="feasible"):
+            run_episode(world, "random", 2, feasible={"grasp": top_only}, **FAST)
+        with pytest.raises(ValueError, match="feasible"):
+            run_episode(world, "random", 2, feasible=3, **FAST)
+
+
 def _grid_and_box():
     box = OrientedBox.from_aabb([-0.03, -0.03, 0.0], [0.03, 0.03, 0.1])
     grid = OccupancyGrid(box.center - 0.06, 0.12 / 16, (16, 16, 16))

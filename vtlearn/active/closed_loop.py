@@ -43,6 +43,7 @@ Shapes:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -334,6 +335,7 @@ def run_episode(
     seed: int = 0,
     progress=None,
     recognizer=None,
+    feasible=None,
 ) -> Episode:
     """Explore ``world.obj`` with ``strategy`` for ``n_views`` views and ``n_tactile`` touches/pinches.
 
@@ -347,6 +349,10 @@ def run_episode(
             (:class:`~vtlearn.active.recognition_nbt.ExpectedClassEntropyGain`; touch only, no views or
             pinches).
         n_init: leading random touches shared by every strategy (not with views).
+        feasible: the kinematic-feasibility hook of :mod:`vtlearn.active.actions` for the sampled
+            candidates: one callable for every kind, or a mapping ``{"touch"|"pinch"|"view": callable}``
+            (a kind left out is unconstrained). The robot runtime fills it with IK queries
+            (:class:`vtlearn.runtime.robot.IKFeasibility`). The fixed ``uniform`` schedules ignore it.
         progress: optional callable ``(step, n_steps)`` after every action (e.g. a tqdm update).
     """
     if strategy not in STRATEGIES:
@@ -366,6 +372,16 @@ def run_episode(
             raise ValueError("recognizer: gain_mode='recognition' needs an ExpectedClassEntropyGain")
         if pinch or int(n_views):
             raise ValueError("gain_mode: 'recognition' scores touches only; set pinch=False and n_views=0")
+    if isinstance(feasible, Mapping):
+        unknown = set(feasible) - {"touch", "pinch", "view"}
+        if unknown:
+            raise ValueError(f"feasible: unknown action kinds {sorted(unknown)}; use touch, pinch, view")
+    elif feasible is not None and not callable(feasible):
+        raise ValueError(f"feasible: need a callable or a mapping of kind -> callable, got {feasible!r}")
+
+    def feas(kind: str):
+        return feasible.get(kind) if isinstance(feasible, Mapping) else feasible
+
     obj = world.obj
     lo, hi = obj.bounds
     box = OrientedBox.from_aabb(lo - 0.003, hi + 0.003)
@@ -393,7 +409,7 @@ def run_episode(
     for step in range(n_total):
         gain = np.nan
         if tactile_done < int(n_init) and n_views == 0:
-            chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng_init)
+            chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng_init, feasible=feas("touch"))
         elif strategy == "uniform":
             if budget["view"]:
                 chosen = plans["view"].subset([int(n_views) - budget["view"]])
@@ -405,13 +421,17 @@ def run_episode(
             kinds = (["view"] if budget["view"] else []) + (["tactile"] if budget["tactile"] else [])
             kind = kinds[int(rng.integers(len(kinds)))]
             if kind == "view":
-                chosen = sample_view_actions(box.center, view_radius, 1, min_elevation_deg=15.0, seed=rng)
+                chosen = sample_view_actions(
+                    box.center, view_radius, 1, min_elevation_deg=15.0, seed=rng, feasible=feas("view")
+                )
             elif pinch and rng.uniform() < 0.5:
-                chosen = sample_pinch_actions(box, 1, seed=rng)
+                chosen = sample_pinch_actions(box, 1, seed=rng, feasible=feas("pinch"))
             else:
-                chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng)
+                chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng, feasible=feas("touch"))
         elif gain_mode == "recognition":
-            cands_t = sample_touch_actions(box, int(n_candidates), standoff=standoff, seed=rng)
+            cands_t = sample_touch_actions(
+                box, int(n_candidates), standoff=standoff, seed=rng, feasible=feas("touch")
+            )
             measured = np.concatenate(pts) if pts else np.zeros((0, 3))
             gains_r = recognizer.gains(
                 obj, measured, touch, cands_t.T_world_sensor, world.sim.config, seed=step
@@ -422,19 +442,34 @@ def run_episode(
             cands = []
             if budget["tactile"]:
                 n_touch = int(n_candidates) // 2 if pinch else int(n_candidates)
-                cands.append((sample_touch_actions(box, n_touch, standoff=standoff, seed=rng), touch))
+                touches = sample_touch_actions(
+                    box, n_touch, standoff=standoff, seed=rng, feasible=feas("touch")
+                )
+                cands.append((touches, touch))
                 if pinch:
                     cands.append(
-                        (sample_pinch_actions(box, int(n_candidates) - n_touch, seed=rng), sensors["pinch"])
+                        (
+                            sample_pinch_actions(
+                                box, int(n_candidates) - n_touch, seed=rng, feasible=feas("pinch")
+                            ),
+                            sensors["pinch"],
+                        )
                     )
             if budget["view"]:
                 views = sample_view_actions(
-                    box.center, view_radius, int(n_view_candidates), min_elevation_deg=15.0, seed=rng
+                    box.center,
+                    view_radius,
+                    int(n_view_candidates),
+                    min_elevation_deg=15.0,
+                    seed=rng,
+                    feasible=feas("view"),
                 )
                 cands.append((views, sensors["view"]))
             which, idx, gains = choose_action(grid, cands, obj.transparent, gain_mode)
             chosen = cands[which][0].subset([idx])
             gain = float(gains[int(np.sum([len(a) for a, _ in cands[:which]])) + idx])
+        if not len(chosen):
+            raise ValueError(f"feasible: rejected every candidate action at step {step}")
         if chosen.kind == "view":
             rays, ranges, hit = world.look(sensors["view"], chosen.T_world_sensor[0])
             budget["view"] -= 1
