@@ -33,7 +33,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["QuickstartConfig", "run_quickstart", "tiny_quickstart_config"]
+__all__ = ["QuickstartConfig", "perceive_object", "run_quickstart", "tiny_quickstart_config"]
 
 _REPO = Path(__file__).resolve().parents[1]
 
@@ -272,29 +272,35 @@ def _load_episode(out: Path):
     return ep, make_object(str(d["category"]), int(d["seed"]))
 
 
-def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
-    """Step 4: reconstruction, recognition and S-TIQF pose; ``summary.json`` and ``summary.png``."""
-    from vtlearn.active.closed_loop import classify_prefixes, load_xavtnet, reconstruct_prefixes
+def perceive_object(
+    actor, xavtnet, class_names: list[str], obj, ep, *, seed: int = 0, stiqf_restarts: int = 4
+) -> tuple[dict, dict]:
+    """Reconstruct (ACTOR), recognise (xAVTNet) and register (S-TIQF) the object ``obj`` from the points
+    of the explored episode ``ep``; shared by the quickstart and the robot runtime.
+
+    The S-TIQF model is the reconstruction in its own metric frame (box centre at the origin); the
+    scene is the touched points after an unknown rigid motion of the object (yaw in [-180, 180] deg, a
+    few cm), so the ADI (eq. 5.24, cm) measures the pose of the reconstruction, not a known placement.
+
+    Returns:
+        the JSON-ready summary, and the arrays of the summary figure (``recon``, ``scene``,
+        ``model_pts``, ``T_est``, ``T_gt``).
+    """
+    from vtlearn.active.closed_loop import classify_prefixes, reconstruct_prefixes
     from vtlearn.classical.registration import register
     from vtlearn.geometry.metrics import adi
-    from vtlearn.models.actor import load_actor
 
-    ep, obj = _load_episode(out)
-    actor = load_actor(out / "actor.ckpt")
     recon, cd = reconstruct_prefixes(actor, obj, ep, [ep.n_steps])
-    xav = load_xavtnet(out / "xavtnet.ckpt")
-    probs = classify_prefixes(xav, obj, ep, [ep.n_steps])[0]
-    class_names = json.loads((out / "data" / "crossmodal" / "manifest.json").read_text())["class_names"]
+    probs = classify_prefixes(xavtnet, obj, ep, [ep.n_steps])[0]
+    if len(class_names) != len(probs):
+        raise ValueError(f"class_names: {len(class_names)} names for a classifier of {len(probs)} classes")
     pred = class_names[int(np.nanargmax(probs))] if np.isfinite(probs).all() else None
     if recon[0] is None:
         raise ValueError(
             f"n_actions: {ep.n_steps} actions gave {len(ep.points)} contact points, too few to "
             "reconstruct; use a larger budget"
         )
-
-    # Pose: the model is the reconstruction in its own metric frame (box centre at the origin); the scene
-    # is the touched points after an unknown rigid motion of the object (yaw in [-180, 180] deg, a few cm).
-    rng = np.random.default_rng([cfg.seed, 55])
+    rng = np.random.default_rng([seed, 55])
     centre = obj.bounds.mean(0)
     model_pts = recon[0] - centre
     yaw = rng.uniform(-np.pi, np.pi)
@@ -306,7 +312,7 @@ def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
     T_gt = T_scene_world @ T_world_model
     scene = ep.points @ T_scene_world[:3, :3].T + T_scene_world[:3, 3]
     t0 = time.perf_counter()
-    res = register(model_pts, scene, "stiqf", restarts=cfg.stiqf_restarts, seed=cfg.seed)
+    res = register(model_pts, scene, "stiqf", restarts=stiqf_restarts, seed=seed)
     true_model = obj.surface_world - centre
     adi_cm = 100.0 * adi(true_model, res.T_scene_model, T_gt)
     summary = {
@@ -328,8 +334,30 @@ def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
         "T_scene_model_est": np.asarray(res.T_scene_model).tolist(),
         "T_scene_model_true": T_gt.tolist(),
     }
+    arrays = {
+        "recon": recon[0],
+        "scene": scene,
+        "model_pts": model_pts,
+        "T_est": np.asarray(res.T_scene_model),
+        "T_gt": T_gt,
+    }
+    return summary, arrays
+
+
+def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
+    """Step 4: reconstruction, recognition and S-TIQF pose; ``summary.json`` and ``summary.png``."""
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.models.actor import load_actor
+
+    ep, obj = _load_episode(out)
+    actor = load_actor(out / "actor.ckpt")
+    xav = load_xavtnet(out / "xavtnet.ckpt")
+    class_names = json.loads((out / "data" / "crossmodal" / "manifest.json").read_text())["class_names"]
+    summary, a = perceive_object(
+        actor, xav, class_names, obj, ep, seed=cfg.seed, stiqf_restarts=cfg.stiqf_restarts
+    )
     _summary_figure(
-        out / "summary.png", obj, ep, recon[0], scene, model_pts, res.T_scene_model, T_gt, summary
+        out / "summary.png", obj, ep, a["recon"], a["scene"], a["model_pts"], a["T_est"], a["T_gt"], summary
     )
     return summary
 
