@@ -200,8 +200,15 @@ def distance_to_goal(O, T) -> float:
     return float(np.hypot(t[0] - o[0], t[1] - o[1]))
 
 
-def _sensor_frame(point: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """T_W_S at ``point`` with z_S = d (horizontal), x_S = d x z_W, y_S = -z_W."""
+def sensor_frame(point, d) -> np.ndarray:
+    """T_W_S at ``point`` (3,) with z_S along the horizontal part of ``d``, x_S = z_S x z_W, y_S = -z_W."""
+    point = np.asarray(point, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise ValueError(f"point: need a finite (3,) position, got {point.tolist()}")
+    if d.shape[0] < 2 or not np.isfinite(d).all() or np.hypot(d[0], d[1]) < 1e-12:
+        raise ValueError(f"d: need a finite direction with a horizontal part, got {d.tolist()}")
+    d = d / np.hypot(d[0], d[1])
     z = np.array([d[0], d[1], 0.0])
     x = np.cross(z, [0.0, 0.0, 1.0])
     T = np.eye(4)
@@ -260,7 +267,7 @@ def push_pose(
     obb = oriented_bounding_box(pts, planar=True)
     d, along, across = _face(obb, t, face)
     point = np.append(obb.centre[:2] - along * d, obb.centre[2])
-    T_W_S = _sensor_frame(point, d)
+    T_W_S = sensor_frame(point, d)
     room = max(across - margin, 0.0)
     T_W_S = shift_sensor(T_W_S, float(np.clip(offset, -room, room)))
     return T_W_S, T_W_S[:3, 3].copy()
@@ -459,11 +466,26 @@ class GoalPusher:
             p.resetBaseVelocity(self._pad, [0, 0, 0], [0, 0, 0], **kw)
         p.changeConstraint(self._cid, centre.tolist(), q, self.pad_max_force, **kw)
 
+    def close(self) -> None:
+        """Remove the pad body and its constraint from the scene (a later push makes a new one)."""
+        if self._pad is not None:
+            kw = {"physicsClientId": self.scene.client}
+            p.removeConstraint(self._cid, **kw)
+            p.removeBody(self._pad, **kw)
+            self._pad = self._cid = None
+
     def _park(self) -> None:
         self._place_pad(np.array([0.0, 0.0, 1.0]), np.eye(3), teleport=True)
 
-    def _execute(self, T_W_S: np.ndarray, length: float) -> tuple[bool, bool, float]:
-        """Approach along z_S until contact, push ``length`` in contact. Returns (contact, lost, pushed)."""
+    def push(self, T_W_S: np.ndarray, length: float) -> tuple[bool, bool, float]:
+        """One push: approach along z_S until the pad touches ``body``, then push ``length`` metres in
+        contact, stopping early when the contact is lost (the tactile monitoring of the thesis).
+        Returns (contact made, contact lost, distance pushed in contact)."""
+        T_W_S = as_transform(T_W_S, "T_W_S")
+        if not (np.isfinite(length) and length > 0):
+            raise ValueError(f"length: need a positive distance in metres, got {length}")
+        if self._pad is None:
+            self._make_pad()
         R, z = T_W_S[:3, :3], T_W_S[:3, 2]
         # the pad's front face (its +z_S side) starts ``standoff`` before the push point
         start = T_W_S[:3, 3] - (self.standoff + self.pad_half[2]) * z
@@ -520,7 +542,7 @@ class GoalPusher:
             c = self.pid(theta, 1.0)
             T_W_S, _ = push_pose(cloud, t, c, self.face, margin=float(self.pad_half[0]))
             T_W_S[2, 3] = h
-            contact, lost, pushed = self._execute(T_W_S, min(self.push_step, d))
+            contact, lost, pushed = self.push(T_W_S, min(self.push_step, d))
             records.append(
                 PushRecord(O, theta, c, d, T_W_S[:3, 3].copy(), T_W_S[:3, 2].copy(), contact, lost, pushed)
             )
