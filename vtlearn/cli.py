@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "vtlearn.active.active_cli",
     "vtlearn.models.actor_cli",
     "vtlearn.active.experiments_cli",
+    "vtlearn.runtime.runtime_cli",
 )
 
 
