@@ -212,3 +212,20 @@ def test_bad_input(scene_objects):
             rt.explore(free, 2)
         with pytest.raises(ValueError, match="max_actions"):
             rt.declutter(free, max_actions=-1)
+
+
+def test_bench_runtime_smoke(tmp_path, tiny_models, capsys):
+    out = tmp_path / "bench.json"
+    args = ["bench", "runtime", "--models", str(tiny_models), "--scenes", "1", "--n-touches", "3"]
+    assert main([*args, "--n-candidates", "4", "--json", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert set(d["summary"]) == {"active", "random"} and len(d["runs"]) == 2
+    a, r = d["runs"]
+    # both strategies explore the same decluttered scene
+    same = ("scene", "category", "pushes", "grasps", "transparent_detected")
+    assert [a[k] for k in same] == [r[k] for k in same]
+    assert a["category"] == "wineglass" and a["actions"] == 3 + (0 if a["transparent_detected"] else 3)
+    assert 0.0 <= d["summary"]["active"]["success_rate"] <= 1.0 and out.with_suffix(".png").is_file()
+    assert "thesis (real robots)" in capsys.readouterr().out
+    assert main([*args, "--strategies", "greedy", "--json", str(out)]) == 2
+    assert "strategies" in capsys.readouterr().err

@@ -304,6 +304,7 @@ class RuntimeReport:
     unreached_touches: int = 0
     ik_queries: int = 0
     perception: dict = field(default_factory=dict)
+    perception_error: str | None = None
     seconds: dict = field(default_factory=dict)
     arrays: dict = field(default_factory=dict, repr=False)  # perception arrays for figures; not in JSON
 
@@ -316,6 +317,7 @@ class RuntimeReport:
             "unreached_touches": self.unreached_touches,
             "ik_queries": self.ik_queries,
             "perception": self.perception,
+            "perception_error": self.perception_error,
             "seconds": self.seconds,
         }
 
@@ -599,6 +601,7 @@ class TwoArmRuntime:
         self,
         target: int,
         *,
+        strategy: str = "active",
         n_touches: int = 20,
         max_declutter_actions: int = 8,
         n_candidates: int = 60,
@@ -609,41 +612,81 @@ class TwoArmRuntime:
     ) -> RuntimeReport:
         """Declutter, then explore, then perceive (thesis Fig. 5.2, a-c). Perception needs both models;
         without them the report stops after exploration."""
-        from vtlearn.pipeline import perceive_object
-
         report = RuntimeReport()
         t0 = time.perf_counter()
         report.declutter_actions, report.declutter_done = self.declutter(
             target, max_declutter_actions, figure=declutter_figure
         )
-        obs = self.observe(self.sim_objects[target].T_world_object[:2, 3])
+        obs = self.observe(self.scene.T_world_object(target)[:2, 3])
         report.transparent_detected = bool(obs.transparent.get(target, False))
         report.seconds["declutter"] = round(time.perf_counter() - t0, 2)
-        t0 = time.perf_counter()
-        # An opaque target is seen as well as touched (3 views, thesis Fig. 5.13); a transparent one
-        # only touched, because its views return no depth.
-        n_views = 0 if report.transparent_detected else 3
-        report.episode, world = self.explore(
-            target, n_touches, n_views=n_views, n_candidates=n_candidates, cells=cells, progress=progress
+        return self.explore_and_perceive(
+            target,
+            report,
+            strategy=strategy,
+            n_touches=n_touches,
+            n_candidates=n_candidates,
+            cells=cells,
+            stiqf_restarts=stiqf_restarts,
+            progress=progress,
         )
-        report.unreached_touches = world.unreached
-        report.ik_queries = self.touch_feasibility.queries + self.view_feasibility.queries
-        report.seconds["explore"] = round(time.perf_counter() - t0, 2)
+
+    def explore_and_perceive(
+        self,
+        target: int,
+        report: RuntimeReport,
+        *,
+        strategy: str = "active",
+        n_touches: int = 20,
+        n_candidates: int = 60,
+        cells: int = 32,
+        stiqf_restarts: int = 4,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> RuntimeReport:
+        """Explore the (decluttered) target with ``strategy`` and perceive it; returns a new report with the
+        declutter fields of ``report`` (so several strategies can follow one decluttering). An opaque
+        target (as detected) is seen from 3 views as well as touched (thesis Fig. 5.13); a transparent
+        one only touched, because its views return no depth."""
+        from vtlearn.pipeline import perceive_object
+
+        out = RuntimeReport(
+            declutter_actions=list(report.declutter_actions),
+            declutter_done=report.declutter_done,
+            transparent_detected=report.transparent_detected,
+            seconds={k: v for k, v in report.seconds.items() if k == "declutter"},
+        )
+        t0 = time.perf_counter()
+        queries0 = self.touch_feasibility.queries + self.view_feasibility.queries
+        n_views = 0 if out.transparent_detected else 3
+        out.episode, world = self.explore(
+            target,
+            n_touches,
+            n_views=n_views,
+            strategy=strategy,
+            n_candidates=n_candidates,
+            cells=cells,
+            progress=progress,
+        )
+        out.unreached_touches = world.unreached
+        out.ik_queries = self.touch_feasibility.queries + self.view_feasibility.queries - queries0
+        out.seconds["explore"] = round(time.perf_counter() - t0, 2)
         if self.actor is not None and self.xavtnet is not None:
             t0 = time.perf_counter()
-            report.perception, arrays = perceive_object(
-                self.actor,
-                self.xavtnet,
-                self.class_names,
-                self.sim_objects[target],
-                report.episode,
-                seed=self.seed,
-                stiqf_restarts=stiqf_restarts,
-            )
-            report.perception.pop("actions", None)  # the episode's kinds are in report.episode
-            report.arrays = arrays
-            report.seconds["perceive"] = round(time.perf_counter() - t0, 2)
-        return report
+            try:
+                out.perception, out.arrays = perceive_object(
+                    self.actor,
+                    self.xavtnet,
+                    self.class_names,
+                    self.sim_objects[target],
+                    out.episode,
+                    seed=self.seed,
+                    stiqf_restarts=stiqf_restarts,
+                )
+            except ValueError as exc:  # too few contacts to reconstruct: a failed trial, not a crash
+                out.perception_error = str(exc)
+            out.perception.pop("actions", None)  # the episode's kinds are in out.episode
+            out.seconds["perceive"] = round(time.perf_counter() - t0, 2)
+        return out
 
 
 def clutter_scene(

@@ -14,7 +14,7 @@ import json
 import time
 from pathlib import Path
 
-__all__ = ["register"]
+__all__ = ["register", "register_bench"]
 
 
 def _model_paths(args) -> tuple[Path | None, Path | None, Path | None]:
@@ -122,6 +122,8 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
         print(f"reconstruction (ACTOR): Chamfer distance {s['chamfer_mm']:.1f} mm")
         print(f"recognition (xAVTNet):  predicted {s['predicted_category']}, true {s['true_category']}")
         print(f"pose (S-TIQF):          ADI {s['adi_cm']:.2f} cm")
+    elif report.perception_error:
+        print(f"perception failed: {report.perception_error}")
     else:
         print("no models given: explored only (pass --models DIR or --actor/--xavtnet/--class-names)")
     print(f"seconds: {json.dumps(report.seconds)}  total {time.perf_counter() - t0:.0f} s")
@@ -130,6 +132,142 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
         + (f", {out / 'summary.png'}" if s else "")
     )
     return 0
+
+
+def _cmd_bench_runtime(args: argparse.Namespace) -> int:
+    import numpy as np
+    from tqdm import tqdm
+
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.bench_utils import machine_info, print_table, save_figure, write_json
+    from vtlearn.models.actor import load_actor
+    from vtlearn.runtime.runtime_bench import run_runtime_benchmark
+
+    actor_path, xav_path, names_path = _model_paths(args)
+    if actor_path is None:
+        raise ValueError(
+            "--models: the benchmark perceives, so it needs models (or --actor/--xavtnet/--class-names)"
+        )
+    names = json.loads(Path(names_path).read_text())["class_names"]
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    bar = tqdm(total=args.scenes * len(strategies), desc="scenes x strategies")
+    t0 = time.perf_counter()
+    result = run_runtime_benchmark(
+        load_actor(actor_path),
+        load_xavtnet(xav_path),
+        names,
+        scenes=args.scenes,
+        strategies=strategies,
+        n_touches=args.n_touches,
+        n_candidates=args.n_candidates,
+        seed=args.seed,
+        progress=lambda i, n: bar.update(),
+    )
+    bar.close()
+    s, th = result["summary"], result["thesis"]
+    base = s.get("random")
+    rows = []
+    for name, r in s.items():
+        ratio = (
+            (r["adi_cm_median"] / base["adi_cm_median"])
+            if base and base["adi_cm_median"] > 0
+            else float("nan")
+        )
+        cd_ratio = (r["chamfer_mm_mean"] / base["chamfer_mm_mean"]) if base else float("nan")
+        rows.append(
+            {
+                "strategy": name,
+                **{
+                    k: r[k]
+                    for k in (
+                        "success_rate",
+                        "declutter_rate",
+                        "recognition_accuracy",
+                        "chamfer_mm_mean",
+                        "chamfer_mm_transparent_mean",
+                        "adi_cm_median",
+                        "points_mean",
+                        "seconds_mean",
+                    )
+                },
+                "adi_ratio_to_random": ratio,
+                "cd_ratio_to_random": cd_ratio,
+            }
+        )
+    rows.append(
+        {
+            "strategy": "thesis (real robots)",
+            "success_rate": th["success_rate"],
+            "chamfer_mm_transparent_mean": "< 20 (random ~30)",
+            "adi_cm_median": "< 3",
+        }
+    )
+    cols = [
+        "strategy",
+        "success_rate",
+        "declutter_rate",
+        "recognition_accuracy",
+        "chamfer_mm_mean",
+        "chamfer_mm_transparent_mean",
+        "adi_cm_median",
+        "points_mean",
+        "seconds_mean",
+        "adi_ratio_to_random",
+        "cd_ratio_to_random",
+    ]
+    print_table(
+        rows,
+        cols,
+        f"Two-arm runtime, {args.scenes} cluttered scenes, {args.n_touches} touches "
+        f"(success: decluttered and ADI < 3 cm, thesis 5.4.2)",
+    )
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+    for ax, key, bound, unit in (
+        (axes[0], "chamfer_mm", 20.0, "Chamfer distance (mm)"),
+        (axes[1], "adi_cm", 3.0, "ADI (cm)"),
+    ):
+        data = [[x[key] for x in result["runs"] if x["strategy"] == n and np.isfinite(x[key])] for n in s]
+        ax.boxplot(data, showfliers=True)
+        ax.set_xticks(range(1, len(s) + 1), list(s))
+        ax.axhline(bound, color="r", ls="--", label="thesis bound")
+        ax.set_ylabel(unit)
+        ax.legend()
+    fig.suptitle("Two-arm runtime on cluttered scenes (thesis 5.4.2 analogue)")
+    fig.tight_layout()
+    png = Path(args.json).with_suffix(".png")
+    save_figure(fig, png)
+    result.update(machine=machine_info(), figure=str(png), seconds=round(time.perf_counter() - t0, 1))
+    write_json(args.json, result)
+    print(f"wrote {args.json} and {png}")
+    return 0
+
+
+def register_bench(bench_subparsers) -> None:
+    p = bench_subparsers.add_parser(
+        "runtime", help="the two-arm runtime on cluttered scenes: success rate, CD, recognition, ADI"
+    )
+    p.add_argument("--models", default=None, help="a `vtlearn quickstart --out` directory (its checkpoints)")
+    p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
+    p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
+    p.add_argument(
+        "--class-names", default=None, help="crossmodal dataset manifest.json (xAVTNet class names)"
+    )
+    p.add_argument("--scenes", type=int, default=4, help="cluttered scenes (default %(default)s)")
+    p.add_argument(
+        "--strategies", default="active,random", help="exploration strategies (default %(default)s)"
+    )
+    p.add_argument("--n-touches", type=int, default=20, help="touch budget (default %(default)s)")
+    p.add_argument(
+        "--n-candidates", type=int, default=40, help="candidates per active step (default %(default)s)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default="runs/bench/runtime.json", help="output JSON (figure beside it)")
+    p.set_defaults(func=_cmd_bench_runtime)
 
 
 def register(sub) -> None:
