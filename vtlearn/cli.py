@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "vtlearn.models.actor_cli",
     "vtlearn.active.experiments_cli",
     "vtlearn.runtime.runtime_cli",
+    "vtlearn.runtime.manipulation_bench",
 )
 
 
