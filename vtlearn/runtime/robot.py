@@ -574,6 +574,7 @@ class TwoArmRuntime:
         strategy: str = "active",
         n_candidates: int = 60,
         cells: int = 32,
+        gain_mode: str = "probabilistic",
         progress: Callable[[int, int], None] | None = None,
     ) -> tuple[Episode, ArmTouchWorld]:
         """Next-best touches (and views) on the target by the tactile (and vision) arm, each candidate
@@ -590,6 +591,7 @@ class TwoArmRuntime:
             pinch=False,
             n_candidates=n_candidates,
             cells=cells,
+            gain_mode=gain_mode,
             seed=self.seed,
             progress=progress,
             feasible=feasible,
