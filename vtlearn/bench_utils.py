@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 from pathlib import Path
 from typing import Any
@@ -76,10 +77,16 @@ def machine_info() -> dict:
 
 
 def write_json(path, obj: Any) -> Path:
-    """Write ``obj`` as indented JSON (numpy converted), creating parent folders."""
+    """Write ``obj`` as indented JSON (numpy converted), creating parent folders. The text goes to a
+    temporary file beside ``path`` first and is renamed over it, so a killed run never leaves half a file."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(to_jsonable(obj), indent=2))
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(to_jsonable(obj), indent=2))
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
     return p
 
 

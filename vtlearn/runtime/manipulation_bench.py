@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -124,20 +123,6 @@ def _check_float(value: Any, name: str, positive: bool = False) -> float:
     if not np.isfinite(v) or v < 0 or (positive and v == 0):
         raise ValueError(f"{name}: need a finite value {'> 0' if positive else '>= 0'}, got {value!r}")
     return v
-
-
-def _write_json_atomic(path, obj: Any) -> Path:
-    """:func:`vtlearn.bench_utils.write_json` to a temporary file beside ``path``, then one rename."""
-    from vtlearn.bench_utils import write_json
-
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write_json(tmp, obj)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 def _summary_stats(values) -> tuple[float, float]:
@@ -571,7 +556,7 @@ def _names(text: str) -> list[str]:
 
 
 def _cmd_bench_pushing(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import machine_info, print_table
+    from vtlearn.bench_utils import machine_info, print_table, write_json
 
     result = run_pushing_benchmark(
         trials=args.trials,
@@ -644,13 +629,13 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     pushing_figure(result, figure)
     result["machine"] = machine_info()
     result["figure"] = str(figure)
-    _write_json_atomic(args.json, result)
+    write_json(args.json, result)
     print(f"wrote {args.json} and {figure}")
     return 0
 
 
 def _cmd_bench_articulation(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import machine_info, print_table
+    from vtlearn.bench_utils import machine_info, print_table, write_json
 
     result = run_articulation_benchmark(
         trials=args.trials,
@@ -703,7 +688,7 @@ def _cmd_bench_articulation(args: argparse.Namespace) -> int:
         "type, no accuracy or axis error reported)."
     )
     result["machine"] = machine_info()
-    _write_json_atomic(args.json, result)
+    write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -767,11 +766,7 @@ def _mask_on_plane(mask: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, 
 
 
 def save_report(report: RuntimeReport, out: str | Path) -> Path:
-    """Write ``runtime.json`` into ``out`` atomically; returns its path."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "runtime.json"
-    tmp = out / "runtime.json.tmp"
-    tmp.write_text(json.dumps(report.to_dict(), indent=2))
-    os.replace(tmp, path)
-    return path
+    """Write ``runtime.json`` into ``out`` atomically (:func:`vtlearn.bench_utils.write_json`)."""
+    from vtlearn.bench_utils import write_json
+
+    return write_json(Path(out) / "runtime.json", report.to_dict())
