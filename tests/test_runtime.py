@@ -229,3 +229,14 @@ def test_bench_runtime_smoke(tmp_path, tiny_models, capsys):
     assert "thesis (real robots)" in capsys.readouterr().out
     assert main([*args, "--strategies", "greedy", "--json", str(out)]) == 2
     assert "strategies" in capsys.readouterr().err
+
+
+def test_bench_runtime_bad_input():
+    from vtlearn.runtime.runtime_bench import run_runtime_benchmark
+
+    with pytest.raises(ValueError, match="scenes"):
+        run_runtime_benchmark(None, None, ["mug"], scenes=0)
+    with pytest.raises(ValueError, match="strategies"):
+        run_runtime_benchmark(None, None, ["mug"], strategies=[])
+    with pytest.raises(ValueError, match="class_names"):
+        run_runtime_benchmark(None, None, ["teapot"])

@@ -33,7 +33,13 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["QuickstartConfig", "perceive_object", "run_quickstart", "tiny_quickstart_config"]
+__all__ = [
+    "QuickstartConfig",
+    "perceive_object",
+    "run_quickstart",
+    "summary_figure",
+    "tiny_quickstart_config",
+]
 
 _REPO = Path(__file__).resolve().parents[1]
 
@@ -356,13 +362,16 @@ def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
     summary, a = perceive_object(
         actor, xav, class_names, obj, ep, seed=cfg.seed, stiqf_restarts=cfg.stiqf_restarts
     )
-    _summary_figure(
+    summary_figure(
         out / "summary.png", obj, ep, a["recon"], a["scene"], a["model_pts"], a["T_est"], a["T_gt"], summary
     )
     return summary
 
 
-def _summary_figure(path: Path, obj, ep, recon, scene, model_pts, T_est, T_gt, s: dict) -> None:
+def summary_figure(path: Path, obj, ep, recon, scene, model_pts, T_est, T_gt, s: dict) -> None:
+    """Three 3-D panels saved as ``path``: the touches on the object, the ACTOR reconstruction against
+    the true surface, and the S-TIQF pose overlay; ``recon`` ... ``T_gt`` and the summary ``s`` are what
+    :func:`perceive_object` returns."""
     import matplotlib
 
     matplotlib.use("Agg")

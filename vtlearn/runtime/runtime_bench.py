@@ -143,12 +143,12 @@ def run_runtime_benchmark(
                 np.mean([x["transparent"] == x["transparent_detected"] for x in r])
             ),
             "recognition_accuracy": float(np.mean([x["correct"] for x in r])),
-            "chamfer_mm_mean": float(np.mean([x["chamfer_mm"] for x in r])),
-            "chamfer_mm_transparent_mean": float(np.mean([x["chamfer_mm"] for x in clear]))
-            if clear
-            else None,
-            "adi_cm_median": float(np.median([x["adi_cm"] for x in r])),
-            "adi_cm_mean": float(np.mean([x["adi_cm"] for x in r])),
+            "perception_failures": sum(x["perception_error"] is not None for x in r),
+            # over the trials that could be perceived
+            "chamfer_mm_mean": _nanmean([x["chamfer_mm"] for x in r]),
+            "chamfer_mm_transparent_mean": _nanmean([x["chamfer_mm"] for x in clear]),
+            "adi_cm_median": _nanmedian([x["adi_cm"] for x in r]),
+            "adi_cm_mean": _nanmean([x["adi_cm"] for x in r]),
             "points_mean": float(np.mean([x["points"] for x in r])),
             "seconds_mean": float(np.mean([x["seconds"] for x in r])),
         }

@@ -63,7 +63,7 @@ def _scene_figure(path: Path, before, after, titles: tuple[str, str]) -> None:
 def _cmd_runtime(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from vtlearn.pipeline import _summary_figure
+    from vtlearn.pipeline import summary_figure
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
 
     actor, xav, names = _model_paths(args)
@@ -108,7 +108,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
     s = report.perception
     if s:
         a = report.arrays
-        _summary_figure(
+        summary_figure(
             out / "summary.png",
             target_obj,
             ep,
@@ -166,34 +166,24 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
     bar.close()
     s, th = result["summary"], result["thesis"]
     base = s.get("random")
+    metrics = [
+        "success_rate",
+        "declutter_rate",
+        "recognition_accuracy",
+        "perception_failures",
+        "chamfer_mm_mean",
+        "chamfer_mm_transparent_mean",
+        "adi_cm_median",
+        "points_mean",
+        "seconds_mean",
+    ]
     rows = []
     for name, r in s.items():
-        ratio = (
-            (r["adi_cm_median"] / base["adi_cm_median"])
-            if base and base["adi_cm_median"] > 0
-            else float("nan")
-        )
-        cd_ratio = (r["chamfer_mm_mean"] / base["chamfer_mm_mean"]) if base else float("nan")
-        rows.append(
-            {
-                "strategy": name,
-                **{
-                    k: r[k]
-                    for k in (
-                        "success_rate",
-                        "declutter_rate",
-                        "recognition_accuracy",
-                        "chamfer_mm_mean",
-                        "chamfer_mm_transparent_mean",
-                        "adi_cm_median",
-                        "points_mean",
-                        "seconds_mean",
-                    )
-                },
-                "adi_ratio_to_random": ratio,
-                "cd_ratio_to_random": cd_ratio,
-            }
-        )
+        row = {"strategy": name, **{k: r[k] for k in metrics}}
+        if base:  # ratios against random exploration in the same run
+            row["adi_ratio_to_random"] = r["adi_cm_median"] / base["adi_cm_median"]
+            row["cd_ratio_to_random"] = r["chamfer_mm_mean"] / base["chamfer_mm_mean"]
+        rows.append(row)
     rows.append(
         {
             "strategy": "thesis (real robots)",
@@ -202,19 +192,7 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
             "adi_cm_median": "< 3",
         }
     )
-    cols = [
-        "strategy",
-        "success_rate",
-        "declutter_rate",
-        "recognition_accuracy",
-        "chamfer_mm_mean",
-        "chamfer_mm_transparent_mean",
-        "adi_cm_median",
-        "points_mean",
-        "seconds_mean",
-        "adi_ratio_to_random",
-        "cd_ratio_to_random",
-    ]
+    cols = ["strategy", *metrics, "adi_ratio_to_random", "cd_ratio_to_random"]
     print_table(
         rows,
         cols,
