@@ -181,6 +181,7 @@ def test_run_with_checkpoints_perceives_and_reports(tiny_models, tmp_path):
 def test_cli_runtime_explores_without_models(tmp_path, tiny_models, capsys):
     out = tmp_path / "rt"
     args = ["runtime", "--out", str(out), "--n-touches", "2", "--n-candidates", "4", "--max-declutter", "1"]
+    args += ["--strategy", "random"]
     assert main(args) == 0
     d = json.loads((out / "runtime.json").read_text())
     assert d["perception"] == {} and len(d["episode"]["kinds"]) == 2

@@ -85,6 +85,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             n_touches=args.n_touches,
             max_declutter_actions=args.max_declutter,
             n_candidates=args.n_candidates,
+            strategy=args.strategy,
             declutter_figure=out / "declutter.png",
             progress=lambda i, n: bar.update(),
         )
@@ -270,6 +271,12 @@ def register(sub) -> None:
         "--clutter", default="can,box,bowl", help="comma-separated clutter categories (default %(default)s)"
     )
     p.add_argument("--n-touches", type=int, default=20, help="touch budget (default %(default)s)")
+    p.add_argument(
+        "--strategy",
+        choices=("active", "random", "uniform"),
+        default="active",
+        help="exploration strategy (default %(default)s; docs/runtime.md compares them)",
+    )
     p.add_argument(
         "--max-declutter", type=int, default=8, help="declutter action limit (default %(default)s)"
     )
