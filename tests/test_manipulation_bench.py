@@ -66,6 +66,18 @@ def test_bench_articulation_one_trial_noiseless(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["art.json"]
 
 
+def test_bench_articulation_tracked_by_artreg(tmp_path):
+    out = tmp_path / "art.json"
+    args = ["bench", "articulation", "--trials", "1", "--categories", "drawer", "--tracker", "artreg"]
+    assert main([*args, "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert r["settings"]["tracker"] == "artreg" and list(r["summary"]) == ["drawer"]
+    for x in r["runs"]:  # tracked poses: a tracking error is measured, and it is that of a working tracker
+        assert 0.0 < x["tracking_mm_median"] < 30.0
+    with pytest.raises(ValueError, match="tracker"):
+        run_articulation_benchmark(trials=1, tracker="oracle")
+
+
 def _pair_of_runs(spec, q):
     with Scene() as scene:
         obj = ArticulatedObject(scene, spec, n_model_points=0.01)

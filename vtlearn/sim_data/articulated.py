@@ -53,6 +53,7 @@ __all__ = [
     "ArticulatedObject",
     "TrackingSequence",
     "look_at_45",
+    "render_cloud",
     "articulation_sequence",
     "motion_sequence",
 ]
@@ -403,9 +404,11 @@ def _smooth_path(rng: np.random.Generator, n_frames: int, n_waypoints: int, scal
     return wp[i] * (1 - h) + wp[i + 1] * h
 
 
-def _render_cloud(
+def render_cloud(
     scene: Scene, camera: RGBDCamera, T_world_camera: np.ndarray, drop: set[int], rng: np.random.Generator
 ) -> np.ndarray:
+    """World-frame cloud of one rendered frame without the bodies in ``drop`` (e.g. the table): what a
+    tracker gets after plane and background removal (thesis 6.2.2)."""
     frame = camera.render(scene, T_world_camera, rng)
     mask = (frame.depth > 0) & (frame.seg >= 0) & ~np.isin(frame.seg, list(drop))
     return camera.point_cloud(frame, rng=rng)[mask[frame.depth > 0]]
@@ -440,7 +443,7 @@ def articulation_sequence(
             q = q_end * (3 * s**2 - 2 * s**3)
             obj.set_state(T_base, q)
             gts.append(obj.part_poses())
-            scenes.append(_render_cloud(scene, camera, T_wc, {scene.table_id}, rng))
+            scenes.append(render_cloud(scene, camera, T_wc, {scene.table_id}, rng))
             qs.append(q)
     return TrackingSequence(category, obj.models, np.stack(gts), scenes, [None] * n_frames, np.stack(qs))
 
@@ -516,7 +519,7 @@ def motion_sequence(
             # the probe trails the first object along its direction of motion, touching it
             vel = paths[0][min(k + 1, n_frames - 1), :2] - paths[0][max(k - 1, 0), :2]
             tactile.append(_place_probe(scene, objs[0], probe, vel, probe_radius))
-            scenes.append(_render_cloud(scene, camera, T_wc, {scene.table_id, probe}, rng))
+            scenes.append(render_cloud(scene, camera, T_wc, {scene.table_id, probe}, rng))
             if objs[0].spec.n_joints:
                 qs.append(q_end * (3 * s**2 - 2 * s**3))
     models = [m for o in objs for m in o.models]
