@@ -126,6 +126,7 @@ def test_declutter_pushes_leaf_first_then_finishes(scene_objects):
         assert done and 1 <= len(actions) <= 8
         assert actions[0]["object_id"] == ids[-1]  # the deepest leaf goes first
         assert all(a["kind"] == "push" and a["reachable"] and a["contact"] for a in actions)
+        assert {a["arm"] for a in actions} <= {"tactile", "vision"}
         np.testing.assert_allclose(rt.scene.T_world_object(tb), T_target)  # the target is never moved
         assert DeclutterGraph.build(rt.observe().clouds, tb).is_done
 
@@ -146,6 +147,46 @@ def test_declutter_grasps_place_objects_out_of_the_way(scene_objects):
             rt.declutter(tb, place_position=[0, 0, 0])
         with pytest.raises(ValueError, match="target"):
             rt.declutter(999)
+
+
+def test_declutter_policies_and_bench(tmp_path, capsys):
+    from vtlearn.runtime.runtime_bench import run_declutter_benchmark
+
+    r = run_declutter_benchmark(scenes=1, n_clutter=2, max_actions=4, seed=3)
+    assert [x["policy"] for x in r["runs"]] == ["graph", "nearest", "random"]
+    assert all(x["scene"] == 0 and x["actions"] <= 4 for x in r["runs"])
+    assert set(r["summary"]) == {"graph", "nearest", "random"}
+    for bad, match in (
+        (dict(scenes=0), "scenes"),
+        (dict(n_clutter=0), "n_clutter"),
+        (dict(policies=["x"]), "policies"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            run_declutter_benchmark(**bad)
+    out = tmp_path / "d.json"
+    assert (
+        main(
+            [
+                "bench",
+                "declutter",
+                "--scenes",
+                "1",
+                "--clutter",
+                "1",
+                "--policies",
+                "graph",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert json.loads(out.read_text())["summary"]["graph"]["scenes"] == 1
+    assert "Decluttering, 1 scenes" in capsys.readouterr().out
+    with TwoArmRuntime(seed=0) as rt:
+        body = rt.add_object(make_object("mug", 3, sections=16), fixed=True)
+        with pytest.raises(ValueError, match="policy"):
+            rt.declutter(body, policy="farthest")
 
 
 @pytest.fixture(scope="module")

@@ -27,10 +27,11 @@ What is simulated and what is not:
 - Transparency is *detected*, not read from the scene: the IoU of the RGB mask box with the depth
   cloud's box (thesis 5.2.3, :func:`vtlearn.active.selection.detect_transparent`). A transparent object's
   footprint comes from its RGB mask projected on the table plane, because its depth is unusable.
-- Grasps of the declutter graph are kinematic: when the tactile arm reaches the top-down pre-grasp
-  pose (IK), the object is placed at the graph's place position. There are no finger dynamics, so the
-  thesis' tactile monitoring of a dropped object is not modelled.
-- Pushes are physical: when the tactile arm reaches the push pose (IK), a pad-sized pusher slides along
+- Both robots declutter (thesis 5.2.2): an action goes to the tactile arm, or to the vision arm when
+  only that one reaches it (IK). Grasps of the declutter graph are kinematic: when an arm reaches the
+  top-down pre-grasp pose, the object is placed at the next place position. There are no finger
+  dynamics, so the thesis' tactile monitoring of a dropped object is not modelled.
+- Pushes are physical: when an arm reaches the push pose (IK), a pad-sized pusher slides along
   the push direction through the Bullet contact dynamics (:meth:`vtlearn.runtime.pushing.GoalPusher.push`)
   and stops when its contact with the pushed object is lost; whatever it meets moves.
 - Touches are the guarded motions of :class:`~vtlearn.sim_data.tactile.TactileSimulator`; the target
@@ -67,7 +68,10 @@ from vtlearn.validation import as_transform
 
 log = logging.getLogger(__name__)
 
+DECLUTTER_POLICIES = ("graph", "nearest", "random")
+
 __all__ = [
+    "DECLUTTER_POLICIES",
     "ArmTouchWorld",
     "IKFeasibility",
     "Observation",
@@ -368,9 +372,14 @@ class TwoArmRuntime:
         self.tactile_arm = PandaArm(self.scene, sensor, T_world_base=_yaw_base(0.6, np.pi))
         self.camera = RGBDCamera(*image_size)
         self.view_feasibility = IKFeasibility(self.vision_arm, camera_mount())
-        self.touch_feasibility = IKFeasibility(
-            self.tactile_arm, rolls=symmetric_rolls(self.tactile_arm.sim.sensor.taxel_positions())
-        )
+        square = symmetric_rolls(self.tactile_arm.sim.sensor.taxel_positions())
+        self.touch_feasibility = IKFeasibility(self.tactile_arm, rolls=square)
+        # Decluttering uses both robots (thesis 5.2.2): the vision arm pushes and grasps with its gripper,
+        # a contact face at the same 12 cm along the hand as the pad.
+        self.manipulation_feasibility = {
+            "tactile": self.touch_feasibility,
+            "vision": IKFeasibility(self.vision_arm, T_hand_sensor=self.tactile_arm.T_hand_pad, rolls=square),
+        }
         self._home = {
             "vision": self.vision_arm.q.copy(),
             "tactile": self.tactile_arm.q.copy(),
@@ -491,20 +500,39 @@ class TwoArmRuntime:
         return np.array([0.25 - 0.12 * (k // 2), side * 0.45, 0.0])
 
     def declutter(
-        self, target: int, max_actions: int = 8, *, figure: str | Path | None = None, **graph_kwargs
+        self,
+        target: int,
+        max_actions: int = 8,
+        *,
+        policy: str = "graph",
+        figure: str | Path | None = None,
+        **graph_kwargs,
     ) -> tuple[list[dict], bool]:
         """Singulate ``target`` (thesis 5.2.2): observe, build the declutter graph, execute its next
         action (grasp-and-place, or push), and repeat until the root has no children or
-        ``max_actions`` actions were executed. ``figure``: save the first graph there
-        (:meth:`~vtlearn.runtime.declutter.DeclutterGraph.figure`). ``graph_kwargs`` go to
-        :meth:`~vtlearn.runtime.declutter.DeclutterGraph.build`. Returns the executed actions (JSON
-        records) and whether decluttering finished."""
+        ``max_actions`` actions were executed.
+
+        Args:
+            policy: which object to act on. ``"graph"`` is the thesis: the leaf reached by depth-first
+                descent (:meth:`~vtlearn.runtime.declutter.DeclutterGraph.next_action`). The baselines
+                of ``vtlearn bench declutter`` use the same graph, actions and stopping rule but pick
+                differently: ``"nearest"`` acts on the heaviest child of the target (the nearest
+                clutter, whatever clutters it in turn), ``"random"`` on a random object of the graph.
+            figure: save the first graph there (:meth:`~vtlearn.runtime.declutter.DeclutterGraph.figure`).
+            graph_kwargs: passed to :meth:`~vtlearn.runtime.declutter.DeclutterGraph.build`.
+
+        Returns:
+            the executed actions (JSON records) and whether decluttering finished.
+        """
         from vtlearn.runtime.declutter import DeclutterGraph
 
         if target not in self.scene.objects:
             raise ValueError(f"target: {target} is not an object of the scene")
         if int(max_actions) < 0:
             raise ValueError(f"max_actions: need >= 0, got {max_actions}")
+        if policy not in DECLUTTER_POLICIES:
+            raise ValueError(f"policy: expected one of {DECLUTTER_POLICIES}, got {policy!r}")
+        rng = np.random.default_rng([self.seed, 31])
         if "place_position" in graph_kwargs:
             raise ValueError("graph_kwargs: the runtime chooses place positions (see place_position)")
         done_actions: list[dict] = []
@@ -518,27 +546,40 @@ class TwoArmRuntime:
             )
             if i == 0 and figure is not None:
                 graph.figure(figure)
-            action = graph.next_action()
-            if action is None:
+            if graph.is_done:
                 return done_actions, True
+            if policy == "graph":
+                action = graph.next_action()
+            elif policy == "nearest":
+                action = graph.children(target)[0].action
+            else:
+                action = graph.edges[int(rng.integers(len(graph.edges)))].action
             if len(done_actions) == int(max_actions):
                 break
             done_actions.append(self._execute(action))
         return done_actions, False
 
+    def _reach(self, T_world_sensor: np.ndarray) -> tuple[str | None, np.ndarray | None]:
+        """The first arm (tactile, then vision) whose IK reaches ``T_world_sensor``, and its joints."""
+        for name, feasibility in self.manipulation_feasibility.items():
+            q, ok, _, _ = feasibility.solve(T_world_sensor)
+            if ok:
+                feasibility.arm.set_joints(q)
+                return name, q
+        return None, None
+
     def _execute(self, action) -> dict:
-        """Carry out one declutter action; returns its JSON record with ``reachable`` and ``moved_m``."""
+        """Carry out one declutter action with whichever arm reaches it; returns its JSON record with
+        ``arm`` (None when neither reaches), ``reachable`` and ``moved_m``."""
         record = dict(action.to_dict())
         body = int(action.object_id)
         before = self.scene.T_world_object(body)
         if action.kind == "grasp":
-            T_pre = np.eye(4)  # the pad straight down over the grasp point, 5 cm above it
+            T_pre = np.eye(4)  # the hand straight down over the grasp point, 5 cm above it
             T_pre[:3, :3] = np.diag([1.0, -1.0, -1.0])
             T_pre[:3, 3] = np.asarray(action.p_grasp, dtype=np.float64) + [0.0, 0.0, 0.05]
-            q, ok, _, _ = self.touch_feasibility.solve(T_pre)
-            record["reachable"] = bool(ok)
-            if ok:
-                self.tactile_arm.set_joints(q)
+            arm, _ = self._reach(T_pre)
+            if arm is not None:
                 xyz = np.asarray(action.p_place, dtype=np.float64).copy()
                 xyz[2] = before[2, 3] + 0.002  # the object keeps its height above the table
                 orn = p.getBasePositionAndOrientation(body, physicsClientId=self.scene.client)[1]
@@ -551,16 +592,15 @@ class TwoArmRuntime:
             point = np.asarray(action.p_push, dtype=np.float64).copy()
             point[2] = max((lo + hi) / 2, 0.017)
             T_W_S = sensor_frame(point, action.d_push)
-            q, ok, _, _ = self.touch_feasibility.solve(T_W_S)
-            record["reachable"] = bool(ok)
-            if ok:
-                self.tactile_arm.set_joints(q)
+            arm, _ = self._reach(T_W_S)
+            if arm is not None:
                 pusher = GoalPusher(self.scene, body)
                 try:
                     contact, lost, pushed = pusher.push(T_W_S, float(action.distance))
                 finally:
                     pusher.close()
                 record.update(contact=bool(contact), contact_lost=bool(lost), pushed_m=float(pushed))
+        record.update(arm=arm, reachable=arm is not None)
         self.home()
         after = self.scene.T_world_object(body)
         record["moved_m"] = float(np.linalg.norm(after[:2, 3] - before[:2, 3]))
