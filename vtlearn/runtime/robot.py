@@ -518,6 +518,8 @@ class TwoArmRuntime:
                 of ``vtlearn bench declutter`` use the same graph, actions and stopping rule but pick
                 differently: ``"nearest"`` acts on the heaviest child of the target (the nearest
                 clutter, whatever clutters it in turn), ``"random"`` on a random object of the graph.
+                An object whose action neither arm reached is passed over (the descent takes the next
+                heaviest branch) until an action succeeds; when nothing is left, decluttering stops.
             figure: save the first graph there (:meth:`~vtlearn.runtime.declutter.DeclutterGraph.figure`).
             graph_kwargs: passed to :meth:`~vtlearn.runtime.declutter.DeclutterGraph.build`.
 
@@ -536,6 +538,7 @@ class TwoArmRuntime:
         if "place_position" in graph_kwargs:
             raise ValueError("graph_kwargs: the runtime chooses place positions (see place_position)")
         done_actions: list[dict] = []
+        blocked: set[int] = set()
         center = self.scene.T_world_object(target)[:2, 3]
         for i in range(int(max_actions) + 1):
             obs = self.observe(center)
@@ -548,15 +551,15 @@ class TwoArmRuntime:
                 graph.figure(figure)
             if graph.is_done:
                 return done_actions, True
-            if policy == "graph":
-                action = graph.next_action()
-            elif policy == "nearest":
-                action = graph.children(target)[0].action
+            edge = _choose_edge(graph, target, policy, blocked, rng)
+            if edge is None or len(done_actions) == int(max_actions):
+                break  # every candidate is out of both arms' reach, or the budget is spent
+            done_actions.append(self._execute(edge.action))
+            # An object that no arm reached is passed over until something in the scene has moved.
+            if done_actions[-1]["reachable"]:
+                blocked.clear()
             else:
-                action = graph.edges[int(rng.integers(len(graph.edges)))].action
-            if len(done_actions) == int(max_actions):
-                break
-            done_actions.append(self._execute(action))
+                blocked.add(edge.child)
         return done_actions, False
 
     def _reach(self, T_world_sensor: np.ndarray) -> tuple[str | None, np.ndarray | None]:
@@ -731,6 +734,21 @@ class TwoArmRuntime:
             out.perception.pop("actions", None)  # the episode's kinds are in out.episode
             out.seconds["perceive"] = round(time.perf_counter() - t0, 2)
         return out
+
+
+def _choose_edge(graph, target: int, policy: str, blocked: set[int], rng: np.random.Generator):
+    """The edge whose action ``policy`` takes next, passing over the ``blocked`` objects: for ``"graph"``
+    the depth-first descent along the heaviest children (thesis 5.2.2); None when nothing is left."""
+    if policy == "graph":
+        edge, v = None, target
+        while kids := [e for e in graph.children(v) if e.child not in blocked]:
+            edge, v = kids[0], kids[0].child
+        return edge
+    if policy == "nearest":
+        kids = [e for e in graph.children(target) if e.child not in blocked]
+        return kids[0] if kids else None
+    edges = [e for e in graph.edges if e.child not in blocked]
+    return edges[int(rng.integers(len(edges)))] if edges else None
 
 
 def clutter_scene(
