@@ -100,10 +100,11 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
         f"{'complete' if report.declutter_done else 'NOT complete'}"
     )
     ep = report.episode
+    plural = {"touch": "touches", "view": "views"}
+    kinds = ", ".join(f"{ep.kinds.count(k)} {plural.get(k, k)}" for k in sorted(set(ep.kinds)))
     print(
         f"target: {target_obj.category} ({'transparent' if target_obj.transparent else 'opaque'}; detected "
-        f"{'transparent' if report.transparent_detected else 'opaque'}); {ep.n_steps} actions "
-        f"({', '.join(f'{ep.kinds.count(k)} {k}s' for k in sorted(set(ep.kinds)))}), "
+        f"{'transparent' if report.transparent_detected else 'opaque'}); {ep.n_steps} actions ({kinds}), "
         f"{len(ep.points)} points, {report.ik_queries} IK queries"
     )
     s = report.perception
