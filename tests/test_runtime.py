@@ -189,6 +189,27 @@ def test_declutter_policies_and_bench(tmp_path, capsys):
             rt.declutter(body, policy="farthest")
 
 
+def test_two_arm_articulation_detection():
+    import pybullet as p
+
+    from vtlearn.sim_data.articulated import make_articulated
+
+    with TwoArmRuntime(seed=0) as rt:
+        n_bodies = p.getNumBodies(physicsClientId=rt.scene.client)
+        r = rt.detect_articulation(make_articulated("drawer", 0), np.eye(4), tracker="truth")
+        assert r["joint_type"] == "prismatic" and r["explored"] and r["unreachable"] is None
+        # the thesis's hold-pull: the camera robot holds, the tactile robot pulls
+        assert ["vision", "tactile"] in [a["arms"] for a in r["actions"] if a["kind"] == "hold_pull"]
+        r = rt.detect_articulation(make_articulated("dishwasher", 0), np.eye(4), tracker="truth")
+        assert r["joint_type"] == "revolute" and all(a["kind"] == "push" for a in r["actions"])
+        # a push at the small glasses' temple is out of both arms' reach: detection stops and says so
+        r = rt.detect_articulation(make_articulated("glasses", 0), np.eye(4), tracker="truth")
+        assert r["joint_type"] is None and r["unreachable"] == "push" and r["actions"][-1]["arms"] == [None]
+        assert p.getNumBodies(physicsClientId=rt.scene.client) == n_bodies  # each object was removed again
+        with pytest.raises(ValueError, match="tracker"):
+            rt.detect_articulation(make_articulated("drawer", 0), np.eye(4), tracker="vicon")
+
+
 @pytest.fixture(scope="module")
 def tiny_models(tmp_path_factory):
     from vtlearn.pipeline import run_quickstart, tiny_quickstart_config

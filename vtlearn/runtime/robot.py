@@ -609,6 +609,84 @@ class TwoArmRuntime:
         record["moved_m"] = float(np.linalg.norm(after[:2, 3] - before[:2, 3]))
         return record
 
+    # ------------------------------------------------------------------ articulation (thesis ch.6)
+    def detect_articulation(
+        self,
+        spec,
+        T_world_base: np.ndarray,
+        q=None,
+        *,
+        tracker: str = "artreg",
+        max_actions: int = 12,
+        seed: int = 0,
+    ) -> dict:
+        """Interactive articulation detection by the two robots (thesis 6.2.2, Fig. 6.3).
+
+        The articulated object ``spec`` (:mod:`vtlearn.sim_data.articulated`) is put on the table at
+        ``T_world_base`` with normalised joint values ``q``. Every action of
+        :func:`~vtlearn.runtime.articulation.detect_articulation` must be reachable before it is done:
+        a push by either arm, and a hold-pull as in the thesis, the hold by the vision arm (the Panda
+        with the camera) and the pull by the tactile arm. The motion itself is the object's true
+        kinematics (:class:`~vtlearn.runtime.articulation.KinematicArticulationSim`); with
+        ``tracker="artreg"`` the part poses are tracked by ArtReg from a depth camera
+        (:class:`~vtlearn.runtime.articulation.TrackedArticulationSim`), with ``"truth"`` they are exact.
+
+        Returns:
+            ``{"joint_type", "explored", "n_actions", "actions": [{"kind", "arms"}], "unreachable":
+            the action no arm could do (None when every action was reachable), "result":
+            ArticulationResult or None}``. Detection stops at an unreachable action.
+        """
+        from vtlearn.runtime.articulation import (
+            HoldPullAction,
+            KinematicArticulationSim,
+            TrackedArticulationSim,
+        )
+        from vtlearn.runtime.articulation import detect_articulation as detect
+        from vtlearn.sim_data.articulated import ArticulatedObject
+        from vtlearn.sim_data.tactile import pad_frame
+
+        if tracker not in ("artreg", "truth"):
+            raise ValueError(f"tracker: expected 'artreg' or 'truth', got {tracker!r}")
+        obj = ArticulatedObject(self.scene, spec, n_model_points=0.01, seed=seed)
+        sim = KinematicArticulationSim(obj, T_world_base, q)
+        world = TrackedArticulationSim(sim, seed=seed) if tracker == "artreg" else sim
+        log_: list[dict] = []
+
+        class _Unreachable(Exception):
+            pass
+
+        def execute(action) -> None:
+            if isinstance(action, HoldPullAction):
+                hold = self.manipulation_feasibility["vision"].solve(
+                    pad_frame(action.hold.point, action.hold.direction)
+                )[1]
+                pull = self.manipulation_feasibility["tactile"].solve(
+                    pad_frame(action.pull.point, action.pull.direction)
+                )[1]
+                arms = ["vision" if hold else None, "tactile" if pull else None]
+            else:
+                arms = [self._reach(pad_frame(action.point, action.direction))[0]]
+            self.home()
+            log_.append({"kind": action.kind, "arms": arms})
+            if None in arms:
+                raise _Unreachable(action.kind)
+            world.execute(action)
+
+        try:
+            res = detect(world.observe, execute, max_actions=int(max_actions))
+        except _Unreachable:
+            res = None
+        finally:
+            p.removeBody(obj.body, physicsClientId=self.scene.client)  # the object is not a Scene mesh
+        return {
+            "joint_type": None if res is None else res.joint_type,
+            "explored": False if res is None else bool(res.explored),
+            "n_actions": len(log_),
+            "actions": log_,
+            "unreachable": None if res is not None else log_[-1]["kind"],
+            "result": res,
+        }
+
     # ------------------------------------------------------------------ exploration
     def explore(
         self,
