@@ -650,10 +650,7 @@ class TwoArmRuntime:
         obj = ArticulatedObject(self.scene, spec, n_model_points=0.01, seed=seed)
         sim = KinematicArticulationSim(obj, T_world_base, q)
         world = TrackedArticulationSim(sim, seed=seed) if tracker == "artreg" else sim
-        log_: list[dict] = []
-
-        class _Unreachable(Exception):
-            pass
+        done: list[dict] = []
 
         def execute(action) -> None:
             if isinstance(action, HoldPullAction):
@@ -667,7 +664,7 @@ class TwoArmRuntime:
             else:
                 arms = [self._reach(pad_frame(action.point, action.direction))[0]]
             self.home()
-            log_.append({"kind": action.kind, "arms": arms})
+            done.append({"kind": action.kind, "arms": arms})
             if None in arms:
                 raise _Unreachable(action.kind)
             world.execute(action)
@@ -681,9 +678,9 @@ class TwoArmRuntime:
         return {
             "joint_type": None if res is None else res.joint_type,
             "explored": False if res is None else bool(res.explored),
-            "n_actions": len(log_),
-            "actions": log_,
-            "unreachable": None if res is not None else log_[-1]["kind"],
+            "n_actions": len(done),
+            "actions": done,
+            "unreachable": None if res is not None else done[-1]["kind"],
             "result": res,
         }
 
@@ -812,6 +809,10 @@ class TwoArmRuntime:
             out.perception.pop("actions", None)  # the episode's kinds are in out.episode
             out.seconds["perceive"] = round(time.perf_counter() - t0, 2)
         return out
+
+
+class _Unreachable(Exception):
+    """An articulation action that neither arm reaches; ends :meth:`TwoArmRuntime.detect_articulation`."""
 
 
 def _choose_edge(graph, target: int, policy: str, blocked: set[int], rng: np.random.Generator):
