@@ -274,6 +274,16 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_model_args(p) -> None:
+    """The model sources that :func:`_model_paths` reads: ``--models DIR``, or the three files."""
+    p.add_argument("--models", default=None, help="a `vtlearn quickstart --out` directory (its checkpoints)")
+    p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
+    p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
+    p.add_argument(
+        "--class-names", default=None, help="crossmodal dataset manifest.json (xAVTNet class names)"
+    )
+
+
 def register_bench(bench_subparsers) -> None:
     p = bench_subparsers.add_parser(
         "declutter", help="the declutter graph against nearest-first and random orders on the same scenes"
@@ -291,12 +301,7 @@ def register_bench(bench_subparsers) -> None:
     p = bench_subparsers.add_parser(
         "runtime", help="the two-arm runtime on cluttered scenes: success rate, CD, recognition, ADI"
     )
-    p.add_argument("--models", default=None, help="a `vtlearn quickstart --out` directory (its checkpoints)")
-    p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
-    p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
-    p.add_argument(
-        "--class-names", default=None, help="crossmodal dataset manifest.json (xAVTNet class names)"
-    )
+    _add_model_args(p)
     p.add_argument("--scenes", type=int, default=4, help="cluttered scenes (default %(default)s)")
     p.add_argument(
         "--strategies", default="active,random", help="exploration strategies (default %(default)s)"
@@ -315,12 +320,7 @@ def register(sub) -> None:
         "runtime",
         help="two-arm robot runtime in pybullet: declutter, explore by touch, reconstruct/recognise/pose",
     )
-    p.add_argument("--models", default=None, help="a `vtlearn quickstart --out` directory (its checkpoints)")
-    p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
-    p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
-    p.add_argument(
-        "--class-names", default=None, help="crossmodal dataset manifest.json (xAVTNet class names)"
-    )
+    _add_model_args(p)
     p.add_argument("--target", default="wineglass", help="target category (default %(default)s)")
     p.add_argument(
         "--target-kind",
