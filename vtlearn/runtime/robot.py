@@ -473,9 +473,9 @@ class TwoArmRuntime:
         clouds, boxes, ious, clear, valid = {}, {}, {}, {}, {}
         # Pixels whose depth puts them above the (known) table plane: a transparent body's pixels are
         # missing or wrongly deep, below it.
-        z = np.full(frame.depth.shape, -np.inf)
-        z[frame.depth > 0] = backproject(frame.depth, frame.K, T_world_camera)[:, 2]
-        above = z > 0.002
+        xyz = np.full((*frame.depth.shape, 3), -np.inf)  # world point of every pixel with depth
+        xyz[frame.depth > 0] = backproject(frame.depth, frame.K, T_world_camera)
+        above = xyz[..., 2] > 0.002
         for body in self.scene.objects:
             mask = frame.seg == body
             if mask.sum() < 10:
@@ -483,7 +483,7 @@ class TwoArmRuntime:
             box_px = mask_box(mask)
             boxes[body] = pixel_box_to_plane(box_px, frame.K, T_world_camera)
             plausible = mask & above
-            pts = backproject(frame.depth, frame.K, T_world_camera, plausible)
+            pts = xyz[plausible]
             valid[body] = float(plausible.sum()) / float(mask.sum())
             ious[body] = box_iou_2d(mask_box(plausible), box_px) if plausible.sum() >= 10 else 0.0
             clear[body] = bool(ious[body] < omega or valid[body] < 0.5)
