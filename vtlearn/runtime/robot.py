@@ -848,7 +848,7 @@ def clutter_scene(
 
     Returns the target (its ``T_world_object`` at the origin) and the clutter objects, placed.
     """
-    from vtlearn.active.closed_loop import held_out_objects
+    from vtlearn.active.closed_loop import HELD_OUT_SEED, held_out_objects
     from vtlearn.sim_data.shapes import CATEGORIES
 
     cats = [str(c) for c in clutter_categories]
@@ -863,7 +863,7 @@ def clutter_scene(
     rng = np.random.default_rng([int(seed), 4242])
     clutter = [
         held_out_objects(
-            [c], 1, transparent=False, base_seed=1_000_003 + 17 * int(seed) + i, sections=sections
+            [c], 1, transparent=False, base_seed=HELD_OUT_SEED + 17 * int(seed) + i, sections=sections
         )[0]
         for i, c in enumerate(cats)
     ]
