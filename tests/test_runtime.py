@@ -240,6 +240,12 @@ def test_run_with_checkpoints_perceives_and_reports(tiny_models, tmp_path):
     assert d["episode"]["kinds"] == report.episode.kinds and "arrays" not in d
 
 
+def test_class_names_come_from_the_xavtnet_checkpoint(tiny_models):
+    names = json.loads((tiny_models / "data" / "crossmodal" / "manifest.json").read_text())["class_names"]
+    with TwoArmRuntime.from_checkpoints(None, tiny_models / "xavtnet.ckpt", seed=0) as rt:
+        assert rt.class_names == names
+
+
 def test_cli_runtime_explores_without_models(tmp_path, tiny_models, capsys):
     out = tmp_path / "rt"
     args = ["runtime", "--out", str(out), "--n-touches", "2", "--n-candidates", "4", "--max-declutter", "1"]
@@ -250,7 +256,7 @@ def test_cli_runtime_explores_without_models(tmp_path, tiny_models, capsys):
     assert (out / "declutter.png").stat().st_size > 0 and (out / "scene.png").stat().st_size > 0
     capsys.readouterr()
     assert main([*args, "--actor", str(tiny_models / "actor.ckpt")]) == 2
-    assert "--actor, --xavtnet, --class-names" in capsys.readouterr().err
+    assert "--actor, --xavtnet: give both" in capsys.readouterr().err
     assert main([*args, "--models", str(tmp_path / "none")]) == 2
     assert "--models: no directory" in capsys.readouterr().err
 

@@ -120,6 +120,9 @@ class XAVTNet(L.LightningModule):
             strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
         normalize_clouds: centre each cloud and scale it into the unit ball before the network.
         domain_bn: batch-norm statistics per domain (module docstring); needs two-stream batches.
+        class_names: the name of each class index, kept in the checkpoint's hyper-parameters so that
+            inference (``vtlearn recognize``) needs no dataset. ``None`` is filled from the datamodule's
+            ``class_names`` when training starts (:meth:`setup`).
     """
 
     def __init__(
@@ -149,6 +152,7 @@ class XAVTNet(L.LightningModule):
         max_points: int | None = None,
         normalize_clouds: bool = False,
         domain_bn: bool = False,
+        class_names: list[str] | None = None,
     ) -> None:
         super().__init__()
         if num_classes < 2:
@@ -164,6 +168,12 @@ class XAVTNet(L.LightningModule):
         unknown = set(da_layers) - {"fc1", "fc2"}
         if unknown:
             raise ValueError(f"da_layers may only contain 'fc1' and 'fc2', got {sorted(unknown)}")
+        if class_names is not None:
+            class_names = [str(n) for n in class_names]
+            if len(class_names) != num_classes:
+                raise ValueError(
+                    f"class_names: {len(class_names)} names for num_classes={num_classes}"
+                )
         fc_dims, da_layers = list(fc_dims), list(da_layers)
         self.save_hyperparameters()
         self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform)
@@ -184,6 +194,26 @@ class XAVTNet(L.LightningModule):
         self.test_acc = MulticlassAccuracy(num_classes, average="micro")
         self.test_confusion = MulticlassConfusionMatrix(num_classes)
         self.last_test_confusion: torch.Tensor | None = None
+
+    def setup(self, stage: str) -> None:
+        """Record the datamodule's class names in the hyper-parameters (and so in every checkpoint); a
+        ValueError if they contradict the names the model already has."""
+        names = getattr(getattr(self._trainer, "datamodule", None), "class_names", None)
+        if names is None:
+            return
+        names = [str(n) for n in names]
+        if len(names) != self.hparams.num_classes:
+            raise ValueError(
+                f"datamodule: {len(names)} classes {names}, "
+                f"the model has num_classes={self.hparams.num_classes}"
+            )
+        if self.hparams.class_names is None:
+            self.hparams.class_names = names
+        elif list(self.hparams.class_names) != names:
+            raise ValueError(
+                f"class_names: the model's {list(self.hparams.class_names)} "
+                f"differ from the datamodule's {names}"
+            )
 
     # ---- network ---------------------------------------------------------------------------------
     def _prepare(self, points: torch.Tensor, lengths: torch.Tensor | None):

@@ -335,7 +335,7 @@ class TwoArmRuntime:
         actor, xavtnet: loaded :class:`~vtlearn.models.actor.ACTOR` and
             :class:`~vtlearn.models.xavtnet.XAVTNet` (or None to explore only); see
             :meth:`from_checkpoints`.
-        class_names: xAVTNet's class names, in label order.
+        class_names: xAVTNet's class names, in label order; default: the names its checkpoint records.
         sensor: taxel preset of the tactile arm's pad.
         image_size: ``(width, height)`` of the RGB-D camera.
         camera_height: height of the overview viewpoint above the target, metres.
@@ -356,7 +356,12 @@ class TwoArmRuntime:
         seed: int = 0,
     ):
         if xavtnet is not None and class_names is None:
-            raise ValueError("class_names: needed with an xavtnet model (the label order of its classes)")
+            class_names = dict(getattr(xavtnet, "hparams", {})).get("class_names")  # newer checkpoints
+            if not class_names:
+                raise ValueError(
+                    "class_names: needed with an xavtnet model whose checkpoint records no class names "
+                    "(the label order of its classes; pass the crossmodal manifest.json)"
+                )
         if not (np.isfinite(camera_height) and 0.2 <= camera_height <= 0.9):
             raise ValueError(f"camera_height: need a height in [0.2, 0.9] m, got {camera_height}")
         self.actor, self.xavtnet = actor, xavtnet

@@ -31,11 +31,10 @@ def _model_paths(args) -> tuple[Path | None, Path | None, Path | None]:
             if not path.is_file():
                 raise FileNotFoundError(f"--models: {d} has no {what} (run `vtlearn quickstart --out {d}`)")
         return actor, xav, names
-    if (args.actor is None) != (args.xavtnet is None) or (
-        args.xavtnet is not None and args.class_names is None
-    ):
+    if (args.actor is None) != (args.xavtnet is None):
         raise ValueError(
-            "--actor, --xavtnet, --class-names: give all three, or --models, or none (explore only)"
+            "--actor, --xavtnet: give both (and --class-names unless the xAVTNet checkpoint records them), "
+            "or --models, or none (explore only)"
         )
     return (
         None if args.actor is None else Path(args.actor),
@@ -150,13 +149,16 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
         raise ValueError(
             "--models: the benchmark perceives, so it needs models (or --actor/--xavtnet/--class-names)"
         )
-    names = json.loads(Path(names_path).read_text())["class_names"]
+    xav = load_xavtnet(xav_path)
+    names = json.loads(Path(names_path).read_text())["class_names"] if names_path else xav.hparams.class_names
+    if not names:
+        raise ValueError("--class-names: the xAVTNet checkpoint records no class names; pass manifest.json")
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     bar = tqdm(total=args.scenes * len(strategies), desc="scenes x strategies")
     t0 = time.perf_counter()
     result = run_runtime_benchmark(
         load_actor(actor_path),
-        load_xavtnet(xav_path),
+        xav,
         names,
         scenes=args.scenes,
         strategies=strategies,
@@ -280,7 +282,9 @@ def _add_model_args(p) -> None:
     p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
     p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
     p.add_argument(
-        "--class-names", default=None, help="crossmodal dataset manifest.json (xAVTNet class names)"
+        "--class-names",
+        default=None,
+        help="crossmodal dataset manifest.json (xAVTNet class names; default: those the checkpoint records)",
     )
 
 
