@@ -661,7 +661,120 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_recognize(args: argparse.Namespace) -> int:
+    """``vtlearn recognize``: xAVTNet class probabilities and MC-dropout uncertainty of clouds from files, or
+    of stored tactile clouds of a crossmodal dataset (with their true labels), from a checkpoint loaded with
+    ``weights_only=True`` (:mod:`vtlearn.models.xavtnet_inference`)."""
+    import torch
+
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.bench_utils import write_json
+    from vtlearn.io import read_cloud
+    from vtlearn.models.actor import read_lightning_checkpoint
+    from vtlearn.models.xavtnet_inference import (
+        checkpoint_class_names,
+        recognition_figure,
+        recognize_clouds,
+    )
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if bool(args.inputs) == (args.data is not None):
+        raise ValueError("inputs: give cloud files, or --data DIR with --index, not both and not neither")
+    if not 0 <= args.zeta < 1:
+        raise ValueError(f"--zeta: need 0 <= zeta < 1, got {args.zeta}")
+    ckpt_path = Path(args.ckpt)
+    if not ckpt_path.is_file():
+        raise FileNotFoundError(f"--ckpt: no checkpoint at {ckpt_path}")
+    ckpt = read_lightning_checkpoint(ckpt_path)
+    model = load_xavtnet(ckpt_path, ckpt)
+    override = None
+    if args.class_names:
+        if args.class_names.endswith(".json"):
+            manifest = Path(args.class_names)
+            if not manifest.is_file():
+                raise FileNotFoundError(f"--class-names: no manifest at {manifest}")
+            override = json.loads(manifest.read_text())["class_names"]
+        else:
+            override = [s.strip() for s in args.class_names.split(",")]
+    truth = None
+    if args.data is not None:
+        from vtlearn.datamodules.crossmodal import modality_clouds
+        from vtlearn.datamodules.shards import load_manifest, load_split
+
+        manifest = load_manifest(args.data)
+        stored, labels, _ = modality_clouds(load_split(args.data, args.split, verify=True), "tactile", False)
+        bad = [i for i in args.index if not 0 <= i < len(stored)]
+        if bad:
+            raise ValueError(
+                f"--index: {bad} out of range; split {args.split!r} has {len(stored)} tactile clouds"
+            )
+        clouds = [stored[i].astype(np.float64) for i in args.index]
+        titles = [f"{args.split}[{i}]" for i in args.index]
+        override = override or list(manifest["class_names"])
+        truth = [override[int(labels[i])] for i in args.index]
+        units, extent = "canonical", None  # stored clouds are in the canonical frame already
+    else:
+        clouds = [read_cloud(p) for p in args.inputs]
+        titles = [Path(p).name for p in args.inputs]
+        units, extent = args.units, args.extent_m
+    names = checkpoint_class_names(dict(model.hparams), override)
+    result = recognize_clouds(model, clouds, class_names=names, extent_m=extent, units=units,
+                              mc_samples=args.mc_samples, domain=args.domain, seed=args.seed)
+    rows = []
+    for i, title in enumerate(titles):
+        row = {"input": title, "points": len(clouds[i]), **result.to_dict(i, args.zeta)}
+        if truth is not None:
+            row["true"] = truth[i]
+        rows.append(row)
+        top = ", ".join(f"{n} {p:.2f}" for n, p in result.top(i, args.top))
+        extra = "" if result.mutual_information is None else f", MI {result.mutual_information[i]:.3f}"
+        verdict = "confident" if row["confident"] else f"below zeta={args.zeta}: touch more"
+        known = "" if truth is None else f" (true: {truth[i]})"
+        h = row["entropy_nats"]
+        print(f"{title}: {row['predicted']}{known} [{top}]; H {h:.3f} nats{extra}; {verdict}")
+    if truth is not None:
+        right = sum(r["predicted"] == r["true"] for r in rows)
+        print(f"{right}/{len(rows)} right")
+    if args.json:
+        write_json(args.json, {"ckpt": str(ckpt_path), "class_names": names, "units": units,
+                               "extent_m": extent, "mc_samples": args.mc_samples, "domain": args.domain,
+                               "results": rows})
+        print(f"wrote {args.json}")
+    if args.figure:
+        print(f"wrote {recognition_figure(clouds, titles, result, args.figure, top=args.top)}")
+    return 0
+
+
 def register(sub) -> None:
+    p = sub.add_parser("recognize", help="xAVTNet: class and MC-dropout uncertainty of tactile clouds (ch.7)")
+    p.add_argument("--ckpt", required=True, help="XAVTNet checkpoint (loaded with weights_only=True)")
+    p.add_argument("inputs", nargs="*", help="gravity-aligned clouds, z up (.ply .pcd .xyz .txt .npy .npz)")
+    p.add_argument("--data", default=None,
+                   help="instead of files: a crossmodal dataset dir; recognises its stored tactile clouds "
+                        "--index of --split and prints their true classes")
+    p.add_argument("--split", default="test")
+    p.add_argument("--index", type=int, nargs="+", default=[0], help="--data: tactile cloud indices")
+    p.add_argument("--class-names", default=None,
+                   help="a crossmodal manifest.json or a comma list; default: the names in the checkpoint "
+                        "(--data: its manifest), else class_0..")
+    p.add_argument("--units", choices=["metres", "canonical"], default="metres",
+                   help="files: metres (scaled by --extent-m into the canonical frame) or already canonical")
+    p.add_argument("--extent-m", type=float, default=None,
+                   help="the object's largest bounding-box extent in metres (default: each cloud's own, an "
+                        "underestimate for a few touches)")
+    p.add_argument("--mc-samples", type=int, default=20,
+                   help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
+    p.add_argument("--domain", choices=["target", "source"], default="target",
+                   help="batch-norm statistics of a domain-BN model: target (tactile) or source (visual)")
+    p.add_argument("--zeta", type=float, default=0.8, help="confidence stop of thesis 7.2.4 (default 0.8)")
+    p.add_argument("--top", type=int, default=3, help="classes to print")
+    p.add_argument("--seed", type=int, default=0, help="dropout masks of the MC passes")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    p.add_argument("--json", default=None, help="write the results as JSON")
+    p.add_argument("--figure", default=None, help="PNG: each cloud and its class probabilities")
+    p.set_defaults(func=run_recognize)
+
     p = sub.add_parser("adapt-bn", help="AdaBN: re-estimate an xAVTNet checkpoint's target batch-norm "
                                         "statistics on unlabelled tactile clouds")
     p.add_argument("--ckpt", required=True, help="trained XAVTNet checkpoint")

@@ -1,0 +1,194 @@
+"""xAVTNet checkpoint inference: the input frame, MC-dropout uncertainty (eq. 7.3-7.4), the class names a
+checkpoint keeps, and `vtlearn recognize`."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from vtlearn.models.xavtnet import XAVTNet
+from vtlearn.models.xavtnet_inference import (
+    canonical_cloud,
+    checkpoint_class_names,
+    recognize_clouds,
+)
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+
+
+@pytest.fixture(scope="module")
+def tiny_crossmodal(tmp_path_factory):
+    from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
+
+
+def _model(num_classes=3, **kw):
+    torch.manual_seed(0)
+    return XAVTNet(num_classes=num_classes, global_dim=32, fc_dims=[16, 8], dropout=0.4, **kw).eval()
+
+
+def _cloud(seed=0, n=40):
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(n, 3)) * [0.03, 0.03, 0.06] + [0.5, -0.2, 0.8]
+
+
+def test_canonical_cloud_centres_on_the_box_and_divides_by_the_extent():
+    pts = np.array([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0], [0.1, 0.0, 0.4]])
+    out = canonical_cloud(pts + [1.0, 2.0, 3.0], extent_m=0.5)
+    np.testing.assert_allclose(out, (pts - [0.1, 0.05, 0.2]) / 0.5)
+    np.testing.assert_allclose(canonical_cloud(pts), (pts - [0.1, 0.05, 0.2]) / 0.4)  # own extent: z
+    np.testing.assert_allclose(canonical_cloud(pts, extent_m=9.0, units="canonical"), pts - [0.1, 0.05, 0.2])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"points": np.zeros((0, 3))}, "points: point cloud is empty"),
+        ({"points": np.ones((2, 3))}, "points: point cloud has only 2 points"),
+        ({"points": np.array([[0, 0, 0], [1, 1, np.nan], [0, 1, 0]])}, "points: contains NaN"),
+        ({"points": np.zeros((5, 2))}, r"points: expected shape \(N, 3\)"),
+        ({"points": np.ones((5, 3))}, "points coincide"),
+        ({"points": _cloud(), "extent_m": 0.0}, "extent_m: need a positive"),
+        ({"points": _cloud(), "extent_m": float("nan")}, "extent_m: need a positive"),
+        ({"points": _cloud(), "units": "mm"}, "units: expected one of"),
+    ],
+)
+def test_canonical_cloud_rejects_bad_input_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        canonical_cloud(**kwargs)
+
+
+def test_deterministic_pass_is_the_softmax_of_the_centred_canonical_cloud():
+    model = _model()
+    clouds = [_cloud(0), _cloud(1, n=25)]
+    res = recognize_clouds(model, clouds, extent_m=0.3, mc_samples=0)
+    assert res.mutual_information is None and res.std is None
+    for i, c in enumerate(clouds):
+        x = canonical_cloud(c, 0.3)
+        x = torch.as_tensor(x - x.mean(0), dtype=torch.float32)[None]
+        with torch.no_grad():
+            p = torch.softmax(model(x).logits, -1).numpy()[0]
+        np.testing.assert_allclose(res.probs[i], p, atol=1e-5)
+        assert res.entropy[i] == pytest.approx(-(p * np.log(p)).sum(), abs=1e-5)
+    assert res.class_names == ["class_0", "class_1", "class_2"]
+
+
+def test_metres_with_the_object_extent_equal_the_canonical_cloud():
+    model = _model()
+    canon, extent = _cloud(2) / 0.3, 0.3  # the same cloud, canonical and in metres
+    a = recognize_clouds(model, [canon], units="canonical").probs
+    b = recognize_clouds(model, [canon * extent + [2.0, 1.0, 0.5]], extent_m=extent).probs
+    np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+def test_mc_dropout_mean_entropy_and_mutual_information():
+    model = _model()
+    model.train()  # recognize_clouds must not depend on, nor change, the caller's mode
+    clouds = [_cloud(3), _cloud(4)]
+    res = recognize_clouds(model, clouds, mc_samples=16, seed=5)
+    assert model.training
+    assert res.probs.shape == (2, 3) and np.allclose(res.probs.sum(1), 1.0)
+    assert (res.mutual_information >= 0).all() and (res.mutual_information <= res.entropy + 1e-9).all()
+    assert (res.std > 0).any()  # dropout on: passes differ
+    again = recognize_clouds(model, clouds, mc_samples=16, seed=5)
+    np.testing.assert_array_equal(res.probs, again.probs)  # the seed fixes the masks
+    other = recognize_clouds(model, clouds, mc_samples=16, seed=6)
+    assert not np.array_equal(res.probs, other.probs)
+    model.eval()
+    det = recognize_clouds(model, clouds, mc_samples=0).probs
+    assert np.abs(res.probs - det).max() < 0.5  # the MC mean stays near the deterministic pass
+
+
+def test_recognize_rejects_bad_arguments_by_name():
+    model = _model()
+    with pytest.raises(ValueError, match="clouds: empty"):
+        recognize_clouds(model, [])
+    with pytest.raises(ValueError, match="clouds: expected a list"):
+        recognize_clouds(model, _cloud())
+    with pytest.raises(ValueError, match=r"clouds\[1\]: contains NaN"):
+        recognize_clouds(model, [_cloud(), np.full((4, 3), np.nan)])
+    with pytest.raises(ValueError, match="mc_samples"):
+        recognize_clouds(model, [_cloud()], mc_samples=-1)
+    with pytest.raises(ValueError, match="extent_m: 1 extents for 2 clouds"):
+        recognize_clouds(model, [_cloud(), _cloud(1)], extent_m=[0.2])
+    with pytest.raises(ValueError, match="class_names: 2 names"):
+        recognize_clouds(model, [_cloud()], class_names=["a", "b"])
+
+
+def test_checkpoint_keeps_the_datamodule_class_names(tmp_path, tiny_crossmodal):
+    import lightning as L
+
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.datamodules import CrossModalDataModule
+
+    with pytest.raises(ValueError, match="class_names: 1 names for num_classes=3"):
+        XAVTNet(num_classes=3, class_names=["a"])
+    dm = CrossModalDataModule(str(tiny_crossmodal), batch_size=4)
+    model = XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8], max_points=64)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=dm)
+    path = tmp_path / "m.ckpt"
+    trainer.save_checkpoint(path)
+    hp = torch.load(path, weights_only=True, map_location="cpu")["hyper_parameters"]
+    assert hp["class_names"] == dm.class_names
+    loaded = load_xavtnet(path)
+    assert checkpoint_class_names(dict(loaded.hparams)) == dm.class_names
+    assert checkpoint_class_names(dict(loaded.hparams), ["x"] * dm.num_classes) == ["x"] * dm.num_classes
+    # a model that already names its classes refuses a datamodule with other names
+    wrong = XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8],
+                    class_names=[f"n{i}" for i in range(dm.num_classes)])
+    with pytest.raises(ValueError, match="differ from the datamodule"):
+        L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                  enable_model_summary=False, default_root_dir=tmp_path).fit(wrong, datamodule=dm)
+
+
+def test_recognize_command_on_files_and_on_stored_clouds(tmp_path, tiny_crossmodal, capsys):
+    from vtlearn.cli import main
+    from vtlearn.datamodules.crossmodal import modality_clouds
+    from vtlearn.datamodules.shards import load_manifest, load_split
+    from vtlearn.io import write_cloud
+
+    model = _model(num_classes=len(load_manifest(tiny_crossmodal)["class_names"]))
+    ckpt = tmp_path / "x.ckpt"
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, ckpt)
+    clouds, labels, _ = modality_clouds(load_split(tiny_crossmodal, "test"), "tactile", False)
+    names = load_manifest(tiny_crossmodal)["class_names"]
+
+    out = tmp_path / "stored.json"
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--index", "0", "1",
+                 "--mc-samples", "4", "--json", str(out), "--figure", str(tmp_path / "f.png")]) == 0
+    text = capsys.readouterr().out
+    assert f"(true: {names[int(labels[0])]})" in text and "/2 right" in text
+    rows = json.loads(out.read_text())["results"]
+    assert [r["true"] for r in rows] == [names[int(labels[i])] for i in (0, 1)]
+    assert set(rows[0]["class_probabilities"]) == set(names) and "mutual_information_nats" in rows[0]
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+    # the same cloud from a file in metres, with the object's extent, gives the same probabilities
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--mc-samples", "0",
+                 "--json", str(out)]) == 0
+    stored = json.loads(out.read_text())["results"][0]
+    assert "mutual_information_nats" not in stored
+    f = tmp_path / "c.npy"
+    write_cloud(f, clouds[0] * 0.25 + [0.4, 0.1, 0.7])
+    out2 = tmp_path / "file.json"
+    assert main(["recognize", "--ckpt", str(ckpt), str(f), "--extent-m", "0.25", "--mc-samples", "0",
+                 "--class-names", ",".join(names), "--json", str(out2)]) == 0
+    row = json.loads(out2.read_text())["results"][0]
+    for k, v in stored["class_probabilities"].items():
+        assert row["class_probabilities"][k] == pytest.approx(v, abs=1e-5)
+
+    capsys.readouterr()
+    assert main(["recognize", "--ckpt", str(ckpt)]) == 2
+    assert "inputs: give cloud files" in capsys.readouterr().err
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--index", "999"]) == 2
+    assert "--index: [999] out of range" in capsys.readouterr().err
+    assert main(["recognize", "--ckpt", str(tmp_path / "none.ckpt"), str(f)]) == 2
+    assert "--ckpt: no checkpoint" in capsys.readouterr().err
+    assert main(["recognize", "--ckpt", str(ckpt), str(tmp_path / "missing.ply")]) == 2
+    assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", "a,b"]) == 2
+    assert "class_names: 2 names" in capsys.readouterr().err

@@ -1,0 +1,249 @@
+"""Checkpoint inference with xAVTNet: recognise clouds from a robot or from files, with the MC-dropout
+uncertainty of thesis ch.7, Sec. 7.2.2 (eq. 7.3-7.4) and the confidence stop of Sec. 7.2.4 (ζ = 0.8).
+
+**Input frame.** xAVTNet is trained on clouds in the canonical frame of each object's bounding box
+(:class:`~vtlearn.datamodules.CrossModalDataModule`, ``units="canonical"``): z up (gravity), centred on the
+axis-aligned box and divided by its largest extent, then centred on the centroid (``normalize="center"``).
+Yaw is free, since training rotates every cloud about z. :func:`canonical_cloud` brings a cloud in metres
+(any gravity-aligned frame, z up) there. The scale is the object's largest bounding-box extent
+``extent_m``, e.g. from the camera's box of the object, or the gripper opening. Without it the cloud's own
+extent is used: exact for a dense view, an underestimate for a few touches, so pass ``extent_m`` when it
+is known. A model trained with ``units="metres"`` takes the cloud as it is (``units="metres"`` here).
+
+**Uncertainty.** With ``mc_samples = T > 0`` the class probability is the mean of ``T`` stochastic passes
+with dropout on and batch norm in eval mode (eq. 7.3). The uncertainty is the entropy of that mean
+(eq. 7.4). The mutual information between the prediction and the weights (BALD, Houlsby et al. 2011) is
+reported beside it: the part of the entropy that more training data, not more touches of this object,
+would remove. With ``T = 0`` there is one deterministic pass and no mutual information.
+
+Shapes:
+    clouds: list of ``(N_i, 3)`` -> :class:`Recognition` with ``probs (B, C)``, ``entropy (B,)``,
+    ``mutual_information (B,)`` or ``None``, ``std (B, C)`` or ``None``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vtlearn.validation import as_points
+
+__all__ = [
+    "UNITS",
+    "ZETA",
+    "Recognition",
+    "canonical_cloud",
+    "checkpoint_class_names",
+    "recognize_clouds",
+    "recognition_figure",
+]
+
+UNITS = ("metres", "canonical")
+ZETA = 0.8  # thesis 7.2.4: stop touching once the top class probability exceeds ζ
+
+
+def canonical_cloud(points, extent_m: float | None = None, units: str = "metres", name: str = "points"):
+    """A gravity-aligned cloud (z up) in the network's input frame (module docstring).
+
+    Args:
+        points: the cloud, in metres for ``units="metres"``, already canonical for ``"canonical"``.
+        extent_m: the object's largest axis-aligned bounding-box extent in metres; ``None``: the cloud's own.
+        units: the units the checkpoint was trained on (``CrossModalDataModule(units=...)``). ``"metres"``
+            returns the points centred on their bounding box and unscaled.
+        name: the argument name for error messages.
+
+    Shapes:
+        points ``(N, 3)`` -> ``(N, 3)``, centred on the bounding box.
+    """
+    if units not in UNITS:
+        raise ValueError(f"units: expected one of {UNITS}, got {units!r}")
+    pts = as_points(points, name, min_points=3)
+    lo, hi = pts.min(0), pts.max(0)
+    centred = pts - (lo + hi) / 2
+    if units == "canonical":
+        return centred
+    if extent_m is None:
+        extent = float((hi - lo).max())
+        if extent <= 1e-9:
+            raise ValueError(f"{name}: all {len(pts)} points coincide; the cloud has no extent to scale by")
+    else:
+        extent = float(extent_m)
+        if not math.isfinite(extent) or extent <= 0:
+            raise ValueError(f"extent_m: need a positive finite extent in metres, got {extent_m!r}")
+    return centred / extent
+
+
+def checkpoint_class_names(hparams: dict, override: Sequence[str] | None = None) -> list[str]:
+    """Class names for a checkpoint: ``override`` if given, else the names the checkpoint recorded (models
+    trained since the names were kept), else ``class_0 ... class_{C-1}``. A ValueError if ``override``
+    has the wrong length."""
+    n = int(hparams["num_classes"])
+    if override is not None:
+        names = [str(s) for s in override]
+        if len(names) != n:
+            raise ValueError(f"class_names: {len(names)} names {names} for a classifier of {n} classes")
+        return names
+    recorded = hparams.get("class_names")
+    if recorded:
+        return [str(s) for s in recorded]
+    return [f"class_{i}" for i in range(n)]
+
+
+@dataclass
+class Recognition:
+    """xAVTNet's belief about each cloud (module docstring)."""
+
+    class_names: list[str]
+    probs: np.ndarray  # (B, C) mean class probability (eq. 7.3; one pass when mc_samples == 0)
+    entropy: np.ndarray  # (B,) nats (eq. 7.4)
+    mutual_information: np.ndarray | None  # (B,) nats, BALD; None without MC dropout
+    std: np.ndarray | None  # (B, C) std of the probability over the passes; None without MC dropout
+    mc_samples: int
+
+    def predicted(self, i: int) -> str:
+        return self.class_names[int(np.argmax(self.probs[i]))]
+
+    def confident(self, i: int, zeta: float = ZETA) -> bool:
+        """The thesis's stop rule (7.2.4): the top class probability exceeds ζ."""
+        return bool(self.probs[i].max() > zeta)
+
+    def top(self, i: int, k: int = 3) -> list[tuple[str, float]]:
+        order = np.argsort(-self.probs[i])[: max(int(k), 1)]
+        return [(self.class_names[j], float(self.probs[i, j])) for j in order]
+
+    def to_dict(self, i: int, zeta: float = ZETA) -> dict:
+        out = {
+            "predicted": self.predicted(i),
+            "probability": float(self.probs[i].max()),
+            "confident": self.confident(i, zeta),
+            "zeta": float(zeta),
+            "entropy_nats": float(self.entropy[i]),
+            "class_probabilities": dict(zip(self.class_names, map(float, self.probs[i]), strict=True)),
+            "mc_samples": int(self.mc_samples),
+        }
+        if self.mutual_information is not None:
+            out["mutual_information_nats"] = float(self.mutual_information[i])
+            out["class_probability_std"] = dict(zip(self.class_names, map(float, self.std[i]), strict=True))
+        return out
+
+
+def recognize_clouds(
+    model,
+    clouds: Sequence,
+    *,
+    class_names: Sequence[str] | None = None,
+    extent_m: float | Sequence[float | None] | None = None,
+    units: str = "metres",
+    mc_samples: int = 0,
+    domain: str = "target",
+    seed: int = 0,
+) -> Recognition:
+    """Class probabilities and uncertainty of ``clouds`` under an xAVTNet ``model`` (module docstring).
+
+    Args:
+        model: :class:`~vtlearn.models.xavtnet.XAVTNet`, e.g. from
+            :func:`~vtlearn.active.closed_loop.load_xavtnet` (``weights_only=True``).
+        clouds: gravity-aligned clouds (z up), at least 3 points each.
+        class_names: names of the classes; default from the checkpoint (:func:`checkpoint_class_names`).
+        extent_m: the objects' largest bounding-box extents in metres, one for all or one per cloud
+            (``None`` entries: the cloud's own extent).
+        units: the units the model was trained on, see :func:`canonical_cloud`.
+        mc_samples: ``T`` stochastic passes with dropout on (eq. 7.3); 0 for one deterministic pass.
+        domain: batch-norm statistics of a ``domain_bn`` model: ``"target"`` (tactile clouds) or
+            ``"source"`` (visual clouds). Ignored by other models.
+        seed: the dropout masks of the MC passes.
+
+    Shapes:
+        clouds: list of ``(N_i, 3)`` -> probs ``(B, C)``, entropy ``(B,)``, mutual information ``(B,)``.
+    """
+    import torch
+
+    from vtlearn.active.mc_dropout import bald_score, mc_dropout_probs, predictive_entropy
+    from vtlearn.geometry.sampling import pad_clouds
+
+    if isinstance(clouds, np.ndarray) and clouds.ndim == 2:
+        raise ValueError("clouds: expected a list of (N, 3) clouds, got a single array; wrap it in a list")
+    clouds = list(clouds)
+    if not clouds:
+        raise ValueError("clouds: empty list; need at least one cloud")
+    if int(mc_samples) < 0:
+        raise ValueError(f"mc_samples: need >= 0 (0: one deterministic pass), got {mc_samples}")
+    if extent_m is None or np.isscalar(extent_m):
+        extents = [extent_m] * len(clouds)
+    else:
+        extents = list(extent_m)
+        if len(extents) != len(clouds):
+            raise ValueError(f"extent_m: {len(extents)} extents for {len(clouds)} clouds")
+    names = checkpoint_class_names(dict(model.hparams), class_names)
+    canon = [
+        canonical_cloud(c, e, units, name=f"clouds[{i}]")
+        for i, (c, e) in enumerate(zip(clouds, extents, strict=True))
+    ]
+    canon = [c - c.mean(0) for c in canon]  # normalize="center", as in training
+    x, lengths = pad_clouds(canon)
+    was_training = model.training
+    bn = model.bn_domain(domain) if hasattr(model, "bn_domain") else contextlib.nullcontext()
+    try:
+        with bn, torch.no_grad(), torch.random.fork_rng(devices=[]):
+            torch.manual_seed(int(seed))
+            passes = mc_dropout_probs(
+                model, x, lengths, num_passes=max(int(mc_samples), 1), dropout=int(mc_samples) > 0
+            )
+    finally:
+        model.train(was_training)
+    mean = passes.mean(0)
+    mi = std = None
+    if int(mc_samples) > 0:
+        mi = bald_score(passes).numpy().astype(np.float64)
+        std = passes.std(0, unbiased=False).numpy().astype(np.float64)
+    return Recognition(
+        class_names=names,
+        probs=mean.numpy().astype(np.float64),
+        entropy=predictive_entropy(mean).numpy().astype(np.float64),
+        mutual_information=mi,
+        std=std,
+        mc_samples=int(mc_samples),
+    )
+
+
+def recognition_figure(clouds: Sequence, labels: Sequence[str], result: Recognition, path, top: int = 5):
+    """One row per cloud: the cloud from the side and from above, and its ``top`` class probabilities (error
+    bars: std over the MC passes), the ζ line of the confidence stop. Saved to ``path``.
+
+    Shapes:
+        clouds: list of ``(N_i, 3)``; labels: one title per cloud.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vtlearn.bench_utils import save_figure
+
+    n = len(clouds)
+    fig, axes = plt.subplots(n, 3, figsize=(11, 3.0 * n), squeeze=False)
+    for i, (c, label) in enumerate(zip(clouds, labels, strict=True)):
+        c = np.asarray(c)
+        for ax, (a, b, title) in zip(axes[i, :2], [(0, 2, "side (x-z)"), (0, 1, "top (x-y)")], strict=True):
+            ax.scatter(c[:, a], c[:, b], s=6, c=c[:, 2], cmap="viridis")
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_title(f"{label}: {title}, {len(c)} points", fontsize=9)
+            ax.tick_params(labelsize=7)
+        ax = axes[i, 2]
+        order = np.argsort(-result.probs[i])[: max(int(top), 1)][::-1]
+        err = None if result.std is None else result.std[i, order]
+        colors = ["tab:green" if result.confident(i) and j == order[-1] else "tab:blue" for j in order]
+        ax.barh([result.class_names[j] for j in order], result.probs[i, order], xerr=err, color=colors)
+        ax.axvline(ZETA, color="tab:red", ls="--", lw=1, label=f"ζ = {ZETA}")
+        ax.set_xlim(0, 1)
+        extra = "" if result.mutual_information is None else f", MI {result.mutual_information[i]:.2f}"
+        ax.set_title(f"H {result.entropy[i]:.2f} nats{extra}", fontsize=9)
+        ax.tick_params(labelsize=8)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return save_figure(fig, Path(path))
