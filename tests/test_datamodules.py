@@ -145,6 +145,30 @@ def test_crossmodal_target_split(cross_dir):
         CrossModalDataModule(str(cross_dir), target_split="val")
 
 
+def test_crossmodal_source_splits_add_the_test_objects_to_the_labelled_source(cross_dir):
+    """``source_splits=["train", "test"]`` (the thesis's known-objects protocol) puts every visual cloud of
+    both splits, with its label and instance, into the source; the tactile test clouds stay the same."""
+    plain = CrossModalDataModule(str(cross_dir), batch_size=2, rotate_z=False, normalize="none")
+    known = CrossModalDataModule(str(cross_dir), batch_size=2, rotate_z=False, normalize="none",
+                                 source_splits=["train", "test"], target_split="test")
+    tr, te = load_split(cross_dir, "train"), load_split(cross_dir, "test")
+    ds = known.source_train_dataset()
+    assert len(ds) == len(tr["visual"]) + len(te["visual"])
+    assert len(plain.source_train_dataset()) == len(tr["visual"])
+    np.testing.assert_array_equal(ds.labels, np.concatenate([tr["visual_label"], te["visual_label"]]))
+    np.testing.assert_array_equal(ds[len(tr["visual"])]["points"], te["visual"][0].astype(np.float32))
+    fused = CrossModalDataModule(str(cross_dir), rotate_z=False, normalize="none", source_views=2,
+                                 source_splits=["train", "test"]).source_train_dataset()
+    mates = te["visual"][te["visual_instance"] == te["visual_instance"][0]]
+    pts = {tuple(q) for q in np.round(fused[len(tr["visual"])]["points"], 5)}
+    assert pts <= {tuple(q) for v in mates for q in np.round(v, 5)}  # fused with its own instance's views
+    a, b = next(iter(plain.test_dataloader())), next(iter(known.test_dataloader()))
+    assert torch.equal(a["points"], b["points"])
+    for bad in (["val2"], [], ["train", "train"]):
+        with pytest.raises(ValueError, match="source_splits"):
+            CrossModalDataModule(str(cross_dir), source_splits=bad)
+
+
 def test_crossmodal_source_points_thins_training_visual_clouds_only(cross_dir):
     """``source_points`` thins each drawn visual training cloud to the tactile density; the labelled
     visual and tactile evaluation clouds stay as stored, and a bad range is refused by name."""

@@ -193,6 +193,12 @@ class CrossModalDataModule(ShardedDataModule):
             views, since a touch on a one-sided cloud passes through its missing back) by the contacts of
             simulated Xela 4x4 pad touches on it (:func:`~vtlearn.sim_data.cloud_touch.touch_cloud`),
             ``source_points`` of them (default 30-120). No tactile data are used.
+        source_splits: the splits whose labelled visual clouds form the source (default ``["train"]``).
+            ``["train", "test"]`` with ``target_split="test"`` is the thesis's known-objects protocol
+            (7.3.1): the twelve objects are seen, labelled, by the camera, and touch must then recognise
+            the same objects without tactile labels. The default keeps the test instances unseen by vision
+            (category-level recognition of new instances); ``source_test_dataloader`` is then no longer a
+            held-out score.
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
@@ -215,6 +221,7 @@ class CrossModalDataModule(ShardedDataModule):
         source_points: tuple[int, int] | list[int] | None = None,
         source_views: int = 1,
         source_touch: bool = False,
+        source_splits: list[str] | None = None,
         train_on: str = "visual",
         num_workers: int = 0,
         seed: int = 0,
@@ -239,7 +246,13 @@ class CrossModalDataModule(ShardedDataModule):
         self.source_points = (
             None if source_points is None else _check_points_range(source_points, "source_points")
         )
-        self._open_dataset(data_dir, verify, kind="crossmodal")
+        manifest = self._open_dataset(data_dir, verify, kind="crossmodal")
+        self.source_splits = ["train"] if source_splits is None else [str(x) for x in source_splits]
+        missing = [x for x in self.source_splits if x not in manifest["splits"]]
+        if not self.source_splits or missing or len(set(self.source_splits)) != len(self.source_splits):
+            raise ValueError(
+                f"source_splits: need distinct splits of {sorted(manifest['splits'])}, got {source_splits!r}"
+            )
         self.target_data_dir = target_data_dir
         self._target_splits: dict[str, dict] = {}
         if target_data_dir is not None:
@@ -305,20 +318,30 @@ class CrossModalDataModule(ShardedDataModule):
         return self._target_splits[split]
 
     def source_train_dataset(self) -> CloudDataset:
-        """Labelled, yaw-augmented visual training clouds; fused over ``source_views`` views and thinned to
-        ``source_points`` when they are set."""
-        d = self._split("train")
-        clouds, labels, scales = modality_clouds(d, "visual", self.units == "metres")
+        """Labelled, yaw-augmented visual clouds of ``source_splits``; fused over ``source_views`` views and
+        thinned to ``source_points`` when they are set."""
+        metres = self.units == "metres"
+        clouds, labels, scales, groups, unit_scales = [], [], [], [], []
+        for split in self.source_splits:
+            d = self._split(split)
+            c, lab, sc = modality_clouds(d, "visual", metres)
+            clouds += c
+            labels.append(lab)
+            scales.append(sc)
+            groups.append(d["visual_instance"])
+            unit_scales.append(instance_scales(d, d["visual_instance"]))
+        labels, groups = np.concatenate(labels), np.concatenate(groups)
+        scales = np.concatenate(scales) if metres else None
         subsample, pitch = self.source_points, None
         if self.source_touch:
             from vtlearn.sim_data.sensors import SENSORS
 
             subsample = subsample or (30, 120)
             # clouds are touched in the instance's canonical frame: the pitch in canonical units
-            pitch = SENSORS["xela_4x4"].pitch / instance_scales(d, d["visual_instance"])
+            pitch = SENSORS["xela_4x4"].pitch / np.concatenate(unit_scales)
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, subsample=subsample, fuse_views=self.source_views,
-                            groups=d["visual_instance"], touch_pitch=pitch)
+                            groups=groups, touch_pitch=pitch)
 
     def train_dataloader(self) -> CombinedLoader | DataLoader:
         """Source and target streams (``train_on="visual"``), or the labelled tactile training clouds

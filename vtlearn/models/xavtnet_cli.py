@@ -254,6 +254,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["source_views"] = args.source_views
     if args.source_touch:
         data_kwargs["source_touch"] = True
+    if args.source_splits:
+        data_kwargs["source_splits"] = [x.strip() for x in args.source_splits.split(",") if x.strip()]
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
@@ -307,7 +309,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
                        "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
                 f"{max_epochs} epochs, unlabelled target: {data_kwargs.get('target_split', 'train')} "
-                f"instances")
+                f"instances, labelled visual source: {'+'.join(data_kwargs.get('source_splits', ['train']))}")
     means = {r["variant"]: r["tactile_mean"] for r in rows}
     checks = {}
     if {"vtloss", "noda"} <= means.keys():
@@ -818,6 +820,11 @@ def register_bench(sub) -> None:
     p.add_argument("--source-touch", action="store_true",
                    help="replace each visual training cloud by simulated pad touches on it "
                         "(CrossModalDataModule source_touch; use with --source-views 6)")
+    p.add_argument("--source-splits", default=None, metavar="SPLITS",
+                   help="comma list of splits whose labelled visual clouds form the source (default: the "
+                        "config's, train). 'train,test' with --target-split test is the thesis's "
+                        "known-objects protocol (7.3.1): the test objects are seen, labelled, by vision and "
+                        "recognised by touch")
     p.add_argument("--target-data", default=None,
                    help="dataset whose tactile clouds of the target split form the unlabelled target stream "
                         "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
