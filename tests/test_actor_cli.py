@@ -89,6 +89,27 @@ def test_reconstruct_command(ckpts, tmp_path, capsys):
     assert "Chamfer distance" in capsys.readouterr().out
 
 
+def test_reconstruct_metres_with_extent_equals_the_canonical_cloud_scaled_back(ckpts, tmp_path, caplog):
+    """``--extent-m L``: a cloud in metres goes into the canonical frame and the reconstruction comes back in
+    metres, so it is the canonical reconstruction scaled by L and moved like the input."""
+    canon = primitive_surface("sphere", 80, np.random.default_rng(1))
+    shift = np.array([0.4, -0.2, 0.75])
+    a, b = tmp_path / "c.npy", tmp_path / "m.npy"
+    write_cloud(a, canon)
+    write_cloud(b, canon * 0.2 + shift)
+    out_c = tmp_path / "dc.npy"
+    assert main(["reconstruct", "--ckpt", ckpts["actor"], "--input", str(a), "--out", str(out_c)]) == 0
+    args = ["reconstruct", "--ckpt", ckpts["actor"], "--input", str(b), "--out", str(tmp_path / "dm.npy")]
+    assert main([*args, "--extent-m", "0.2"]) == 0
+    np.testing.assert_allclose(
+        read_cloud(tmp_path / "dm.npy"), read_cloud(out_c) * 0.2 + shift, atol=1e-5
+    )
+    caplog.clear()
+    assert main(args) == 0  # metres without the extent: reconstructed as canonical, with a warning
+    assert "--extent-m" in caplog.text
+    assert main([*args, "--extent-m", "-1"]) == 2
+
+
 def test_reconstruct_rejects_foreign_checkpoint(ckpts, tmp_path, capsys):
     sparse = tmp_path / "sparse.xyz"
     write_cloud(sparse, np.random.default_rng(1).normal(size=(30, 3)))

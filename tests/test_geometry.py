@@ -254,3 +254,20 @@ def test_se3_single_numpy_path_matches_batched_torch_path(theta):
     np.testing.assert_allclose(se3_exp(se3_log(T)), T, atol=1e-9)
     if theta < np.pi - 1e-3:
         np.testing.assert_allclose(se3_log(T), xi, atol=1e-8)
+
+
+def test_canonical_box_is_the_box_centre_and_the_largest_extent():
+    from vtlearn.geometry.transforms import canonical_box
+
+    pts = np.array([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0], [0.1, 0.0, 0.4]]) + [1.0, 2.0, 3.0]
+    centre, scale = canonical_box(pts)
+    np.testing.assert_allclose(centre, [1.1, 2.05, 3.2])
+    assert scale == pytest.approx(0.4)
+    assert canonical_box(pts, extent_m=0.5)[1] == 0.5
+    with pytest.raises(ValueError, match="extent_m"):
+        canonical_box(pts, extent_m="big")
+    with pytest.raises(ValueError, match="coincide"):
+        canonical_box(np.ones((4, 3)))
+    with pytest.raises(ValueError, match="cloud: point cloud has only 2 points"):
+        canonical_box(pts[:2], name="cloud")
+

@@ -11,8 +11,9 @@ import numpy as np
 from vtlearn.geometry._compat import as_tensor, numpy_compatible
 from vtlearn.geometry.lie import make_transform
 from vtlearn.geometry.quaternion import quat_to_matrix, random_quaternion
+from vtlearn.validation import as_points
 
-__all__ = ["transform_points", "random_pose", "random_rotation"]
+__all__ = ["transform_points", "random_pose", "random_rotation", "canonical_box"]
 
 
 @numpy_compatible
@@ -66,3 +67,31 @@ def random_pose(
     t = rng.uniform(lo, hi, size=(m, 3))
     T = make_transform(R, t)
     return T[0] if n is None else T
+
+
+def canonical_box(points, extent_m: float | None = None, name: str = "points") -> tuple[np.ndarray, float]:
+    """Centre and scale of the canonical object frame of the models' training data: the centre of the
+    cloud's axis-aligned bounding box, and the object's largest bounding-box extent (``extent_m``, or the
+    cloud's own when it is None). ``canonical = (points - centre) / scale`` and back.
+
+    The simulated datasets store clouds in this frame
+    (:meth:`vtlearn.active.closed_loop.SimObject.to_canonical`), so ACTOR and xAVTNet trained on them
+    expect it. The cloud must be gravity-aligned (z up).
+
+    Shapes:
+        points ``(N, 3)`` (N >= 3) -> centre ``(3,)``, scale (float, metres per canonical unit).
+    """
+    pts = as_points(points, name, min_points=3)
+    lo, hi = pts.min(0), pts.max(0)
+    if extent_m is None:
+        scale = float((hi - lo).max())
+        if scale <= 1e-9:
+            raise ValueError(f"{name}: all {len(pts)} points coincide; the cloud has no extent to scale by")
+    else:
+        try:
+            scale = float(extent_m)
+        except (TypeError, ValueError):
+            scale = float("nan")
+        if not np.isfinite(scale) or scale <= 0:
+            raise ValueError(f"extent_m: need a positive finite extent in metres, got {extent_m!r}")
+    return (lo + hi) / 2, scale

@@ -36,8 +36,24 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         raise ValueError("input: give exactly one of --input FILE or --data DIR")
     model = load_actor(args.ckpt)
     gt = None
+    centre, scale = np.zeros(3), 1.0  # canonical -> output frame
+    if args.extent_m is not None and args.input is None:
+        raise ValueError("--extent-m: only with --input (stored clouds are canonical already)")
     if args.input is not None:
         sparse = read_cloud(args.input)
+        if args.extent_m is not None:
+            # metres -> the canonical box frame of the training data, and the reconstruction back to metres
+            from vtlearn.geometry.transforms import canonical_box
+
+            centre, scale = canonical_box(sparse, args.extent_m, "--input")
+            sparse = (sparse - centre) / scale
+            args.mm_per_unit = 1000.0  # outputs (and --gt) in metres
+        elif np.ptp(sparse, axis=0).max() < 0.3:
+            log.warning(
+                "--input spans %.3f units; ACTOR expects the canonical frame (largest object extent 1). "
+                "If the cloud is in metres, pass --extent-m (the object's largest extent)",
+                float(np.ptp(sparse, axis=0).max()),
+            )
     else:
         # an unseen simulated object: its stored tactile cloud and ground truth (canonical frame)
         from vtlearn.datamodules.shards import load_manifest, load_split, split_clouds
@@ -63,6 +79,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     dense = reconstruct(model, sparse)
     ms = 1000 * (time.perf_counter() - t0)
+    sparse, dense = sparse * scale + centre, dense * scale + centre
     write_cloud(args.out, dense)
     print(f"reconstructed {len(sparse)} -> {len(dense)} points in {ms:.1f} ms; wrote {args.out}")
     if args.mesh:
@@ -415,7 +432,17 @@ def register(subparsers) -> None:
     p.add_argument("--mesh", help="also write a ball-pivoting mesh (.obj .ply .stl .off)")
     p.add_argument("--gt", help="ground-truth cloud or mesh: print the Chamfer distance to it")
     p.add_argument("--figure", help="PNG of input / reconstruction / ground truth")
-    p.add_argument("--mm-per-unit", type=float, default=1000.0, help="for printing mm (1000 for metres)")
+    p.add_argument(
+        "--extent-m",
+        type=float,
+        default=None,
+        help="--input is in metres (gravity-aligned, z up): the object's largest bounding-box extent, which "
+        "scales it into the canonical frame ACTOR was trained in; the outputs are written in metres. "
+        "Without it the input is taken as canonical (largest extent 1)",
+    )
+    p.add_argument(
+        "--mm-per-unit", type=float, default=1000.0, help="for printing mm (1000: metres)"
+    )
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
     p.set_defaults(func=_cmd_reconstruct)
 

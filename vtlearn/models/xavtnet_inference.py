@@ -24,13 +24,13 @@ Shapes:
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from vtlearn.geometry.transforms import canonical_box
 from vtlearn.validation import as_points
 
 __all__ = [
@@ -63,19 +63,10 @@ def canonical_cloud(points, extent_m: float | None = None, units: str = "metres"
     if units not in UNITS:
         raise ValueError(f"units: expected one of {UNITS}, got {units!r}")
     pts = as_points(points, name, min_points=3)
-    lo, hi = pts.min(0), pts.max(0)
-    centred = pts - (lo + hi) / 2
     if units == "canonical":
-        return centred
-    if extent_m is None:
-        extent = float((hi - lo).max())
-        if extent <= 1e-9:
-            raise ValueError(f"{name}: all {len(pts)} points coincide; the cloud has no extent to scale by")
-    else:
-        extent = float(extent_m)
-        if not math.isfinite(extent) or extent <= 0:
-            raise ValueError(f"extent_m: need a positive finite extent in metres, got {extent_m!r}")
-    return centred / extent
+        return pts - (pts.min(0) + pts.max(0)) / 2
+    centre, scale = canonical_box(pts, extent_m, name)
+    return (pts - centre) / scale
 
 
 def checkpoint_class_names(hparams: dict, override: Sequence[str] | None = None) -> list[str]:
