@@ -113,11 +113,15 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--json", str(out2)]) == 2
     # --source-points reaches the datamodule and is recorded; a bad range is refused by name
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
-                 "--source-points", "10", "20", "--source-views", "2", "--no-figures",
-                 "--json", str(out2)]) == 0
+                 "--source-points", "10", "20", "--source-views", "2", "--source-splits", "train,test",
+                 "--no-figures", "--json", str(out2)]) == 0
     data = json.loads(out2.read_text())["data"]
     assert (data["source_points"], data["source_views"]) == ([10, 20], 2)
-    capsys.readouterr()
+    assert data["source_splits"] == ["train", "test"]
+    assert "labelled visual source: train+test" in capsys.readouterr().out
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--source-splits", "train,nope", "--no-figures", "--json", str(out2)]) == 2
+    assert "source_splits" in capsys.readouterr().err
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-points", "20", "10", "--no-figures", "--json", str(out2)]) == 2
     assert "source_points" in capsys.readouterr().err
