@@ -21,7 +21,9 @@ Strategies (same action space, same budget):
   by the expected information gain (eq. 5.8 / 7.11 / 8.4) and takes ``argmax IG / D(a)`` (eq. 5.10,
   :class:`~vtlearn.active.selection.EnergyCosts`; with one kind this is eq. 7.12 / 8.5).
   ``gain_mode="raycast"`` is the thesis' expected measurement, ``"probabilistic"`` the extension of
-  :meth:`~vtlearn.active.occupancy.OccupancyGrid.expected_information_gain`.
+  :meth:`~vtlearn.active.occupancy.OccupancyGrid.expected_information_gain`. ``"box_fit"`` (beyond the
+  thesis, :mod:`vtlearn.active.reconstruction_nbt`) scores touches and pinches by how much ACTOR's
+  reconstruction is expected to move towards the known bounding box.
 - ``random``: one random candidate of a random kind with budget left.
 - ``uniform``: fixed schedules independent of the measurements: views at evenly spaced azimuths first,
   then the face-lattice touch schedule (alternating with the footprint-lattice pinch schedule when
@@ -74,7 +76,7 @@ __all__ = [
 ]
 
 STRATEGIES = ("active", "random", "uniform")
-GAIN_MODES = ("raycast", "probabilistic", "recognition")
+GAIN_MODES = ("raycast", "probabilistic", "recognition", "box_fit")
 TACTILE_KINDS = ("touch", "pinch")
 # Base seed of held-out instances; gen-data uses the dataset seed (0 by default), so these instance seeds
 # come from another SeedSequence and differ from every training instance.
@@ -336,6 +338,7 @@ def run_episode(
     progress=None,
     recognizer=None,
     feasible=None,
+    reconstructor=None,
 ) -> Episode:
     """Explore ``world.obj`` with ``strategy`` for ``n_views`` views and ``n_tactile`` touches/pinches.
 
@@ -347,7 +350,10 @@ def run_episode(
         gain_mode: ``"raycast"`` (thesis) or ``"probabilistic"``, see the module docstring, or
             ``"recognition"``: touches by the classifier's expected information with ``recognizer``
             (:class:`~vtlearn.active.recognition_nbt.ExpectedClassEntropyGain`; touch only, no views or
-            pinches).
+            pinches), or ``"box_fit"``: touches and pinches by the expected box-fit gain of ACTOR's
+            reconstruction with ``reconstructor``
+            (:class:`~vtlearn.active.reconstruction_nbt.ExpectedBoxFitGain`, thesis 8.2.3 action space,
+            criterion beyond the thesis; no views).
         n_init: leading random touches shared by every strategy (not with views).
         feasible: the kinematic-feasibility hook of :mod:`vtlearn.active.actions` for the sampled
             candidates: one callable for every kind, or a mapping ``{"touch"|"pinch"|"view": callable}``
@@ -372,6 +378,11 @@ def run_episode(
             raise ValueError("recognizer: gain_mode='recognition' needs an ExpectedClassEntropyGain")
         if pinch or int(n_views):
             raise ValueError("gain_mode: 'recognition' scores touches only; set pinch=False and n_views=0")
+    if gain_mode == "box_fit" and strategy == "active":
+        if reconstructor is None:
+            raise ValueError("reconstructor: gain_mode='box_fit' needs an ExpectedBoxFitGain")
+        if int(n_views):
+            raise ValueError("gain_mode: 'box_fit' scores touches and pinches only; set n_views=0")
     if isinstance(feasible, Mapping):
         unknown = set(feasible) - {"touch", "pinch", "view"}
         if unknown:
@@ -465,7 +476,15 @@ def run_episode(
                     feasible=feas("view"),
                 )
                 cands.append((views, sensors["view"]))
-            which, idx, gains = choose_action(grid, cands, obj.transparent, gain_mode)
+            if gain_mode == "box_fit":
+                measured = np.concatenate(pts) if pts else np.zeros((0, 3))
+                gains = reconstructor.gains(obj, measured, cands, world.sim.config, seed=step + 1)
+                best = int(np.argmax(gains))
+                sizes = np.cumsum([len(a) for a, _ in cands])
+                which = int(np.searchsorted(sizes, best, side="right"))
+                idx = best - (int(sizes[which - 1]) if which else 0)
+            else:
+                which, idx, gains = choose_action(grid, cands, obj.transparent, gain_mode)
             chosen = cands[which][0].subset([idx])
             gain = float(gains[int(np.sum([len(a) for a, _ in cands[:which]])) + idx])
         if not len(chosen):
