@@ -58,6 +58,13 @@ def test_active_reconstruction_bench(ckpts, tmp_path):
     assert r["actions"] == [1, 2, 3] and r["thesis"]["cd_mm_at_20"]["active"] == 20.0
     assert len(r["per_object"]) == 1 and len(r["per_object"][0]["random"]["cd_mm"]) == 3
     assert set(r["paired_at_max_actions"]) == {"active vs random", "active vs uniform"}
+    # the box-fit criterion (beyond the thesis) on other held-out objects
+    rc = main(["bench", "active-reconstruction", "--ckpt", ckpts["actor"], "--categories", "wineglass",
+               "--actions", "3", "--gain-mode", "box_fit", "--strategies", "active,random",
+               "--object-seed", "5", "--json", str(out), *TINY])
+    r2 = json.loads(out.read_text())
+    assert rc == 0 and set(r2["summary"]) == {"active", "random"}
+    assert (r2["gain_mode"], r2["object_seed"]) == ("box_fit", 5) and r2["objects"] != r["objects"]
 
 
 def test_active_recognition_bench(ckpts, tmp_path):

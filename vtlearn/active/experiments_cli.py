@@ -132,7 +132,9 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
 
     _setup(args)
     model = load_actor(args.ckpt)
-    objs = held_out_objects(_csv(args.categories), args.objects_per_category, transparent=True)
+    objs = held_out_objects(
+        _csv(args.categories), args.objects_per_category, transparent=True, **_objects_from(args)
+    )
     rows = _strategies(args)
     reconstructor = None
     if any(mode == "box_fit" for _, _, mode in rows):
@@ -188,6 +190,8 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
         "ckpt": str(args.ckpt),
         "actions": ks,
         "objects": [{"category": o.category, "seed": o.seed} for o in objs],
+        "object_seed": args.object_seed,
+        "gain_mode": args.gain_mode,
         "pinch": not args.no_pinch,
         "candidates": args.candidates,
         "cells": args.cells,
@@ -226,10 +230,11 @@ def _plot_reconstruction(result: dict, path: Path) -> None:
 
     ks = np.array(result["actions"])
     fig, ax = plt.subplots(figsize=(6, 4))
+    mode = result.get("gain_mode", "both")
     for label, s in result["summary"].items():
         m = np.array([np.nan if v is None else v for v in s["cd_mm_mean"]])
         sd = np.array([np.nan if v is None else v for v in s["cd_mm_std"]])
-        ax.plot(ks, m, label=label)
+        ax.plot(ks, m, label=f"active ({mode})" if label == "active" and mode != "both" else label)
         ax.fill_between(ks, m - sd, m + sd, alpha=0.15)
     ax.set_xlabel("actions (touches and pinches)")
     ax.set_ylabel("Chamfer distance (mm)")
@@ -266,7 +271,7 @@ def run_active_recognition(args: argparse.Namespace) -> int:
     unknown = [c for c in cats if c not in class_names]
     if unknown:
         raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
-    objs = held_out_objects(cats, args.objects_per_category, transparent=None)
+    objs = held_out_objects(cats, args.objects_per_category, transparent=None, **_objects_from(args))
     rows = _strategies(args)
     recognizer = None
     if args.recognition_gain:
@@ -433,8 +438,12 @@ def run_shared_exploration(args: argparse.Namespace) -> int:
 
     _setup(args)
     model = load_actor(args.ckpt)
-    opaque = held_out_objects(_csv(args.opaque), args.objects_per_category, transparent=False)
-    transparent = held_out_objects(_csv(args.transparent), args.objects_per_category, transparent=True)
+    opaque = held_out_objects(
+        _csv(args.opaque), args.objects_per_category, transparent=False, **_objects_from(args)
+    )
+    transparent = held_out_objects(
+        _csv(args.transparent), args.objects_per_category, transparent=True, **_objects_from(args)
+    )
     rows = _strategies(args)
     per = {
         label: {"opaque_vision": [], "opaque_visuotactile": [], "transparent_curve": [], "adi_cm": []}
@@ -602,6 +611,11 @@ def _plot_shared(result: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def _objects_from(args: argparse.Namespace) -> dict:
+    """``held_out_objects`` keywords from ``--object-seed`` (the default base seed when it is not given)."""
+    return {} if args.object_seed is None else {"base_seed": int(args.object_seed)}
+
+
 # ------------------------------------------------------------------------------ registration
 def _common(p, actions_default: int | None = None, extra_gain_modes: tuple[str, ...] = ()) -> None:
     p.add_argument("--objects-per-category", type=int, default=2)
@@ -618,6 +632,13 @@ def _common(p, actions_default: int | None = None, extra_gain_modes: tuple[str, 
     p.add_argument("--cells", type=int, default=40, help="occupancy grid cells per axis")
     p.add_argument("--max-input", type=int, default=120, help="network input points (voxel subsampling)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--object-seed",
+        type=int,
+        default=None,
+        help="base seed of the held-out instances (default closed_loop.HELD_OUT_SEED); another value draws "
+        "other objects, e.g. to confirm a result on instances it was not tuned on",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.add_argument("--json", default=None, help="output JSON (PNG beside it)")
 
