@@ -23,11 +23,8 @@ an action by what it is expected to do to the reconstruction itself:
 
 The box is the one the action samplers already assume known (from the RGB segmentation in the thesis);
 ACTOR gets only the points, in a frame whose origin and scale come from that box, and its output extents
-are otherwise unconstrained. Measured with the quick ACTOR on held-out transparent wineglasses and bottles,
-20 touches and pinches: a greedy oracle that simulates every candidate and minimises the true Chamfer
-distance reaches 11.5 mm against 20.8 mm for random actions (16 objects), so the choice of actions
-matters. On 32 objects not used to pick this criterion it reached 16.7 mm against 19.1 mm for random
-(paired t p = 0.03, Wilcoxon p = 0.07); the gain comes from the wineglasses, not the bottles.
+are otherwise unconstrained. The measurements (a greedy oracle's headroom over random actions, and this
+criterion against random and uniform on held-out transparent objects) are in docs/active_perception.md.
 
 Frames and units: world frame, metres, as in :mod:`vtlearn.active.closed_loop`; the box-fit error is in
 canonical units (fractions of the largest box extent).
