@@ -53,7 +53,7 @@ import pybullet as p
 
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.runtime.obb import OBB, oriented_bounding_box
-from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, _xyzw
+from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
 from vtlearn.validation import as_points, as_transform
 
 __all__ = [
@@ -460,7 +460,7 @@ class GoalPusher:
 
     def _place_pad(self, centre: np.ndarray, R: np.ndarray, teleport: bool = False) -> None:
         kw = {"physicsClientId": self.scene.client}
-        q = _xyzw(R)
+        q = matrix_to_xyzw(R)
         if teleport:
             p.resetBasePositionAndOrientation(self._pad, centre.tolist(), q, **kw)
             p.resetBaseVelocity(self._pad, [0, 0, 0], [0, 0, 0], **kw)

@@ -317,11 +317,11 @@ class ArticulatedObject:
 
     def set_state(self, T_world_base: np.ndarray, q: np.ndarray | None = None) -> None:
         """Place the base (4x4 T_world_base) and set the joints from normalised values q in [0, 1]."""
-        from vtlearn.sim_data.scene import _xyzw
+        from vtlearn.sim_data.scene import matrix_to_xyzw
 
         c = self.scene.client
         p.resetBasePositionAndOrientation(
-            self.body, T_world_base[:3, 3].tolist(), _xyzw(T_world_base[:3, :3]), physicsClientId=c
+            self.body, T_world_base[:3, 3].tolist(), matrix_to_xyzw(T_world_base[:3, :3]), physicsClientId=c
         )
         if q is None:
             return

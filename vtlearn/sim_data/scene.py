@@ -31,8 +31,13 @@ class SceneObject:
     transparent: bool
 
 
-def _xyzw(R: np.ndarray) -> list[float]:
-    """pybullet wants (x, y, z, w); vtlearn stores Hamilton (w, x, y, z)."""
+def matrix_to_xyzw(R: np.ndarray) -> list[float]:
+    """The pybullet (x, y, z, w) quaternion of a rotation matrix; vtlearn itself stores Hamilton (w, x, y, z)
+    (STYLE.md), so this is only for calls into pybullet.
+
+    Shapes:
+        R (3, 3) -> list of 4 floats.
+    """
     w, x, y, z = np.asarray(matrix_to_quat(np.asarray(R, dtype=np.float64)), dtype=np.float64)
     return [float(x), float(y), float(z), float(w)]
 
@@ -126,7 +131,7 @@ class Scene:
             col,
             vis,
             basePosition=T[:3, 3].tolist(),
-            baseOrientation=_xyzw(T[:3, :3]),
+            baseOrientation=matrix_to_xyzw(T[:3, :3]),
             **kw,
         )
         p.changeDynamics(body, -1, collisionMargin=COLLISION_MARGIN, **kw)

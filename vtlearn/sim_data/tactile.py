@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
-from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, _xyzw
+from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
 from vtlearn.sim_data.sensors import TaxelSensor, get_sensor
 
 
@@ -282,7 +282,7 @@ class TactileSimulator:
             s0 = max(0.0, t_first - 0.005)
             pos = o + s0 * R[:, 2]
             body = p.createMultiBody(
-                cfg.pad_mass, self._pad_collision_shape(), -1, pos.tolist(), _xyzw(R), **kw
+                cfg.pad_mass, self._pad_collision_shape(), -1, pos.tolist(), matrix_to_xyzw(R), **kw
             )
             p.changeDynamics(
                 body,
@@ -301,7 +301,7 @@ class TactileSimulator:
                 [0, 0, 0],
                 parentFramePosition=[0, 0, 0],
                 childFramePosition=pos.tolist(),
-                childFrameOrientation=_xyzw(R),
+                childFrameOrientation=matrix_to_xyzw(R),
                 **kw,
             )
             p.changeConstraint(cid, maxForce=cfg.pad_max_force, **kw)
@@ -316,7 +316,7 @@ class TactileSimulator:
                     q["s"] = min(q["s"] + cfg.physics_step, q["limit"])
                     target = q["T"][:3, 3] + q["s"] * q["T"][:3, 2]
                     p.changeConstraint(
-                        q["cid"], target.tolist(), _xyzw(q["T"][:3, :3]), cfg.pad_max_force, **kw
+                        q["cid"], target.tolist(), matrix_to_xyzw(q["T"][:3, :3]), cfg.pad_max_force, **kw
                     )
             p.stepSimulation(**kw)
             for q in active:
