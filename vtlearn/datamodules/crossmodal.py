@@ -196,9 +196,9 @@ class CrossModalDataModule(ShardedDataModule):
         source_splits: the splits whose labelled visual clouds form the source (default ``["train"]``).
             ``["train", "test"]`` with ``target_split="test"`` is the thesis's known-objects protocol
             (7.3.1): the twelve objects are seen, labelled, by the camera, and touch must then recognise
-            the same objects without tactile labels. The default keeps the test instances unseen by vision
-            (category-level recognition of new instances); ``source_test_dataloader`` is then no longer a
-            held-out score.
+            the same objects without tactile labels, and ``source_test_dataloader`` is no longer a
+            held-out score. The default keeps the test instances unseen by vision (category-level
+            recognition of new instances).
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
