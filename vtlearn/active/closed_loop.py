@@ -23,7 +23,9 @@ Strategies (same action space, same budget):
   ``gain_mode="raycast"`` is the thesis' expected measurement, ``"probabilistic"`` the extension of
   :meth:`~vtlearn.active.occupancy.OccupancyGrid.expected_information_gain`. ``"box_fit"`` (beyond the
   thesis, :mod:`vtlearn.active.reconstruction_nbt`) scores touches and pinches by how much ACTOR's
-  reconstruction is expected to move towards the known bounding box.
+  reconstruction is expected to move towards the known bounding box. ``"novelty"`` (beyond the thesis,
+  :mod:`vtlearn.active.recognition_novelty`) scores touches by how far from the measured points their
+  contacts are expected to land on the templates of the most probable classes.
 - ``random``: one random candidate of a random kind with budget left.
 - ``uniform``: fixed schedules independent of the measurements: views at evenly spaced azimuths first,
   then the face-lattice touch schedule (alternating with the footprint-lattice pinch schedule when
@@ -76,7 +78,7 @@ __all__ = [
 ]
 
 STRATEGIES = ("active", "random", "uniform")
-GAIN_MODES = ("raycast", "probabilistic", "recognition", "box_fit")
+GAIN_MODES = ("raycast", "probabilistic", "recognition", "box_fit", "novelty")
 TACTILE_KINDS = ("touch", "pinch")
 # Base seed of held-out instances; gen-data uses the dataset seed (0 by default), so these instance seeds
 # come from another SeedSequence and differ from every training instance.
@@ -353,7 +355,10 @@ def run_episode(
             pinches), or ``"box_fit"``: touches and pinches by the expected box-fit gain of ACTOR's
             reconstruction with ``reconstructor``
             (:class:`~vtlearn.active.reconstruction_nbt.ExpectedBoxFitGain`, thesis 8.2.3 action space,
-            criterion beyond the thesis; no views).
+            criterion beyond the thesis; no views), or ``"novelty"``: touches by the expected novelty of
+            their contacts with ``recognizer``
+            (:class:`~vtlearn.active.recognition_novelty.ExpectedContactNovelty`, thesis 7.2.4 procedure,
+            criterion beyond the thesis; touch only, no views or pinches).
         n_init: leading random touches shared by every strategy (not with views).
         feasible: the kinematic-feasibility hook of :mod:`vtlearn.active.actions` for the sampled
             candidates: one callable for every kind, or a mapping ``{"touch"|"pinch"|"view": callable}``
@@ -378,6 +383,11 @@ def run_episode(
             raise ValueError("recognizer: gain_mode='recognition' needs an ExpectedClassEntropyGain")
         if pinch or int(n_views):
             raise ValueError("gain_mode: 'recognition' scores touches only; set pinch=False and n_views=0")
+    if gain_mode == "novelty" and strategy == "active":
+        if recognizer is None:
+            raise ValueError("recognizer: gain_mode='novelty' needs an ExpectedContactNovelty")
+        if pinch or int(n_views):
+            raise ValueError("gain_mode: 'novelty' scores touches only; set pinch=False and n_views=0")
     if gain_mode == "box_fit" and strategy == "active":
         if reconstructor is None:
             raise ValueError("reconstructor: gain_mode='box_fit' needs an ExpectedBoxFitGain")
@@ -439,7 +449,7 @@ def run_episode(
                 chosen = sample_pinch_actions(box, 1, seed=rng, feasible=feas("pinch"))
             else:
                 chosen = sample_touch_actions(box, 1, standoff=standoff, seed=rng, feasible=feas("touch"))
-        elif gain_mode == "recognition":
+        elif gain_mode in ("recognition", "novelty"):
             cands_t = sample_touch_actions(
                 box, int(n_candidates), standoff=standoff, seed=rng, feasible=feas("touch")
             )

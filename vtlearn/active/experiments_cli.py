@@ -8,7 +8,10 @@
   eq. 7.9-7.12, Algorithm 5). Touches are chosen by the grid's expected information gain; xAVTNet
   classifies the tactile cloud once it holds ``--min-points`` points and stops at confidence ``zeta``.
   ``--recognition-gain`` adds the row ``active_recognition``: touches chosen by the classifier's own
-  expected information (:mod:`vtlearn.active.recognition_nbt`, beyond the thesis). An action depends
+  expected information (:mod:`vtlearn.active.recognition_nbt`, beyond the thesis), and
+  ``--novelty-gain`` the row ``active_novelty``: touches whose contacts, predicted on the templates of
+  the most probable classes, land farthest from the points measured so far
+  (:mod:`vtlearn.active.recognition_novelty`, beyond the thesis). An action depends
   only on the actions before it, so one episode of ``--max-actions`` is run per object and strategy
   and the stopping rule is applied to its prefixes (the same actions a stopping loop would take).
   Reports actions to the stop (censored at ``--max-actions``), accuracy at the stop and accuracy after
@@ -273,14 +276,20 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
     objs = held_out_objects(cats, args.objects_per_category, transparent=None, **_objects_from(args))
     rows = _strategies(args)
-    recognizer = None
+    recognizers = {}
     if args.recognition_gain:
         from vtlearn.active.recognition_nbt import ExpectedClassEntropyGain
 
-        recognizer = ExpectedClassEntropyGain(model, class_names, top_m=args.recognition_top_m,
-                                              max_points=args.max_input,
-                                              templates_per_class=args.recognition_templates)
+        recognizers["recognition"] = ExpectedClassEntropyGain(
+            model, class_names, top_m=args.recognition_top_m, max_points=args.max_input,
+            templates_per_class=args.recognition_templates)
         rows.append(("active_recognition", "active", "recognition"))
+    if args.novelty_gain:
+        from vtlearn.active.recognition_novelty import ExpectedContactNovelty
+
+        recognizers["novelty"] = ExpectedContactNovelty(model, class_names, top_m=args.recognition_top_m,
+                                                        max_points=args.max_input)
+        rows.append(("active_novelty", "active", "novelty"))
     ks = list(range(1, args.max_actions + 1))
     res = {
         label: {"actions": [], "correct_at_stop": [], "correct_at_10": [], "stopped": []}
@@ -304,7 +313,7 @@ def run_active_recognition(args: argparse.Namespace) -> int:
                     gain_mode=mode,
                     n_init=1,
                     seed=args.seed + oi,
-                    recognizer=recognizer,
+                    recognizer=recognizers.get(mode),
                 )
                 probs = classify_prefixes(model, obj, ep, ks, max_points=args.max_input)
                 npts = ep.n_points()[1:]
@@ -353,6 +362,7 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         "min_points": args.min_points,
         "max_actions": args.max_actions,
         "candidates": args.candidates,
+        "object_seed": args.object_seed,
         "objects": [{"category": o.category, "seed": o.seed, "transparent": o.transparent} for o in objs],
         "summary": summary,
         "paired_actions": paired,
@@ -668,7 +678,11 @@ def register_bench(sub) -> None:
     p.add_argument("--recognition-gain", action="store_true",
                    help="add active_recognition: touches by the classifier's expected information "
                         "(vtlearn.active.recognition_nbt; beyond the thesis)")
-    p.add_argument("--recognition-top-m", type=int, default=4, help="class hypotheses per step")
+    p.add_argument("--novelty-gain", action="store_true",
+                   help="add active_novelty: touches by the expected novelty of their contacts on the class "
+                        "templates (vtlearn.active.recognition_novelty; beyond the thesis)")
+    p.add_argument("--recognition-top-m", type=int, default=4,
+                   help="class hypotheses per step (--recognition-gain and --novelty-gain)")
     p.add_argument("--recognition-templates", type=int, default=1,
                    help="template shapes per class hypothesis (default 1; the classifier runs top-m x this "
                         "many times per candidate)")
