@@ -192,3 +192,7 @@ def test_recognize_command_on_files_and_on_stored_clouds(tmp_path, tiny_crossmod
     assert main(["recognize", "--ckpt", str(ckpt), str(tmp_path / "missing.ply")]) == 2
     assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", "a,b"]) == 2
     assert "class_names: 2 names" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", str(bad)]) == 2
+    assert "has no 'class_names' list" in capsys.readouterr().err

@@ -696,7 +696,10 @@ def run_recognize(args: argparse.Namespace) -> int:
             manifest = Path(args.class_names)
             if not manifest.is_file():
                 raise FileNotFoundError(f"--class-names: no manifest at {manifest}")
-            override = json.loads(manifest.read_text())["class_names"]
+            try:
+                override = list(json.loads(manifest.read_text())["class_names"])
+            except (json.JSONDecodeError, KeyError, TypeError) as exc:
+                raise ValueError(f"--class-names: {manifest} has no 'class_names' list") from exc
         else:
             override = [s.strip() for s in args.class_names.split(",")]
     truth = None
