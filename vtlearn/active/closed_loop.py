@@ -304,9 +304,15 @@ def choose_action(
     )
     kinds = [a.kind for a, _ in candidates for _ in range(len(a))]
     best = select_next_best_action(gains, energy_costs(kinds, transparent, costs))
+    return (*_locate(candidates, best), gains)
+
+
+def _locate(candidates, flat: int) -> tuple[int, int]:
+    """The set in ``candidates`` (``(ActionSet, sensor)`` pairs) holding the ``flat``-th action of all of
+    them in order, and the action's index within that set."""
     sizes = np.cumsum([len(a) for a, _ in candidates])
-    which = int(np.searchsorted(sizes, best, side="right"))
-    return which, int(best - (sizes[which - 1] if which else 0)), gains
+    which = int(np.searchsorted(sizes, flat, side="right"))
+    return which, int(flat - (sizes[which - 1] if which else 0))
 
 
 def _uniform_views(center: np.ndarray, radius: float, n: int, elevation_deg: float = 40.0) -> ActionSet:
@@ -489,10 +495,7 @@ def run_episode(
             if gain_mode == "box_fit":
                 measured = np.concatenate(pts) if pts else np.zeros((0, 3))
                 gains = reconstructor.gains(obj, measured, cands, world.sim.config, seed=step + 1)
-                best = int(np.argmax(gains))
-                sizes = np.cumsum([len(a) for a, _ in cands])
-                which = int(np.searchsorted(sizes, best, side="right"))
-                idx = best - (int(sizes[which - 1]) if which else 0)
+                which, idx = _locate(cands, int(np.argmax(gains)))
             else:
                 which, idx, gains = choose_action(grid, cands, obj.transparent, gain_mode)
             chosen = cands[which][0].subset([idx])
