@@ -86,6 +86,7 @@ def test_active_recognition_bench(ckpts, tmp_path):
             "2",
             "--recognition-templates",
             "2",
+            "--no-novelty-gain",
             "--json",
             str(out),
             *TINY,
@@ -97,7 +98,8 @@ def test_active_recognition_bench(ckpts, tmp_path):
     for s in r["summary"].values():
         assert 1 <= s["actions_mean"] <= 10 and 0 <= s["accuracy_after_10"] <= 1
     assert len(r["per_object"][0]["active"]["confidence"]) == 10
-    pairs = {"active vs random", "uniform vs random", "active_recognition vs random"}
+    pairs = {"active vs random", "uniform vs random", "active_recognition vs random", "active vs uniform",
+             "active_recognition vs uniform"}
     assert set(r["paired_actions"]) == pairs
     q = r["paired_actions"]["active vs random"]
     a, b = r["per_object"][0]["active"]["actions"], r["per_object"][0]["random"]["actions"]

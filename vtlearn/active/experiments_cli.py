@@ -8,10 +8,12 @@
   eq. 7.9-7.12, Algorithm 5). Touches are chosen by the grid's expected information gain; xAVTNet
   classifies the tactile cloud once it holds ``--min-points`` points and stops at confidence ``zeta``.
   ``--recognition-gain`` adds the row ``active_recognition``: touches chosen by the classifier's own
-  expected information (:mod:`vtlearn.active.recognition_nbt`, beyond the thesis), and
-  ``--novelty-gain`` the row ``active_novelty``: touches whose contacts, predicted on the templates of
-  the most probable classes, land farthest from the points measured so far
-  (:mod:`vtlearn.active.recognition_novelty`, beyond the thesis). An action depends
+  expected information (:mod:`vtlearn.active.recognition_nbt`, beyond the thesis). The row
+  ``active_novelty`` (on by default, ``--no-novelty-gain`` drops it) takes the touches whose contacts,
+  predicted on the templates of the most probable classes, land farthest from the points measured so far
+  (:mod:`vtlearn.active.recognition_novelty`, beyond the thesis): of the criteria measured, the one that
+  beats random and uniform touches (docs/active_perception.md). Every active row is compared with random
+  and with uniform, paired over the objects. An action depends
   only on the actions before it, so one episode of ``--max-actions`` is run per object and strategy
   and the stopping rule is applied to its prefixes (the same actions a stopping loop would take).
   Reports actions to the stop (censored at ``--max-actions``), accuracy at the stop and accuracy after
@@ -354,6 +356,10 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         f"{label} vs random": paired_vs_baseline(r["actions"], res["random"]["actions"])
         for label, r in res.items() if label != "random" and "random" in res
     }
+    paired.update({
+        f"{label} vs uniform": paired_vs_baseline(r["actions"], res["uniform"]["actions"])
+        for label, r in res.items() if label.startswith("active") and "uniform" in res
+    })
     result = {
         "benchmark": "active-recognition",
         "ckpt": str(args.ckpt),
@@ -678,9 +684,9 @@ def register_bench(sub) -> None:
     p.add_argument("--recognition-gain", action="store_true",
                    help="add active_recognition: touches by the classifier's expected information "
                         "(vtlearn.active.recognition_nbt; beyond the thesis)")
-    p.add_argument("--novelty-gain", action="store_true",
-                   help="add active_novelty: touches by the expected novelty of their contacts on the class "
-                        "templates (vtlearn.active.recognition_novelty; beyond the thesis)")
+    p.add_argument("--novelty-gain", action=argparse.BooleanOptionalAction, default=True,
+                   help="the row active_novelty: touches by the expected novelty of their contacts on the "
+                        "class templates (vtlearn.active.recognition_novelty; beyond the thesis; default on)")
     p.add_argument("--recognition-top-m", type=int, default=4,
                    help="class hypotheses per step (--recognition-gain and --novelty-gain)")
     p.add_argument("--recognition-templates", type=int, default=1,
