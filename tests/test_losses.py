@@ -200,6 +200,20 @@ def test_vtloss_ablation_switches(kwargs, expect):
     assert total.item() == pytest.approx(expected.item())
 
 
+def test_vtloss_da_scale_multiplies_only_the_alignment_terms():
+    logits, labels, fs, ft = _feats(8)
+    loss = VTLoss(alpha=2.0, beta=3.0, lam=5.0)
+    ce = torch.nn.functional.cross_entropy(logits, labels)
+    mmd = mk_mmd(fs["fc1"], ft["fc1"]) + mk_mmd(fs["fc2"], ft["fc2"])
+    cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
+    for s in (0.0, 0.25, 1.0):
+        total, _ = loss(logits, labels, fs, ft, da_scale=s)
+        assert total.item() == pytest.approx((2 * ce + s * (3 * mmd + 5 * cor)).item())
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="da_scale"):
+            loss(logits, labels, fs, ft, da_scale=bad)
+
+
 def test_vtloss_gradcheck_and_errors():
     logits, labels, fs, ft = _feats(7)
     loss = VTLoss(alpha=1.0, beta=2.0, lam=3.0, mmd_num_kernels=3)

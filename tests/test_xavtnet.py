@@ -166,6 +166,7 @@ def test_subsample_and_normalize_padded():
         (dict(da_layers=["fc2"]), {"train/mmd_fc2", "train/coral_fc2"}, {"train/mmd_fc1"}),
         (dict(), {"train/mmd", "train/coral", "train/ce"}, set()),
         (dict(da_method="dann"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
+        (dict(da_ramp_gamma=10.0), {"train/mmd", "train/da_scale"}, {"train/domain"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -216,6 +217,30 @@ def test_cosine_schedule_decays_the_learning_rate_to_zero(tmp_path):
     assert XAVTNet(**TINY).configure_optimizers().param_groups[0]["lr"] == 1e-3
     with pytest.raises(ValueError, match="lr_schedule"):
         XAVTNet(**TINY, lr_schedule="step")
+
+
+def test_da_ramp_scales_the_alignment_terms_from_zero(tmp_path):
+    """With ``da_ramp_gamma`` the logged scale follows Ganin's ramp: 0 at the first step, rising."""
+    from vtlearn.losses.dann import dann_lambda
+
+    scales = []
+    model = XAVTNet(**TINY, da_ramp_gamma=10.0)
+    forward = model.vtloss.forward
+
+    def record(*args, da_scale=1.0, **kwargs):
+        scales.append(da_scale)
+        return forward(*args, da_scale=da_scale, **kwargs)
+
+    model.vtloss.forward = record
+    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    total = trainer.estimated_stepping_batches
+    assert scales == pytest.approx([dann_lambda(i / total, 10.0) for i in range(len(scales))])
+    assert scales[0] == 0.0 and scales[-1] > scales[0]
+    with pytest.raises(ValueError, match="da_ramp_gamma"):
+        XAVTNet(**TINY, da_ramp_gamma=0.0)
 
 
 def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():

@@ -23,6 +23,7 @@ VTLoss             defaults
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import torch
@@ -89,7 +90,12 @@ class VTLoss(nn.Module):
         labels_source: torch.Tensor,
         features_source: Mapping[str, torch.Tensor] | None = None,
         features_target: Mapping[str, torch.Tensor] | None = None,
+        da_scale: float = 1.0,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """``α·CE + s·β·MMD + s·λ·CORAL`` with ``s = da_scale`` (1 in eq. 7.8; a warm-up ramp may pass
+        less early in training). Returns the total and its detached parts."""
+        if not (math.isfinite(da_scale) and da_scale >= 0):
+            raise ValueError(f"da_scale: need a finite scale >= 0, got {da_scale}")
         if logits_source.dim() != 2:
             raise ValueError(f"logits_source must be (n, k), got {tuple(logits_source.shape)}")
         if labels_source.shape != logits_source.shape[:1]:
@@ -118,10 +124,10 @@ class VTLoss(nn.Module):
                 coral_sum = coral_sum + c
                 parts[f"coral_{layer}"] = c.detach()
         if self.use_mmd:
-            total = total + self.beta * mmd_sum
+            total = total + da_scale * self.beta * mmd_sum
             parts["mmd"] = mmd_sum.detach()
         if self.use_coral:
-            total = total + self.lam * coral_sum
+            total = total + da_scale * self.lam * coral_sum
             parts["coral"] = coral_sum.detach()
         return total, parts
 

@@ -33,6 +33,7 @@ Shapes:
 from __future__ import annotations
 
 import contextlib
+import math
 
 import lightning as L
 import torch
@@ -110,6 +111,9 @@ class XAVTNet(L.LightningModule):
         alpha, beta, lam: VTLoss weights α, β, λ (thesis: 10, 10, 10).
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
         dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
+        da_ramp_gamma: if set, VTLoss's MMD and CORAL terms are scaled by Ganin's ramp
+            ``2/(1+exp(−γp)) − 1`` of the training progress ``p`` (the warm-up DAN and DANN use; beyond
+            the thesis, whose eq. 7.8 weights are constant). ``None`` (default): constant weights.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -146,6 +150,7 @@ class XAVTNet(L.LightningModule):
         mmd_unbiased: bool = False,
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
+        da_ramp_gamma: float | None = None,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -163,6 +168,8 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"lr must be > 0, got {lr}")
         if lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
+        if da_ramp_gamma is not None and not (math.isfinite(da_ramp_gamma) and da_ramp_gamma > 0):
+            raise ValueError(f"da_ramp_gamma: need a positive finite γ or None, got {da_ramp_gamma}")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
         unknown = set(da_layers) - {"fc1", "fc2"}
@@ -355,7 +362,11 @@ class XAVTNet(L.LightningModule):
                     self(tgt["points"], tgt.get("lengths"))
         parts: dict[str, torch.Tensor] = {}
         if use_target and self.hparams.da_method == "vtloss":
-            loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features)
+            gamma = self.hparams.get("da_ramp_gamma")
+            scale = 1.0 if gamma is None else dann_lambda(self._progress(), gamma)
+            loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features, da_scale=scale)
+            if gamma is not None:
+                parts["da_scale"] = torch.tensor(scale)
         elif use_target and self.hparams.da_method == "dann":
             ce = F.cross_entropy(out_s.logits, y)
             lambd = dann_lambda(self._progress(), self.hparams.dann_gamma)
