@@ -82,6 +82,8 @@ def test_episode_outputs(glass, strategy):
     assert ((ep.step >= 0) & (ep.step < 4)).all()
     assert len(ep.prefix(2)) == n[2] and len(ep.prefix(4, "visual")) == 0
     assert np.isnan(ep.gains[0])  # the shared random initial touch is not scored
+    if strategy == "random_pinch":
+        assert ep.kinds[1:] == ["pinch"] * 3  # after the shared touch, pinches only
     if strategy == "active":
         assert all(np.isfinite(g) and g >= 0 for g in ep.gains[1:])
     else:
@@ -101,7 +103,7 @@ def test_strategies_share_the_initial_touch(glass):
 
 def test_views_and_touches_on_opaque_and_transparent(glass, mug):
     with TouchWorld(mug) as world:
-        for s in STRATEGIES:
+        for s in ("active", "random", "uniform"):  # random_pinch has no views
             ep = run_episode(
                 world, s, 2, n_views=2, n_init=0, pinch=False, n_view_candidates=4, seed=1, **FAST
             )
@@ -189,6 +191,8 @@ def test_bad_input():
             run_episode(world, "active", 2, gain_mode="entropy")
         with pytest.raises(ValueError, match="n_candidates"):
             run_episode(world, "active", 2, n_candidates=1)
+        with pytest.raises(ValueError, match="random_pinch"):
+            run_episode(world, "random_pinch", 2, pinch=False)
     with pytest.raises(ValueError, match="modality"):
         Episode("random").prefix(1, "sound")
     with pytest.raises(ValueError, match="max_points"):

@@ -60,10 +60,12 @@ def test_active_reconstruction_bench(ckpts, tmp_path):
     assert set(r["paired_at_max_actions"]) == {"active vs random", "active vs uniform"}
     # the box-fit criterion (beyond the thesis) on other held-out objects
     rc = main(["bench", "active-reconstruction", "--ckpt", ckpts["actor"], "--categories", "wineglass",
-               "--actions", "3", "--gain-mode", "box_fit", "--strategies", "active,random",
+               "--actions", "3", "--gain-mode", "box_fit", "--strategies", "active,random,random_pinch",
                "--object-seed", "5", "--json", str(out), *TINY])
     r2 = json.loads(out.read_text())
-    assert rc == 0 and set(r2["summary"]) == {"active", "random"}
+    assert rc == 0 and set(r2["summary"]) == {"active", "random", "random_pinch"}
+    assert set(r2["paired_at_max_actions"]) == {"active vs random", "active vs random_pinch"}
+    assert set(r2["per_object"][0]["random_pinch"]["kinds"][1:]) == {"pinch"}
     assert (r2["gain_mode"], r2["object_seed"]) == ("box_fit", 5) and r2["objects"] != r["objects"]
 
 

@@ -307,5 +307,7 @@ def test_bench_runtime_bad_input():
         run_runtime_benchmark(None, None, ["mug"], scenes=0)
     with pytest.raises(ValueError, match="strategies"):
         run_runtime_benchmark(None, None, ["mug"], strategies=[])
+    with pytest.raises(ValueError, match="strategies"):  # the tactile arm cannot pinch
+        run_runtime_benchmark(None, None, ["mug"], strategies=["random_pinch"])
     with pytest.raises(ValueError, match="class_names"):
         run_runtime_benchmark(None, None, ["teapot"])

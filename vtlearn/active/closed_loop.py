@@ -27,6 +27,8 @@ Strategies (same action space, same budget):
   :mod:`vtlearn.active.recognition_novelty`) scores touches by how far from the measured points their
   contacts are expected to land on the templates of the most probable classes.
 - ``random``: one random candidate of a random kind with budget left.
+- ``random_pinch``: one random pinch (needs pinches and no views), a control that separates the choice
+  of action kind from the choice of action (docs/active_perception.md).
 - ``uniform``: fixed schedules independent of the measurements: views at evenly spaced azimuths first,
   then the face-lattice touch schedule (alternating with the footprint-lattice pinch schedule when
   pinches are allowed) of :mod:`vtlearn.active.exploration`.
@@ -77,7 +79,7 @@ __all__ = [
     "run_episode",
 ]
 
-STRATEGIES = ("active", "random", "uniform")
+STRATEGIES = ("active", "random", "uniform", "random_pinch")
 GAIN_MODES = ("raycast", "probabilistic", "recognition", "box_fit", "novelty")
 TACTILE_KINDS = ("touch", "pinch")
 # Base seed of held-out instances; gen-data uses the dataset seed (0 by default), so these instance seeds
@@ -399,6 +401,8 @@ def run_episode(
             raise ValueError("reconstructor: gain_mode='box_fit' needs an ExpectedBoxFitGain")
         if int(n_views):
             raise ValueError("gain_mode: 'box_fit' scores touches and pinches only; set n_views=0")
+    if strategy == "random_pinch" and (not pinch or int(n_views)):
+        raise ValueError("strategy: 'random_pinch' needs pinch=True and n_views=0")
     if isinstance(feasible, Mapping):
         unknown = set(feasible) - {"touch", "pinch", "view"}
         if unknown:
@@ -444,6 +448,8 @@ def run_episode(
                 chosen = plans["pinch"].subset([tactile_done // 2])
             else:
                 chosen = plans["touch"].subset([tactile_done // 2 if pinch else tactile_done])
+        elif strategy == "random_pinch":
+            chosen = sample_pinch_actions(box, 1, seed=rng, feasible=feas("pinch"))
         elif strategy == "random":
             kinds = (["view"] if budget["view"] else []) + (["tactile"] if budget["tactile"] else [])
             kind = kinds[int(rng.integers(len(kinds)))]

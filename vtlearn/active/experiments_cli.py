@@ -185,7 +185,7 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
             "at_max_actions": _stats(c[:, -1]),
         }
     wins, paired = {}, {}
-    for base in ("random", "uniform"):
+    for base in ("random", "uniform", "random_pinch"):
         if "active" in curves and base in curves:
             a, b = np.array(curves["active"])[:, -1], np.array(curves[base])[:, -1]
             wins[f"active_beats_{base}"] = int(np.sum(a < b))
@@ -635,7 +635,9 @@ def _objects_from(args: argparse.Namespace) -> dict:
 # ------------------------------------------------------------------------------ registration
 def _common(p, actions_default: int | None = None, extra_gain_modes: tuple[str, ...] = ()) -> None:
     p.add_argument("--objects-per-category", type=int, default=2)
-    p.add_argument("--strategies", default="active,random,uniform")
+    p.add_argument("--strategies", default="active,random,uniform",
+                   help="comma-separated: active, random, uniform, random_pinch (random pinches only; "
+                        "active-reconstruction)")
     p.add_argument(
         "--gain-mode",
         choices=("probabilistic", "raycast", "both", *extra_gain_modes),
