@@ -80,7 +80,8 @@ def test_episode_dataset_matches_run_episode_and_resumes(cross_dir, episodes):
 
 
 def test_episode_config_rejects_bad_input(cross_dir, tmp_path):
-    for kwargs, name in [({"strategies": ["greedy"]}, "strategies"), ({"prefixes": [0]}, "prefixes"),
+    for kwargs, name in [({"strategies": ["greedy"]}, "strategies"),
+                         ({"strategies": ["random_pinch"]}, "strategies"), ({"prefixes": [0]}, "prefixes"),
                          ({"prefixes": [9], "touches": 8}, "prefixes"), ({"split": "dev"}, "split"),
                          ({"gain_mode": "recognition"}, "gain_mode"), ({"min_points": 0}, "min_points")]:
         with pytest.raises(ValueError, match=name):
