@@ -163,6 +163,12 @@ def test_bench_bad_input(ckpts, tmp_path, capsys):
     assert "strategies" in capsys.readouterr().err
     assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--zeta", "1.5"]) == 2
     assert "zeta" in capsys.readouterr().err
+    # random pinches need an action space with pinches and no views
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"],
+                 "--strategies", "random_pinch"]) == 2
+    assert main(["bench", "active-reconstruction", "--ckpt", ckpts["actor"], "--no-pinch",
+                 "--strategies", "random_pinch"]) == 2
+    assert capsys.readouterr().err.count("random_pinch") == 2
     assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--categories", "teapot"]) == 2
     assert "categories" in capsys.readouterr().err
     assert main(["bench", "active-reconstruction", "--ckpt", ckpts["xavtnet"]]) == 2  # not an ACTOR

@@ -52,15 +52,17 @@ def _csv(s: str) -> list[str]:
     return [x.strip() for x in s.split(",") if x.strip()]
 
 
-def _strategies(args) -> list[tuple[str, str, str]]:
-    """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row."""
+def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
+    """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row.
+    ``random_pinch`` is allowed only where the episodes have pinches and no views (``pinches``)."""
     from vtlearn.active.closed_loop import STRATEGIES
 
+    allowed = STRATEGIES if pinches else tuple(s for s in STRATEGIES if s != "random_pinch")
     modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
     rows = []
     for s in _csv(args.strategies):
-        if s not in STRATEGIES:
-            raise ValueError(f"strategies: unknown {s!r}, expected some of {STRATEGIES}")
+        if s not in allowed:
+            raise ValueError(f"strategies: unknown {s!r} here, expected some of {allowed}")
         if s == "active":
             rows += [("active" if i == 0 else f"active_{m}", s, m) for i, m in enumerate(modes)]
         else:
@@ -140,7 +142,7 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
     objs = held_out_objects(
         _csv(args.categories), args.objects_per_category, transparent=True, **_objects_from(args)
     )
-    rows = _strategies(args)
+    rows = _strategies(args, pinches=not args.no_pinch)
     reconstructor = None
     if any(mode == "box_fit" for _, _, mode in rows):
         from vtlearn.active.reconstruction_nbt import ExpectedBoxFitGain
