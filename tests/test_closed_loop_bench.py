@@ -156,6 +156,7 @@ def test_shared_exploration_bench(ckpts, tmp_path):
     s = r["summary"]["active"]
     assert s["opaque_cd_mm_vision"]["n"] == 1 and s["opaque_cd_mm_visuotactile"]["n"] == 1
     assert s["touch_gain_percent"] is not None and len(s["transparent_cd_mm_curve"]) == 3
+    assert r["transparent_gain"] == "box_fit"  # the default on touch-only transparent objects
 
 
 def test_bench_bad_input(ckpts, tmp_path, capsys):
