@@ -279,6 +279,9 @@ def test_bad_input(scene_objects):
         free = rt.add_object(target, fixed=False)
         with pytest.raises(ValueError, match="target"):
             rt.explore(free, 2)
+        fixed = rt.add_object(make_object("can", 3, sections=12), fixed=True)
+        with pytest.raises(ValueError, match="gain_mode"):  # box fit needs ACTOR
+            rt.explore(fixed, 2, gain_mode="box_fit")
         with pytest.raises(ValueError, match="max_actions"):
             rt.declutter(free, max_actions=-1)
 
