@@ -220,7 +220,7 @@ def test_cosine_schedule_decays_the_learning_rate_to_zero(tmp_path):
 
 
 def test_da_ramp_scales_the_alignment_terms_from_zero(tmp_path):
-    """With ``da_ramp_gamma`` the logged scale follows Ganin's ramp: 0 at the first step, rising."""
+    """With ``da_ramp_gamma`` the scale passed to VTLoss follows Ganin's ramp: 0 at the first step, rising."""
     from vtlearn.losses.dann import dann_lambda
 
     scales = []
