@@ -69,6 +69,7 @@ from vtlearn.active.sensors import PinchSensor, Rays, TactileArray, ToFCamera, c
 
 __all__ = [
     "STRATEGIES",
+    "TOUCH_STRATEGIES",
     "Episode",
     "SimObject",
     "TouchWorld",
@@ -80,6 +81,8 @@ __all__ = [
 ]
 
 STRATEGIES = ("active", "random", "uniform", "random_pinch")
+# The strategies that also run without pinches or with views (random_pinch needs pinches and no views).
+TOUCH_STRATEGIES = ("active", "random", "uniform")
 GAIN_MODES = ("raycast", "probabilistic", "recognition", "box_fit", "novelty")
 TACTILE_KINDS = ("touch", "pinch")
 # Base seed of held-out instances; gen-data uses the dataset seed (0 by default), so these instance seeds
@@ -401,8 +404,8 @@ def run_episode(
             raise ValueError("reconstructor: gain_mode='box_fit' needs an ExpectedBoxFitGain")
         if int(n_views):
             raise ValueError("gain_mode: 'box_fit' scores touches and pinches only; set n_views=0")
-    if strategy == "random_pinch" and (not pinch or int(n_views)):
-        raise ValueError("strategy: 'random_pinch' needs pinch=True and n_views=0")
+    if strategy not in TOUCH_STRATEGIES and (not pinch or int(n_views)):
+        raise ValueError(f"strategy: {strategy!r} needs pinch=True and n_views=0")
     if isinstance(feasible, Mapping):
         unknown = set(feasible) - {"touch", "pinch", "view"}
         if unknown:

@@ -49,7 +49,7 @@ class EpisodeDataConfig:
     Args:
         source: a `gen-data crossmodal` dataset folder; its instances and class names are used.
         split: the source split whose instances are explored.
-        strategies: closed-loop strategies (:data:`~vtlearn.active.closed_loop.STRATEGIES`), one
+        strategies: closed-loop strategies (:data:`~vtlearn.active.closed_loop.TOUCH_STRATEGIES`), one
             episode each per instance.
         touches: actions per episode.
         prefixes: prefix lengths k (1 <= k <= touches) that each give one cloud.
@@ -73,14 +73,15 @@ class EpisodeDataConfig:
     shard_size: int = 16
 
     def validate(self) -> None:
-        from vtlearn.active.closed_loop import GAIN_MODES, STRATEGIES
+        from vtlearn.active.closed_loop import GAIN_MODES, TOUCH_STRATEGIES
 
         if self.split not in SOURCE_SPLITS:
             raise ValueError(f"split: expected one of {SOURCE_SPLITS}, got {self.split!r}")
-        allowed = tuple(s for s in STRATEGIES if s != "random_pinch")  # the episodes are touch-only
-        bad = [s for s in self.strategies if s not in allowed]
+        bad = [s for s in self.strategies if s not in TOUCH_STRATEGIES]  # the episodes are touch-only
         if not self.strategies or bad:
-            raise ValueError(f"strategies: expected a non-empty list of {allowed}, got {self.strategies}")
+            raise ValueError(
+                f"strategies: expected a non-empty list of {TOUCH_STRATEGIES}, got {self.strategies}"
+            )
         if len(set(self.strategies)) != len(self.strategies):
             raise ValueError(f"strategies: repeated names in {self.strategies}")
         if self.gain_mode not in ("raycast", "probabilistic"):

@@ -57,9 +57,9 @@ def _csv(s: str) -> list[str]:
 def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row.
     ``random_pinch`` is allowed only where the episodes have pinches and no views (``pinches``)."""
-    from vtlearn.active.closed_loop import STRATEGIES
+    from vtlearn.active.closed_loop import STRATEGIES, TOUCH_STRATEGIES
 
-    allowed = STRATEGIES if pinches else tuple(s for s in STRATEGIES if s != "random_pinch")
+    allowed = STRATEGIES if pinches else TOUCH_STRATEGIES
     modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
     rows = []
     for s in _csv(args.strategies):

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from vtlearn.active.closed_loop import STRATEGIES
+from vtlearn.active.closed_loop import TOUCH_STRATEGIES
 
 __all__ = ["THESIS", "run_declutter_benchmark", "run_runtime_benchmark"]
 
@@ -71,10 +71,9 @@ def run_runtime_benchmark(
     if int(scenes) < 1:
         raise ValueError(f"scenes: need >= 1, got {scenes}")
     strategies = list(strategies)
-    allowed = tuple(s for s in STRATEGIES if s != "random_pinch")  # the tactile arm has no pinch
-    bad = [s for s in strategies if s not in allowed]
+    bad = [s for s in strategies if s not in TOUCH_STRATEGIES]  # the tactile arm has no pinch
     if not strategies or bad:
-        raise ValueError(f"strategies: expected some of {allowed}, got {strategies}")
+        raise ValueError(f"strategies: expected some of {TOUCH_STRATEGIES}, got {strategies}")
     names = [str(c) for c in class_names]
     unknown = [c for c in names if c not in CATEGORIES]
     if unknown:
