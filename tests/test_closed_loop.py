@@ -115,6 +115,29 @@ def test_views_and_touches_on_opaque_and_transparent(glass, mug):
         assert len(ep.prefix(3, "visual")) == 0
 
 
+def test_auto_gain_mode_uses_the_reconstructor_only_without_views(glass, mug):
+    """``gain_mode="auto"``: box fit (the ``reconstructor``) on a touch-only episode, the grid gain with
+    views."""
+    calls = []
+
+    class Recorder:
+        def gains(self, obj, measured, candidates, touch_config, seed=0):
+            calls.append(len(measured))
+            return np.arange(sum(len(a) for a, _ in candidates), dtype=float)  # the last candidate wins
+
+    with TouchWorld(glass) as world:
+        ep = run_episode(world, "active", 3, gain_mode="auto", reconstructor=Recorder(), seed=2, **FAST)
+    assert len(calls) == 2 and ep.gains[1:] == [float(FAST["n_candidates"] - 1)] * 2
+    calls.clear()
+    with TouchWorld(mug) as world:
+        ep = run_episode(world, "active", 2, n_views=1, n_init=0, gain_mode="auto", reconstructor=Recorder(),
+                         n_view_candidates=4, seed=2, **FAST)
+    assert calls == [] and all(g >= 0 for g in ep.gains)  # the grid gain scored every step
+    with TouchWorld(mug) as world:  # without a reconstructor "auto" is the grid gain
+        ep = run_episode(world, "active", 2, gain_mode="auto", seed=2, **FAST)
+    assert all(np.isfinite(g) and g >= 0 for g in ep.gains[1:])
+
+
 def test_feasibility_hook_constrains_every_sampled_action(mug):
     def top_only(T):  # only pads pressing straight down are reachable
         return np.asarray(T)[:, 2, 2] < -0.99

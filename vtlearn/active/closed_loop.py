@@ -369,7 +369,10 @@ def run_episode(
             criterion beyond the thesis; no views), or ``"novelty"``: touches by the expected novelty of
             their contacts with ``recognizer``
             (:class:`~vtlearn.active.recognition_novelty.ExpectedContactNovelty`, thesis 7.2.4 procedure,
-            criterion beyond the thesis; touch only, no views or pinches).
+            criterion beyond the thesis; touch only, no views or pinches). ``"auto"`` resolves to
+            ``"box_fit"`` for an episode without views when a ``reconstructor`` is given (the grid gain
+            saturates on a transparent object that only touch can explore; docs/active_perception.md),
+            and to ``"probabilistic"`` otherwise.
         n_init: leading random touches shared by every strategy (not with views).
         feasible: the kinematic-feasibility hook of :mod:`vtlearn.active.actions` for the sampled
             candidates: one callable for every kind, or a mapping ``{"touch"|"pinch"|"view": callable}``
@@ -387,6 +390,8 @@ def run_episode(
         raise ValueError(f"n_init: need 0 <= n_init <= n_tactile, got {n_init}")
     if int(n_candidates) < 2:
         raise ValueError(f"n_candidates: need >= 2, got {n_candidates}")
+    if gain_mode == "auto":
+        gain_mode = "box_fit" if int(n_views) == 0 and reconstructor is not None else "probabilistic"
     if gain_mode not in GAIN_MODES:
         raise ValueError(f"gain_mode: expected one of {GAIN_MODES}, got {gain_mode!r}")
     if gain_mode == "recognition" and strategy == "active":

@@ -483,8 +483,8 @@ def run_shared_exploration(args: argparse.Namespace) -> int:
         n_views, n_tac = (0, args.touches_transparent) if is_t else (args.views, args.touches_opaque)
         with TouchWorld(obj) as world:
             for label, strategy, mode in rows:
-                if is_t and reconstructor is not None and strategy == "active" and mode == "probabilistic":
-                    mode = "box_fit"  # touch only: the grid gain saturates on a transparent object
+                if reconstructor is not None and strategy == "active" and mode == "probabilistic":
+                    mode = "auto"  # box fit on the touch-only (transparent) objects, the grid gain with views
                 ep = run_episode(
                     world,
                     strategy,

@@ -705,21 +705,19 @@ class TwoArmRuntime:
         """Next-best touches (and views) on the target by the tactile (and vision) arm, each candidate
         checked by IK (:func:`~vtlearn.active.closed_loop.run_episode` with ``feasible``).
 
-        ``gain_mode="auto"`` scores touch-only episodes (a transparent target: no views) by the box-fit
-        criterion of :mod:`vtlearn.active.reconstruction_nbt` when an ACTOR is loaded, because the grid
-        gain saturates on a transparent object (docs/active_perception.md), and everything else by the
+        ``gain_mode="auto"`` (:func:`~vtlearn.active.closed_loop.run_episode`) scores touch-only episodes
+        (a transparent target: no views) by the box-fit criterion of
+        :mod:`vtlearn.active.reconstruction_nbt` when an ACTOR is loaded, and everything else by the
         probabilistic grid gain. Any :data:`~vtlearn.active.closed_loop.GAIN_MODES` value is passed on."""
         if target not in self.sim_objects or not self.scene.objects[target].fixed:
             raise ValueError(f"target: {target} must be an object added with fixed=True")
+        if gain_mode == "box_fit" and self.actor is None:
+            raise ValueError("gain_mode: 'box_fit' needs the runtime's ACTOR (load models first)")
         reconstructor = None
-        if gain_mode == "auto":
-            gain_mode = "box_fit" if int(n_views) == 0 and self.actor is not None else "probabilistic"
-        if gain_mode == "box_fit":
+        if gain_mode in ("auto", "box_fit") and self.actor is not None:
             from vtlearn.active.reconstruction_nbt import ExpectedBoxFitGain
 
-            if self.actor is None:
-                raise ValueError("gain_mode: 'box_fit' needs the runtime's ACTOR (load models first)")
-            reconstructor = ExpectedBoxFitGain(self.actor)
+            reconstructor = ExpectedBoxFitGain(self.actor)  # "auto": used by touch-only episodes only
         world = ArmTouchWorld(self, self.sim_objects[target], target)
         feasible: Mapping[str, Callable] = {"touch": self.touch_feasibility, "view": self.view_feasibility}
         ep = run_episode(
