@@ -52,3 +52,10 @@ def test_default_logger_falls_back_to_csv(tmp_path, monkeypatch):
 
     monkeypatch.setenv("WANDB_MODE", "disabled")
     assert isinstance(default_logger(save_dir=str(tmp_path)), CSVLogger)
+
+
+def test_csv_list_strips_items_and_drops_empty_ones():
+    from vtlearn.bench_utils import csv_list
+
+    assert csv_list(" active, random,,uniform ,") == ["active", "random", "uniform"]
+    assert csv_list("") == [] and csv_list(" , ") == []

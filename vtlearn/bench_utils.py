@@ -1,4 +1,5 @@
-"""Helpers shared by the ``vtlearn bench ...`` commands: a plain-text table and JSON output."""
+"""Helpers shared by the ``vtlearn`` commands, the benches above all: a plain-text table, JSON output, and
+comma-separated argument lists."""
 
 from __future__ import annotations
 
@@ -11,7 +12,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable"]
+__all__ = [
+    "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
+]
+
+
+def csv_list(text: str) -> list[str]:
+    """The items of a comma-separated command-line value, stripped, empty items dropped."""
+    return [x.strip() for x in text.split(",") if x.strip()]
 
 
 def to_jsonable(obj: Any) -> Any:

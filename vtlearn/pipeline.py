@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_utils import csv_list
+
 log = logging.getLogger(__name__)
 
 __all__ = [
@@ -481,7 +483,7 @@ def run_quickstart(
 def _cmd_quickstart(args) -> int:
     cfg = tiny_quickstart_config() if args.tiny else QuickstartConfig()
     if args.categories:
-        cfg.categories = [c.strip() for c in args.categories.split(",") if c.strip()]
+        cfg.categories = csv_list(args.categories)
     for name in ("actor_epochs", "xavtnet_epochs", "n_actions", "seed"):
         v = getattr(args, name)
         if v is not None:

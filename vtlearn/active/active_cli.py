@@ -16,6 +16,8 @@ import time
 
 import numpy as np
 
+from vtlearn.bench_utils import csv_list
+
 __all__ = ["register_bench", "run_occupancy_bench"]
 
 
@@ -252,7 +254,7 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
         ("random", "raycast"),
         ("uniform", "raycast"),
     ]
-    categories = [c.strip() for c in args.objects.split(",") if c.strip()]
+    categories = csv_list(args.objects)
     if not categories:
         raise ValueError("objects: give at least one sim_data category")
     curves: dict[str, dict[str, list]] = {}

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_utils import csv_list
+
 THESIS = {
     "active-reconstruction": {
         "cd_mm_at_20": {"active": 20.0, "random": 65.0, "uniform": 192.0},
@@ -50,9 +52,6 @@ THESIS = {
 }
 
 
-def _csv(s: str) -> list[str]:
-    return [x.strip() for x in s.split(",") if x.strip()]
-
 
 def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row.
@@ -62,7 +61,7 @@ def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     allowed = STRATEGIES if pinches else TOUCH_STRATEGIES
     modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
     rows = []
-    for s in _csv(args.strategies):
+    for s in csv_list(args.strategies):
         if s not in allowed:
             raise ValueError(f"strategies: unknown {s!r} here, expected some of {allowed}")
         if s == "active":
@@ -142,7 +141,7 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
     _setup(args)
     model = load_actor(args.ckpt)
     objs = held_out_objects(
-        _csv(args.categories), args.objects_per_category, transparent=True, **_objects_from(args)
+        csv_list(args.categories), args.objects_per_category, transparent=True, **_objects_from(args)
     )
     rows = _strategies(args, pinches=not args.no_pinch)
     reconstructor = None
@@ -276,7 +275,7 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         )
     model = load_xavtnet(args.ckpt)
     class_names = _class_names(args, int(model.hparams.num_classes))
-    cats = _csv(args.categories) if args.categories else class_names
+    cats = csv_list(args.categories) if args.categories else class_names
     unknown = [c for c in cats if c not in class_names]
     if unknown:
         raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
@@ -459,10 +458,10 @@ def run_shared_exploration(args: argparse.Namespace) -> int:
     _setup(args)
     model = load_actor(args.ckpt)
     opaque = held_out_objects(
-        _csv(args.opaque), args.objects_per_category, transparent=False, **_objects_from(args)
+        csv_list(args.opaque), args.objects_per_category, transparent=False, **_objects_from(args)
     )
     transparent = held_out_objects(
-        _csv(args.transparent), args.objects_per_category, transparent=True, **_objects_from(args)
+        csv_list(args.transparent), args.objects_per_category, transparent=True, **_objects_from(args)
     )
     rows = _strategies(args)
     reconstructor = None
@@ -731,8 +730,8 @@ def _cmd_gen_episodes(args: argparse.Namespace) -> int:
     from vtlearn.active.episode_data import EpisodeDataConfig, generate_episode_dataset
 
     cfg = EpisodeDataConfig(
-        source=args.source, split=args.split, strategies=_csv(args.strategies), touches=args.touches,
-        prefixes=[int(k) for k in _csv(args.prefixes)], min_points=args.min_points,
+        source=args.source, split=args.split, strategies=csv_list(args.strategies), touches=args.touches,
+        prefixes=[int(k) for k in csv_list(args.prefixes)], min_points=args.min_points,
         n_candidates=args.candidates, cells=args.cells, gain_mode=args.gain_mode, seed=args.seed,
         shard_size=args.shard_size,
     )

@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from vtlearn.bench_utils import csv_list
+
 __all__ = ["register", "register_bench"]
 
 
@@ -213,7 +215,7 @@ def _cmd_bench_hand_eye(args: argparse.Namespace) -> int:
     from vtlearn.classical.registration_bench import default_meshes, load_benchmark_mesh
 
     meshes = [load_benchmark_mesh(s) for s in (args.meshes or default_meshes())]
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    methods = csv_list(args.methods)
     result = run_hand_eye_benchmark(meshes, trials=args.trials, views=args.views,
                                     n_tactile=args.tactile_points, init_trans=args.init_trans,
                                     init_rot_deg=args.init_rot_deg, methods=methods,

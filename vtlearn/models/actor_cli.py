@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_utils import csv_list
+
 log = logging.getLogger(__name__)
 
 CATEGORY_COLUMNS = ["group", "method", "n", "CD_mm", "HD_mm", "EMD_mm"]
@@ -141,7 +143,7 @@ GPIS_NAMES = {"estimated": "GPIS", "dense": "GPIS (true normals)"}
 def _gpis_variants(spec: str) -> list[tuple[str, str]]:
     """``"estimated,dense"`` -> ``[("GPIS", "estimated"), ("GPIS (true normals)", "dense")]``."""
     out = []
-    for source in (x.strip() for x in spec.split(",") if x.strip()):
+    for source in csv_list(spec):
         if source not in GPIS_NAMES:
             raise ValueError(f"gpis_normals: expected 'estimated' and/or 'dense', got {source!r}")
         out.append((GPIS_NAMES[source], source))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import save_figure
+from vtlearn.bench_utils import csv_list, save_figure
 
 log = logging.getLogger(__name__)
 
@@ -255,9 +255,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if args.source_touch:
         data_kwargs["source_touch"] = True
     if args.source_splits:
-        data_kwargs["source_splits"] = [x.strip() for x in args.source_splits.split(",") if x.strip()]
+        data_kwargs["source_splits"] = csv_list(args.source_splits)
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
-    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    variants = csv_list(args.variants)
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
     if unknown:
         raise ValueError(f"--variants: unknown {unknown}; choose from {[*VARIANTS, ORACLE]}")
@@ -416,7 +416,7 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 10))
     strategies = al["strategies"]
     if isinstance(strategies, str):
-        strategies = [s.strip() for s in strategies.split(",") if s.strip()]
+        strategies = csv_list(strategies)
     from vtlearn.active.mc_dropout import QUERY_STRATEGIES
 
     unknown = [s for s in strategies if s not in QUERY_STRATEGIES]

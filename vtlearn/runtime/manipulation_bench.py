@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from vtlearn.bench_utils import csv_list
+
 __all__ = [
     "PUSH_METHODS",
     "PUSH_OBJECTS",
@@ -571,9 +573,6 @@ def _positive(text: str) -> float:
     return v
 
 
-def _names(text: str) -> list[str]:
-    return [s.strip() for s in text.split(",") if s.strip()]
-
 
 def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
@@ -581,8 +580,8 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     result = run_pushing_benchmark(
         trials=args.trials,
         seed=args.seed,
-        methods=_names(args.methods),
-        objects=_names(args.objects),
+        methods=csv_list(args.methods),
+        objects=csv_list(args.objects),
         tolerance=args.tolerance,
         max_pushes=args.max_pushes,
     )
@@ -630,7 +629,7 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     print_table(
         rows,
         columns,
-        f"Goal-driven pushing, {args.trials} trials ({', '.join(_names(args.objects))}), "
+        f"Goal-driven pushing, {args.trials} trials ({', '.join(csv_list(args.objects))}), "
         f"goals {GOAL_RANGE[0]}-{GOAL_RANGE[1]} m, tolerance {1e3 * args.tolerance:.0f} mm, "
         f"<= {args.max_pushes} pushes of 3 cm (thesis 6.2.4)",
     )
@@ -661,7 +660,7 @@ def _cmd_bench_articulation(args: argparse.Namespace) -> int:
         trials=args.trials,
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
-        categories=_names(args.categories),
+        categories=csv_list(args.categories),
         seed=args.seed,
         tracker=args.tracker,
     )

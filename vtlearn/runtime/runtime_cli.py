@@ -14,6 +14,8 @@ import json
 import time
 from pathlib import Path
 
+from vtlearn.bench_utils import csv_list
+
 __all__ = ["register", "register_bench"]
 
 
@@ -66,7 +68,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
 
     actor, xav, names = _model_paths(args)
-    clutter_cats = [c.strip() for c in args.clutter.split(",") if c.strip()]
+    clutter_cats = csv_list(args.clutter)
     transparent = {"transparent": True, "opaque": False, "any": None}[args.target_kind]
     target_obj, clutter = clutter_scene(args.target, clutter_cats, transparent=transparent, seed=args.seed)
     out = Path(args.out)
@@ -153,7 +155,7 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
     names = json.loads(Path(names_path).read_text())["class_names"] if names_path else xav.hparams.class_names
     if not names:
         raise ValueError("--class-names: the xAVTNet checkpoint records no class names; pass manifest.json")
-    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    strategies = csv_list(args.strategies)
     bar = tqdm(total=args.scenes * len(strategies), desc="scenes x strategies")
     t0 = time.perf_counter()
     result = run_runtime_benchmark(
@@ -235,7 +237,7 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
     from vtlearn.runtime.runtime_bench import run_declutter_benchmark
 
-    policies = [s.strip() for s in args.policies.split(",") if s.strip()]
+    policies = csv_list(args.policies)
     bar = tqdm(total=args.scenes * len(policies), desc="scenes x policies")
     t0 = time.perf_counter()
     result = run_declutter_benchmark(

@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-
-def _csv(s: str) -> list[str]:
-    return [x.strip() for x in s.split(",") if x.strip()]
+from vtlearn.bench_utils import csv_list
 
 
 def _cmd_gen_shapes(args: argparse.Namespace) -> int:
@@ -64,7 +62,7 @@ def register(sub) -> None:
     p = sub.add_parser("gen-shapes", help="procedural category-level meshes (.obj + .json per instance)")
     p.add_argument("--out", required=True)
     p.add_argument(
-        "--categories", type=_csv, default=list(CATEGORIES), help="comma-separated (default: all 12)"
+        "--categories", type=csv_list, default=list(CATEGORIES), help="comma-separated (default: all 12)"
     )
     p.add_argument("--per-category", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
@@ -74,7 +72,7 @@ def register(sub) -> None:
     p = sub.add_parser("gen-data", help="sharded synthetic datasets (reconstruction | crossmodal)")
     p.add_argument("kind", choices=["reconstruction", "crossmodal"])
     p.add_argument("--out", required=True)
-    p.add_argument("--categories", type=_csv, default=list(CATEGORIES))
+    p.add_argument("--categories", type=csv_list, default=list(CATEGORIES))
     p.add_argument("--per-category", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
