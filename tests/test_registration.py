@@ -227,3 +227,17 @@ def test_bench_registration_tiny(tmp_path, capsys):
     assert len(res["adi_cm"]["20"]["stiqf"]) == 2
     assert out.with_suffix(".md").exists() and out.with_suffix(".png").exists()
     assert "adi_mean_cm" in capsys.readouterr().out
+
+
+def test_bench_registration_rejects_unknown_method(tmp_path, capsys):
+    from vtlearn.classical.registration_bench import run_registration_benchmark
+    from vtlearn.cli import main
+
+    with pytest.raises(ValueError, match=r"methods: unknown \['icpp'\]"):
+        run_registration_benchmark(["bunny"], sizes=(20,), trials=1, methods=["stiqf", "icpp"],
+                                   progress=False)
+    # The space after the comma is stripped (the error names 'icpp'); the typo fails before any trial.
+    js = str(tmp_path / "reg.json")
+    assert main(["bench", "registration", "--meshes", "bunny", "--methods", "stiqf, icpp", "--json", js]) == 2
+    assert "icpp" in capsys.readouterr().err
+    assert not (tmp_path / "reg.json").exists()

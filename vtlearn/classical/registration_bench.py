@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from vtlearn.bench_utils import save_figure
-from vtlearn.classical.registration import _run_icp, available_methods, register
+from vtlearn.classical.registration import METHODS, _run_icp, available_methods, register
 from vtlearn.classical.sparse_icp import sparse_icp
 from vtlearn.classical.stiqf import STIQF, annealing_field, simulated_annealing
 from vtlearn.classical.tiqf import _quat_to_matrix
@@ -163,7 +164,14 @@ def run_registration_benchmark(
 ):
     """Run the protocol; returns a JSON-ready dict with per-trial values, summaries and Welch p-values."""
     mesh_specs = default_meshes() if mesh_specs is None else list(mesh_specs)
-    methods = [m for m in (methods or DEFAULT_METHODS) if m in available_methods()]
+    requested = list(methods or DEFAULT_METHODS)
+    unknown = [m for m in requested if m not in METHODS]
+    if unknown:
+        raise ValueError(f"methods: unknown {unknown}; choose from {sorted(METHODS)}")
+    skipped = [m for m in requested if m not in available_methods()]
+    if skipped:
+        warnings.warn(f"methods: {skipped} need the optional probreg package; skipped", stacklevel=2)
+    methods = [m for m in requested if m not in skipped]
     if "stiqf" not in methods:
         methods = ["stiqf"] + methods
     meshes = [load_benchmark_mesh(s) for s in mesh_specs]

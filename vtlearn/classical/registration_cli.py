@@ -128,8 +128,8 @@ def _cmd_bench_registration(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import print_table, write_json
     from vtlearn.classical.registration_bench import bar_plot, markdown_report, run_registration_benchmark
 
-    sizes = [int(s) for s in args.sizes.split(",")]
-    methods = args.methods.split(",") if args.methods else None
+    sizes = [int(s) for s in csv_list(args.sizes)]
+    methods = csv_list(args.methods) if args.methods else None
     result = run_registration_benchmark(
         args.meshes,
         sizes=sizes,
