@@ -194,6 +194,13 @@ def test_gains_match_a_naive_loop_and_prefer_unexplored_spots(mug, model):
                               for c in range(3)])
         assert np.ptp(per_class, axis=0).max() > 1e-3  # the templates disagree somewhere
         np.testing.assert_allclose(three.gains(mug, P, sensor, T, cfg), per_class.mean(0), atol=1e-12)
+        # a novelty criterion that takes its templates from a recognition criterion's library scores alike
+        # and builds no template of its own
+        library = ExpectedClassEntropyGain(model, NAMES, top_m=3, templates_per_class=2)
+        shared = ExpectedContactNovelty(model, NAMES, top_m=3, library=library)
+        assert shared.templates is library
+        np.testing.assert_allclose(shared.gains(mug, P, sensor, T, cfg), per_class.mean(0), atol=1e-12)
+        assert set(library._templates) == {(c, 0) for c in range(3)}
 
 
 def test_novelty_bad_arguments(mug, model):
@@ -201,6 +208,10 @@ def test_novelty_bad_arguments(mug, model):
         ExpectedContactNovelty(model, NAMES, top_m=0)
     with pytest.raises(ValueError, match="class_names"):
         ExpectedContactNovelty(model, ["mug", "box"])
+    with pytest.raises(ValueError, match="library"):
+        ExpectedContactNovelty(model, NAMES, top_m=2, library=ExpectedClassEntropyGain(model, NAMES, top_m=3))
+    with pytest.raises(ValueError, match="library"):
+        ExpectedContactNovelty(model, NAMES, library=object())
     g = ExpectedContactNovelty(model, NAMES)
     sensor, T = _candidates(mug, 2)
     with pytest.raises(ValueError, match="T_world_pad"):

@@ -293,7 +293,8 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         from vtlearn.active.recognition_novelty import ExpectedContactNovelty
 
         recognizers["novelty"] = ExpectedContactNovelty(model, class_names, top_m=args.recognition_top_m,
-                                                        max_points=args.max_input)
+                                                        max_points=args.max_input,
+                                                        library=recognizers.get("recognition"))
         rows.append(("active_novelty", "active", "novelty"))
     ks = list(range(1, args.max_actions + 1))
     res = {

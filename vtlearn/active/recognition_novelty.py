@@ -88,12 +88,24 @@ class ExpectedContactNovelty:
         template_seed: base seed of the class templates
             (:data:`~vtlearn.active.recognition_nbt.TEMPLATE_SEED` by default).
         sections: mesh resolution of the templates.
+        library: an :class:`~vtlearn.active.recognition_nbt.ExpectedClassEntropyGain` of the same model to
+            take the posterior and templates from (its template 0 of each class), so that a run with both
+            criteria builds each template once; ``template_seed`` and ``sections`` are then its own.
     """
 
     def __init__(self, model, class_names, top_m: int = 4, max_points: int = 256,
-                 template_seed: int | None = None, sections: int = 32) -> None:
+                 template_seed: int | None = None, sections: int = 32, library=None) -> None:
         from vtlearn.active.recognition_nbt import TEMPLATE_SEED, ExpectedClassEntropyGain
 
+        if library is not None:
+            if not isinstance(library, ExpectedClassEntropyGain):
+                raise ValueError(f"library: need an ExpectedClassEntropyGain, got {type(library).__name__}")
+            same = (library.top_m, library.max_points) == (int(top_m), int(max_points))
+            if library.model is not model or not same:
+                raise ValueError("library: must wrap the same model with the same top_m and max_points")
+            self.templates = library
+            self.top_m = library.top_m
+            return
         # The template library, the posterior and the replayed touch are those of the recognition
         # criterion; its argument checks (top_m, max_points, class_names) apply here too.
         self.templates = ExpectedClassEntropyGain(
