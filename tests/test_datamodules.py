@@ -169,6 +169,38 @@ def test_crossmodal_source_splits_add_the_test_objects_to_the_labelled_source(cr
             CrossModalDataModule(str(cross_dir), source_splits=bad)
 
 
+def test_crossmodal_target_holdout_splits_each_test_instance_between_stream_and_test(cross_dir):
+    """``target_holdout`` (the thesis's 900 + 300 split of the tactile clouds of its objects) puts every
+    test tactile cloud in exactly one of the target stream and the test set, holds out at least one and
+    keeps at least one per instance, repeats for a seed, and is refused by name where it cannot apply."""
+    te = load_split(cross_dir, "test")
+    everything = {c.astype(np.float32).tobytes() for c in
+                  CrossModalDataModule(str(cross_dir), rotate_z=False, normalize="none", target_split="test")
+                  .dataset("test", "tactile").clouds}
+
+    def parts(seed):
+        dm = CrossModalDataModule(str(cross_dir), rotate_z=False, normalize="none", target_split="test",
+                                  target_holdout=0.5, seed=seed)
+        stream = [c.astype(np.float32).tobytes() for c in dm.target_dataset().clouds]
+        test = dm.test_dataloader().dataset
+        return dm, stream, [c.astype(np.float32).tobytes() for c in test.clouds], test
+
+    dm, stream, test, test_ds = parts(0)
+    assert set(stream).isdisjoint(test) and set(stream) | set(test) == everything
+    mask = dm.holdout_mask()
+    assert mask.shape == (len(te["tactile_label"]),)
+    for k in np.unique(te["tactile_instance"]):  # two clouds per instance: one each way
+        assert mask[te["tactile_instance"] == k].sum() == 1
+    np.testing.assert_array_equal(test_ds.labels, te["tactile_label"][mask])
+    assert "label" not in dm.target_dataset()[0]
+    assert parts(0)[2] == test  # the same seed holds out the same clouds
+    assert not CrossModalDataModule(str(cross_dir), target_split="test").holdout_mask().any()
+    for kwargs in ({"target_holdout": 1.0, "target_split": "test"}, {"target_holdout": -0.1},
+                   {"target_holdout": 0.25, "target_split": "train"}):
+        with pytest.raises(ValueError, match="target_holdout"):
+            CrossModalDataModule(str(cross_dir), **kwargs)
+
+
 def test_crossmodal_source_points_thins_training_visual_clouds_only(cross_dir):
     """``source_points`` thins each drawn visual training cloud to the tactile density; the labelled
     visual and tactile evaluation clouds stay as stored, and a bad range is refused by name."""

@@ -120,6 +120,15 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert data["source_splits"] == ["train", "test"]
     assert "labelled visual source: train+test" in capsys.readouterr().out
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--target-split", "test", "--target-holdout", "0.5", "--no-figures",
+                 "--json", str(out2)]) == 0
+    assert json.loads(out2.read_text())["data"]["target_holdout"] == 0.5
+    assert "less the 0.5 of their tactile clouds held out" in capsys.readouterr().out
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+                 "--target-split", "train", "--target-holdout", "0.5", "--no-figures",
+                 "--json", str(out2)]) == 2
+    assert "target_holdout" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-splits", "train,nope", "--no-figures", "--json", str(out2)]) == 2
     assert "source_splits" in capsys.readouterr().err
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",

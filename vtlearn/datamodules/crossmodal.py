@@ -199,6 +199,13 @@ class CrossModalDataModule(ShardedDataModule):
             the same objects without tactile labels, and ``source_test_dataloader`` is no longer a
             held-out score. The default keeps the test instances unseen by vision (category-level
             recognition of new instances).
+        target_holdout: fraction of each test instance's tactile clouds held out of the target stream and
+            scored as the test set (default 0: the test set is every tactile cloud of the test split). The
+            thesis split the tactile clouds of its 12 objects 900 for adaptation and 300 for the test
+            (7.3.2); a fraction of 0.25 is that split, drawn per instance (at least one cloud held out
+            and one kept; an instance with a single cloud stays in the stream) with ``seed``, and without the
+            thesis's yaw-rotated copies of one touch falling on both sides. Needs ``target_split="test"``
+            and no ``target_data_dir``.
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
@@ -222,6 +229,7 @@ class CrossModalDataModule(ShardedDataModule):
         source_views: int = 1,
         source_touch: bool = False,
         source_splits: list[str] | None = None,
+        target_holdout: float = 0.0,
         train_on: str = "visual",
         num_workers: int = 0,
         seed: int = 0,
@@ -253,6 +261,13 @@ class CrossModalDataModule(ShardedDataModule):
             raise ValueError(
                 f"source_splits: need distinct splits of {sorted(manifest['splits'])}, got {source_splits!r}"
             )
+        self.target_holdout = float(target_holdout)
+        if not 0.0 <= self.target_holdout < 1.0:
+            raise ValueError(f"target_holdout: need a fraction in [0, 1), got {target_holdout!r}")
+        if self.target_holdout > 0 and (target_split != "test" or target_data_dir is not None):
+            raise ValueError("target_holdout: holds test tactile clouds out of the target stream, so it "
+                             f"needs target_split='test' and no target_data_dir (got {target_split!r}, "
+                             f"{target_data_dir!r})")
         self.target_data_dir = target_data_dir
         self._target_splits: dict[str, dict] = {}
         if target_data_dir is not None:
@@ -292,10 +307,39 @@ class CrossModalDataModule(ShardedDataModule):
 
     def target_dataset(self) -> CloudDataset:
         """The unlabelled, yaw-augmented tactile clouds of the target stream (``target_split`` of
-        ``data_dir``, or of ``target_data_dir`` when set)."""
-        if self.target_data_dir is None:
-            return self.dataset(self.target_split, "tactile", with_label=False, train=True)
-        return self._target_data_dataset(self.target_split, with_label=False)
+        ``data_dir``, or of ``target_data_dir`` when set), less the ``target_holdout`` test clouds."""
+        if self.target_data_dir is not None:
+            return self._target_data_dataset(self.target_split, with_label=False)
+        if self.target_holdout > 0:
+            return self._tactile_subset("test", ~self.holdout_mask(), with_label=False, train=True)
+        return self.dataset(self.target_split, "tactile", with_label=False, train=True)
+
+    def holdout_mask(self) -> np.ndarray:
+        """Which tactile clouds of the test split are held out of the target stream (``target_holdout``).
+
+        Shapes:
+            -> (n_test_tactile,) bool
+        """
+        inst = np.asarray(self._split("test")["tactile_instance"])
+        mask = np.zeros(len(inst), dtype=bool)
+        if self.target_holdout == 0:
+            return mask
+        rng = np.random.default_rng([self.seed, 7300])
+        for k in np.unique(inst):
+            idx = np.flatnonzero(inst == k)
+            if len(idx) < 2:
+                continue
+            n = min(max(int(round(self.target_holdout * len(idx))), 1), len(idx) - 1)
+            mask[rng.choice(idx, size=n, replace=False)] = True
+        return mask
+
+    def _tactile_subset(self, split: str, keep: np.ndarray, with_label: bool, train: bool) -> CloudDataset:
+        """The tactile clouds of ``split`` where ``keep`` is True."""
+        clouds, labels, scales = modality_clouds(self._split(split), "tactile", self.units == "metres")
+        idx = np.flatnonzero(keep)
+        return CloudDataset([clouds[i] for i in idx], labels[idx], train=train, normalize=self.normalize,
+                            rotate_z=self.rotate_z, seed=self.seed,
+                            scales=None if scales is None else scales[idx], with_label=with_label)
 
     def target_dataloader(self, shuffle: bool = True) -> DataLoader:
         """The unlabelled target stream on its own (:meth:`target_dataset`), e.g. for
@@ -356,6 +400,10 @@ class CrossModalDataModule(ShardedDataModule):
         return self._loader(self.dataset("val", "tactile"), shuffle=False)
 
     def test_dataloader(self) -> DataLoader:
+        """Labelled tactile clouds of the test split (only the ``target_holdout`` ones when it is set)."""
+        if self.target_holdout > 0:
+            held = self._tactile_subset("test", self.holdout_mask(), with_label=True, train=False)
+            return self._loader(held, shuffle=False)
         return self._loader(self.dataset("test", "tactile"), shuffle=False)
 
     def predict_dataloader(self) -> DataLoader:
