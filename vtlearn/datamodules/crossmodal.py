@@ -195,10 +195,11 @@ class CrossModalDataModule(ShardedDataModule):
             ``source_points`` of them (default 30-120). No tactile data are used.
         source_splits: the splits whose labelled visual clouds form the source (default ``["train"]``).
             ``["train", "test"]`` with ``target_split="test"`` is the thesis's known-objects protocol
-            (7.3.1): the twelve objects are seen, labelled, by the camera, and touch must then recognise
+            (7.3.1): the test objects are seen, labelled, by the camera, and touch must then recognise
             the same objects without tactile labels, and ``source_test_dataloader`` is no longer a
-            held-out score. The default keeps the test instances unseen by vision (category-level
-            recognition of new instances).
+            held-out score. ``["test"]`` on a dataset with one test instance per class is the thesis's
+            twelve objects exactly (``configs/cpu/xavtnet_objects.yaml``). The default keeps the test
+            instances unseen by vision (category-level recognition of new instances).
         target_holdout: fraction of each test instance's tactile clouds held out of the target stream and
             scored as the test set (default 0: the test set is every tactile cloud of the test split). The
             thesis split the tactile clouds of its 12 objects 900 for adaptation and 300 for the test

@@ -832,7 +832,8 @@ def register_bench(sub) -> None:
                    help="comma list of splits whose labelled visual clouds form the source (default: the "
                         "config's, train). 'train,test' with --target-split test is the thesis's "
                         "known-objects protocol (7.3.1): the test objects are seen, labelled, by vision and "
-                        "recognised by touch")
+                        "recognised by touch; 'test' on a dataset with one test instance per class is its "
+                        "twelve objects (configs/cpu/xavtnet_objects.yaml)")
     p.add_argument("--target-holdout", type=float, default=None, metavar="F",
                    help="with --target-split test: hold this fraction of each test instance's tactile clouds "
                         "out of the target stream and score only those (the thesis's 900 + 300 split is "
