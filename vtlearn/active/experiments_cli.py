@@ -52,7 +52,6 @@ THESIS = {
 }
 
 
-
 def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row.
     ``random_pinch`` is allowed only where the episodes have pinches and no views (``pinches``)."""

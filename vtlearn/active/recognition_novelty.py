@@ -97,22 +97,20 @@ class ExpectedContactNovelty:
                  template_seed: int | None = None, sections: int = 32, library=None) -> None:
         from vtlearn.active.recognition_nbt import TEMPLATE_SEED, ExpectedClassEntropyGain
 
-        if library is not None:
-            if not isinstance(library, ExpectedClassEntropyGain):
-                raise ValueError(f"library: need an ExpectedClassEntropyGain, got {type(library).__name__}")
-            same = (library.top_m, library.max_points) == (int(top_m), int(max_points))
-            if library.model is not model or not same:
-                raise ValueError("library: must wrap the same model with the same top_m and max_points")
-            self.templates = library
-            self.top_m = library.top_m
-            return
         # The template library, the posterior and the replayed touch are those of the recognition
         # criterion; its argument checks (top_m, max_points, class_names) apply here too.
-        self.templates = ExpectedClassEntropyGain(
-            model, class_names, top_m=top_m, max_points=max_points,
-            template_seed=TEMPLATE_SEED if template_seed is None else template_seed, sections=sections,
-        )
-        self.top_m = self.templates.top_m
+        if library is None:
+            library = ExpectedClassEntropyGain(
+                model, class_names, top_m=top_m, max_points=max_points,
+                template_seed=TEMPLATE_SEED if template_seed is None else template_seed, sections=sections,
+            )
+        elif not isinstance(library, ExpectedClassEntropyGain):
+            raise ValueError(f"library: need an ExpectedClassEntropyGain, got {type(library).__name__}")
+        elif library.model is not model or (library.top_m, library.max_points) != (int(top_m),
+                                                                                     int(max_points)):
+            raise ValueError("library: must wrap the same model with the same top_m and max_points")
+        self.templates = library
+        self.top_m = library.top_m
 
     def hypotheses(self, obj, points_world: np.ndarray) -> list[int]:
         """Step 2: the ``top_m`` most probable classes that have a template, most probable first."""

@@ -168,7 +168,8 @@ def run_registration_benchmark(
     unknown = [m for m in requested if m not in METHODS]
     if unknown:
         raise ValueError(f"methods: unknown {unknown}; choose from {sorted(METHODS)}")
-    skipped = [m for m in requested if m not in available_methods()]
+    usable = available_methods()
+    skipped = [m for m in requested if m not in usable]
     if skipped:
         warnings.warn(f"methods: {skipped} need the optional probreg package; skipped", stacklevel=2)
     methods = [m for m in requested if m not in skipped]

@@ -290,11 +290,20 @@ class CrossModalDataModule(ShardedDataModule):
                 )
 
     def dataset(
-        self, split: str, modality: str, with_label: bool = True, train: bool | None = None
+        self, split: str, modality: str, with_label: bool = True, train: bool | None = None,
+        keep: np.ndarray | None = None,
     ) -> CloudDataset:
         """Clouds of one split and modality; ``train`` (default: ``split == "train"``) turns on the
-        random yaw augmentation."""
+        random yaw augmentation; ``keep`` (a boolean mask over the split's clouds) selects some of them.
+
+        Shapes:
+            keep (n_clouds,) bool or None
+        """
         clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")
+        if keep is not None:
+            idx = np.flatnonzero(keep)
+            clouds, labels = [clouds[i] for i in idx], labels[idx]
+            scales = None if scales is None else scales[idx]
         return CloudDataset(
             clouds,
             labels,
@@ -312,7 +321,7 @@ class CrossModalDataModule(ShardedDataModule):
         if self.target_data_dir is not None:
             return self._target_data_dataset(self.target_split, with_label=False)
         if self.target_holdout > 0:
-            return self._tactile_subset("test", ~self.holdout_mask(), with_label=False, train=True)
+            return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask())
         return self.dataset(self.target_split, "tactile", with_label=False, train=True)
 
     def holdout_mask(self) -> np.ndarray:
@@ -333,14 +342,6 @@ class CrossModalDataModule(ShardedDataModule):
             n = min(max(int(round(self.target_holdout * len(idx))), 1), len(idx) - 1)
             mask[rng.choice(idx, size=n, replace=False)] = True
         return mask
-
-    def _tactile_subset(self, split: str, keep: np.ndarray, with_label: bool, train: bool) -> CloudDataset:
-        """The tactile clouds of ``split`` where ``keep`` is True."""
-        clouds, labels, scales = modality_clouds(self._split(split), "tactile", self.units == "metres")
-        idx = np.flatnonzero(keep)
-        return CloudDataset([clouds[i] for i in idx], labels[idx], train=train, normalize=self.normalize,
-                            rotate_z=self.rotate_z, seed=self.seed,
-                            scales=None if scales is None else scales[idx], with_label=with_label)
 
     def target_dataloader(self, shuffle: bool = True) -> DataLoader:
         """The unlabelled target stream on its own (:meth:`target_dataset`), e.g. for
@@ -403,8 +404,7 @@ class CrossModalDataModule(ShardedDataModule):
     def test_dataloader(self) -> DataLoader:
         """Labelled tactile clouds of the test split (only the ``target_holdout`` ones when it is set)."""
         if self.target_holdout > 0:
-            held = self._tactile_subset("test", self.holdout_mask(), with_label=True, train=False)
-            return self._loader(held, shuffle=False)
+            return self._loader(self.dataset("test", "tactile", keep=self.holdout_mask()), shuffle=False)
         return self._loader(self.dataset("test", "tactile"), shuffle=False)
 
     def predict_dataloader(self) -> DataLoader:

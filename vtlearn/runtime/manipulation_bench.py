@@ -573,7 +573,6 @@ def _positive(text: str) -> float:
     return v
 
 
-
 def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
