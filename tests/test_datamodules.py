@@ -193,6 +193,10 @@ def test_crossmodal_target_holdout_splits_each_test_instance_between_stream_and_
         assert mask[te["tactile_instance"] == k].sum() == 1
     np.testing.assert_array_equal(test_ds.labels, te["tactile_label"][mask])
     assert "label" not in dm.target_dataset()[0]
+    # the tactile_oracle bound trains on the stream's own clouds, labelled, and never on the held-out ones
+    oracle = dm.labelled_target_train_dataloader().dataset
+    assert sorted(c.astype(np.float32).tobytes() for c in oracle.clouds) == sorted(stream)
+    np.testing.assert_array_equal(oracle.labels, te["tactile_label"][~mask])
     assert parts(0)[2] == test  # the same seed holds out the same clouds
     assert not CrossModalDataModule(str(cross_dir), target_split="test").holdout_mask().any()
     for kwargs in ({"target_holdout": 1.0, "target_split": "test"}, {"target_holdout": -0.1},

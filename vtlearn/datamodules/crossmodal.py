@@ -206,7 +206,8 @@ class CrossModalDataModule(ShardedDataModule):
             (7.3.2); a fraction of 0.25 is that split, drawn per instance (at least one cloud held out
             and one kept; an instance with a single cloud stays in the stream) with ``seed``, and without the
             thesis's yaw-rotated copies of one touch falling on both sides. Needs ``target_split="test"``
-            and no ``target_data_dir``.
+            and no ``target_data_dir``. The ``tactile_oracle`` bound (``train_on="tactile"``) then trains on
+            the target stream's clouds with their labels.
         train_on: ``"visual"`` (default, the thesis's UDA protocol: labelled visual source plus the
             unlabelled tactile target stream) or ``"tactile"``: supervised training on the *labelled*
             tactile training clouds of ``data_dir`` (and of ``target_data_dir``'s ``train`` split when it
@@ -418,7 +419,12 @@ class CrossModalDataModule(ShardedDataModule):
     def labelled_target_train_dataloader(self) -> DataLoader:
         """Labelled, yaw-augmented tactile training clouds. Only for the train-on-target upper bound
         (``bench crossmodal --variants tactile_oracle``, ``train_on="tactile"``); UDA training never sees
-        tactile labels. With ``target_data_dir`` set, its labelled ``train`` tactile clouds are added."""
+        tactile labels. With ``target_data_dir`` set, its labelled ``train`` tactile clouds are added. With
+        ``target_holdout`` set, they are the target stream's own clouds, labelled (the test objects' touches
+        that are not held out), so the bound is that of the thesis's twelve-object protocol."""
+        if self.target_holdout > 0:
+            return self._loader(self.dataset("test", "tactile", train=True, keep=~self.holdout_mask()),
+                                shuffle=True)
         ds = self.dataset("train", "tactile")
         if self.target_data_dir is not None:
             from torch.utils.data import ConcatDataset
