@@ -837,7 +837,8 @@ def register_bench(sub) -> None:
     p.add_argument("--target-holdout", type=float, default=None, metavar="F",
                    help="with --target-split test: hold this fraction of each test instance's tactile clouds "
                         "out of the target stream and score only those (the thesis's 900 + 300 split is "
-                        "0.25; CrossModalDataModule target_holdout); default from the config: 0")
+                        "0.25; CrossModalDataModule target_holdout); default from the config: 0. The "
+                        "tactile_oracle variant then trains on the stream's touches with their labels")
     p.add_argument("--target-data", default=None,
                    help="dataset whose tactile clouds of the target split form the unlabelled target stream "
                         "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
