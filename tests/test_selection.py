@@ -14,6 +14,7 @@ from vtlearn.active.selection import (
     mask_box,
     next_best_action,
     pixel_box_to_plane,
+    pixels_to_plane,
     select_next_best_action,
 )
 from vtlearn.active.sensors import TactileArray, ToFCamera
@@ -61,6 +62,37 @@ def test_pixel_box_to_plane_top_down_camera():
     # A pixel box symmetric about the principal point, 20 px wide: half-width 10 px at f = 50 px and 1 m.
     box = pixel_box_to_plane([cx - 10, cx - 10, cx + 10, cx + 10], cam.intrinsics, T, plane_z=0.0)
     assert np.allclose(box, [-0.2, -0.2, 0.2, 0.2])
+
+
+def test_pixels_to_plane_hits_known_points_and_rejects_rays_that_miss():
+    """Project world points on z = 0.02 into a tilted camera, and back: the exact points return; a ray
+    that meets the plane behind the camera, and one parallel to it, are not valid."""
+    cam = ToFCamera(width=120, height=90, fov_deg=(70, 55))
+    K = cam.intrinsics
+    T = np.eye(4)
+    a = np.deg2rad(30.0)  # optical axis 30 degrees off straight down, towards +y
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)],
+                                                       [0, np.sin(a), np.cos(a)]])
+    T[:3, 3] = [0.1, -0.3, 0.8]
+    rng = np.random.default_rng(0)
+    world = np.c_[rng.uniform(-0.1, 0.3, (20, 2)), np.full(20, 0.02)]
+    cam_pts = (world - T[:3, 3]) @ T[:3, :3]
+    assert (cam_pts[:, 2] > 0).all()
+    uv = (cam_pts @ K.T)[:, :2] / cam_pts[:, 2:]
+    points, valid = pixels_to_plane(uv, K, T, plane_z=0.02)
+    assert valid.all()
+    np.testing.assert_allclose(points, world, atol=1e-9)
+    up = np.eye(4)
+    up[:3, :3] = np.diag([1.0, 1.0, 1.0])  # looking straight up from z = 0.5: the plane z = 0 is behind
+    up[2, 3] = 0.5
+    _, valid = pixels_to_plane([[cam.cx, cam.cy]], K, up, plane_z=0.0)
+    assert not valid.any()
+    level = np.eye(4)
+    level[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # optical axis along world y
+    points, valid = pixels_to_plane([[cam.cx, cam.cy]], K, level, plane_z=0.0)
+    assert not valid.any() and np.isnan(points).all()
+    with pytest.raises(ValueError, match="T_world_camera"):
+        pixel_box_to_plane([cam.cx - 5, cam.cy - 5, cam.cx + 5, cam.cy + 5], K, up, plane_z=0.0)
 
 
 def table_and_object(rng, object_points=True):

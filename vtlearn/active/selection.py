@@ -37,6 +37,7 @@ __all__ = [
     "energy_costs",
     "mask_box",
     "pixel_box_to_plane",
+    "pixels_to_plane",
     "next_best_action",
     "select_next_best_action",
 ]
@@ -135,6 +136,28 @@ def mask_box(mask) -> np.ndarray:
     return np.array([us.min(), vs.min(), us.max() + 1, vs.max() + 1], dtype=np.float64)
 
 
+def pixels_to_plane(uv: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
+                    plane_z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Intersect the camera rays through pixel coordinates ``uv`` with the plane ``z = plane_z``.
+
+    A pinhole ray ``d_camera = K⁻¹ (u, v, 1)`` is turned into the world, ``d_world = R d_camera``, and meets
+    the plane at ``t_world + s d_world`` with ``s = (plane_z − t_z) / d_z``. Rays parallel to the plane or
+    that meet it behind the camera (``s ≤ 0``) are not valid.
+
+    Shapes:
+        uv (M, 2) pixels, K (3, 3), T_world_camera (4, 4) optical frame -> points (M, 3) world metres
+        (NaN where not valid), valid (M,) bool
+    """
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    d_world = np.linalg.solve(K, np.column_stack([uv, np.ones(len(uv))]).T).T @ T_world_camera[:3, :3].T
+    points = np.full((len(uv), 3), np.nan)
+    valid = np.abs(d_world[:, 2]) >= 1e-12
+    s = (plane_z - T_world_camera[2, 3]) / np.where(valid, d_world[:, 2], 1.0)
+    valid &= s > 0
+    points[valid] = T_world_camera[:3, 3] + s[valid, None] * d_world[valid]
+    return points, valid
+
+
 def pixel_box_to_plane(box_px, K, T_world_camera, plane_z: float = 0.0) -> np.ndarray:
     """Back-project a pixel box onto the horizontal plane ``z = plane_z`` and return its world xy box.
 
@@ -148,14 +171,10 @@ def pixel_box_to_plane(box_px, K, T_world_camera, plane_z: float = 0.0) -> np.nd
     if K.shape != (3, 3) or not np.isfinite(K).all():
         raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
     T = as_transform(T_world_camera, "T_world_camera")
-    corners = np.array([[b[0], b[1], 1.0], [b[2], b[1], 1.0], [b[2], b[3], 1.0], [b[0], b[3], 1.0]])
-    d_world = (np.linalg.solve(K, corners.T)).T @ T[:3, :3].T
-    if (np.abs(d_world[:, 2]) < 1e-12).any():
-        raise ValueError("T_world_camera: a box corner's ray is parallel to the plane")
-    s = (plane_z - T[2, 3]) / d_world[:, 2]
-    if (s <= 0).any():
-        raise ValueError("T_world_camera: the plane is behind the camera for some box corners")
-    xy = T[:2, 3] + s[:, None] * d_world[:, :2]
+    corners, valid = pixels_to_plane([[b[0], b[1]], [b[2], b[1]], [b[2], b[3]], [b[0], b[3]]], K, T, plane_z)
+    if not valid.all():
+        raise ValueError("T_world_camera: the plane is parallel to or behind the camera for some box corners")
+    xy = corners[:, :2]
     return np.array([xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max()])
 
 

@@ -914,13 +914,16 @@ def clutter_scene(
 
 
 def _mask_on_plane(mask: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, plane_z: float = 0.0):
-    """The pixels of ``mask`` back-projected along their rays onto the plane ``z = plane_z`` ``(M, 3)``."""
+    """The pixel centres of ``mask`` back-projected along their rays onto the plane ``z = plane_z``.
+
+    Shapes:
+        mask (H, W) bool -> (M, 3) world metres, M ≤ mask.sum() (rays that miss the plane dropped)
+    """
+    from vtlearn.active.selection import pixels_to_plane
+
     v, u = np.nonzero(mask)
-    rays_c = np.stack([(u + 0.5 - K[0, 2]) / K[0, 0], (v + 0.5 - K[1, 2]) / K[1, 1], np.ones(len(u))], 1)
-    d = rays_c @ T_world_camera[:3, :3].T
-    ok = d[:, 2] < -1e-9
-    s = (plane_z - T_world_camera[2, 3]) / d[ok, 2]
-    return T_world_camera[:3, 3] + s[:, None] * d[ok]
+    points, valid = pixels_to_plane(np.column_stack([u, v]) + 0.5, K, T_world_camera, plane_z)
+    return points[valid]
 
 
 def save_report(report: RuntimeReport, out: str | Path) -> Path:
