@@ -3,6 +3,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from vtlearn import __version__
 from vtlearn.cli import build_parser, main
@@ -59,3 +60,18 @@ def test_csv_list_strips_items_and_drops_empty_ones():
 
     assert csv_list(" active, random,,uniform ,") == ["active", "random", "uniform"]
     assert csv_list("") == [] and csv_list(" , ") == []
+
+
+def test_significance_helpers_match_hand_computations_and_say_when_undefined():
+    """Welch: [1,2,3] vs [4,5,6] has t = -3 / sqrt(2/3) with 4 degrees of freedom, p = 0.0213. Wilcoxon:
+    five positive differences are the most extreme of 2^5 sign patterns, two-sided p = 2/32."""
+    from scipy.stats import t
+
+    from vtlearn.bench_utils import welch_p, wilcoxon_p
+
+    assert welch_p([1, 2, 3], [4, 5, 6]) == pytest.approx(2 * t.sf(3 / np.sqrt(2 / 3), 4))
+    assert welch_p([1, 2, 3], [4, 5, 6]) == pytest.approx(0.0213, abs=1e-4)
+    assert wilcoxon_p([1, 2, 3, 4, 5]) == pytest.approx(2 / 32)
+    assert wilcoxon_p([1, -2, 3, -4, 5]) > 0.5
+    assert welch_p([1.0], [2.0, 3.0]) is None and welch_p([2, 2], [2, 2]) is None
+    assert wilcoxon_p([0, 0, 0]) is None and wilcoxon_p([1.0]) is None

@@ -1,5 +1,6 @@
-"""Helpers shared by the ``vtlearn`` commands, the benches above all: a plain-text table, JSON output, and
-comma-separated argument lists."""
+"""Helpers shared by the ``vtlearn`` commands, the benches above all: a plain-text table, JSON output,
+comma-separated argument lists, and the two significance tests the benches report (Welch's t-test for
+independent runs, Wilcoxon's signed-rank test for paired ones)."""
 
 from __future__ import annotations
 
@@ -14,12 +15,43 @@ import numpy as np
 
 __all__ = [
     "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
+    "welch_p", "wilcoxon_p",
 ]
 
 
 def csv_list(text: str) -> list[str]:
     """The items of a comma-separated command-line value, stripped, empty items dropped."""
     return [x.strip() for x in text.split(",") if x.strip()]
+
+
+def welch_p(a, b) -> float | None:
+    """Two-sided p-value of Welch's t-test (unequal variances) between two independent samples, or None
+    when it is undefined: fewer than two values on a side, or both sides constant.
+
+    Shapes:
+        a (N,), b (M,) -> float
+    """
+    from scipy.stats import ttest_ind
+
+    a, b = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
+    if len(a) < 2 or len(b) < 2 or (a.std() == 0 and b.std() == 0):
+        return None
+    return float(ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def wilcoxon_p(diff) -> float | None:
+    """Two-sided p-value of Wilcoxon's signed-rank test of paired differences, or None when it is undefined:
+    fewer than two differences, or all of them zero.
+
+    Shapes:
+        diff (N,) -> float
+    """
+    d = np.asarray(diff, dtype=float).ravel()
+    if d.size < 2 or not np.any(d != 0):
+        return None
+    from scipy.stats import wilcoxon
+
+    return float(wilcoxon(d).pvalue)
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import csv_list
+from vtlearn.bench_utils import csv_list, wilcoxon_p
 
 THESIS = {
     "active-reconstruction": {
@@ -112,13 +112,9 @@ def paired_vs_baseline(values, baseline) -> dict:
         raise ValueError(f"values and baseline must be (N,) of the same length, got {a.shape} and {b.shape}")
     ok = np.isfinite(a) & np.isfinite(b)
     diff = a[ok] - b[ok]
-    p = None
-    if diff.size >= 2 and np.any(diff != 0):
-        from scipy.stats import wilcoxon
-
-        p = float(wilcoxon(diff).pvalue)
     return {"lower": int((diff < 0).sum()), "higher": int((diff > 0).sum()), "ties": int((diff == 0).sum()),
-            "pairs": int(diff.size), "mean_diff": float(diff.mean()) if diff.size else None, "wilcoxon_p": p}
+            "pairs": int(diff.size), "mean_diff": float(diff.mean()) if diff.size else None,
+            "wilcoxon_p": wilcoxon_p(diff)}
 
 
 def _print_paired(title: str, paired: dict) -> None:

@@ -34,6 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vtlearn.active.mc_dropout import QUERY_STRATEGIES, score_pool, select_power, select_top_k, split_strategy
+from vtlearn.bench_utils import wilcoxon_p
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach"]
 
@@ -247,10 +248,5 @@ def paired_advantage(accuracy: np.ndarray, baseline: np.ndarray, skip_first: boo
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         raise ValueError("accuracy and baseline must be finite")
     diff = 100.0 * (a - b).ravel()
-    p = None
-    if np.any(diff != 0):
-        from scipy.stats import wilcoxon
-
-        p = float(wilcoxon(diff).pvalue)
     return {"mean_diff": float(diff.mean()), "std_diff": float(diff.std()), "ahead": int((diff > 0).sum()),
-            "pairs": int(diff.size), "wilcoxon_p": p}
+            "pairs": int(diff.size), "wilcoxon_p": wilcoxon_p(diff)}

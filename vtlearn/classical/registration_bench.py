@@ -29,7 +29,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from vtlearn.bench_utils import save_figure
+from vtlearn.bench_utils import save_figure, welch_p
 from vtlearn.classical.registration import METHODS, _run_icp, available_methods, register
 from vtlearn.classical.sparse_icp import sparse_icp
 from vtlearn.classical.stiqf import STIQF, annealing_field, simulated_annealing
@@ -131,15 +131,6 @@ def _ablation(model, scene, seed) -> dict[str, tuple[np.ndarray, float]]:
     return out
 
 
-def _welch(a, b) -> float | None:
-    from scipy.stats import ttest_ind
-
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    if len(a) < 2 or len(b) < 2 or (a.std() == 0 and b.std() == 0):
-        return None
-    return float(ttest_ind(a, b, equal_var=False).pvalue)
-
-
 def _summary(vals) -> dict:
     v = np.asarray(vals, dtype=float)
     return {
@@ -224,7 +215,7 @@ def run_registration_benchmark(
             s = _summary(adi[n][name])
             s["time_mean_s"] = float(np.mean(times[n][name]))
             s["cpu_time_mean_s"] = float(np.mean(cpu[n][name]))
-            s["p_welch_vs_stiqf"] = None if name == "stiqf" else _welch(adi[n]["stiqf"], adi[n][name])
+            s["p_welch_vs_stiqf"] = None if name == "stiqf" else welch_p(adi[n]["stiqf"], adi[n][name])
             summary[n][name] = s
     mesh_names = [m for m, _ in meshes]
     per_mesh = {

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from vtlearn.bench_utils import welch_p
+
 __all__ = ["register", "register_bench", "run_tracker", "TRACKERS"]
 
 
@@ -221,14 +223,6 @@ def _summary(vals: np.ndarray) -> dict:
     }
 
 
-def _welch(a: np.ndarray, b: np.ndarray) -> float | None:
-    from scipy.stats import ttest_ind
-
-    if len(a) < 2 or len(b) < 2:
-        return None
-    return float(ttest_ind(a, b, equal_var=False).pvalue)
-
-
 def _cmd_bench(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -304,7 +298,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                     if c == "all"
                     else art_vals[c]["artreg"]
                 )
-                s["welch_p_vs_artreg"] = _welch(ref, vals)
+                s["welch_p_vs_artreg"] = welch_p(ref, vals)
             out_art[c][m] = s
             rows.append(
                 {
@@ -334,7 +328,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             a = _summary(np.array(seq_adi[k][m]))
             entry = {"xy_error": e, "adi_last_frame": a}
             if m != "artreg" and "artreg" in methods:
-                entry["welch_p_vs_artreg"] = _welch(np.array(seq_err[k]["artreg"]), np.array(seq_err[k][m]))
+                entry["welch_p_vs_artreg"] = welch_p(np.array(seq_err[k]["artreg"]), np.array(seq_err[k][m]))
             out_seq[k][m] = entry
             rows.append(
                 {
