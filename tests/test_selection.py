@@ -93,6 +93,10 @@ def test_pixels_to_plane_hits_known_points_and_rejects_rays_that_miss():
     assert not valid.any() and np.isnan(points).all()
     with pytest.raises(ValueError, match="T_world_camera"):
         pixel_box_to_plane([cam.cx - 5, cam.cy - 5, cam.cx + 5, cam.cy + 5], K, up, plane_z=0.0)
+    with pytest.raises(ValueError, match="uv"):
+        pixels_to_plane([[np.nan, 1.0]], K, T)
+    with pytest.raises(ValueError, match="K"):
+        pixels_to_plane(uv, K[:2], T)
 
 
 def table_and_object(rng, object_points=True):

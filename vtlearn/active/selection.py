@@ -148,7 +148,13 @@ def pixels_to_plane(uv: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
         uv (M, 2) pixels, K (3, 3), T_world_camera (4, 4) optical frame -> points (M, 3) world metres
         (NaN where not valid), valid (M,) bool
     """
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 2 or uv.shape[1] != 2 or not np.isfinite(uv).all():
+        raise ValueError(f"uv: expected finite (M, 2) pixel coordinates, got shape {uv.shape}")
+    K = to_numpy(K)
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
+    T_world_camera = as_transform(T_world_camera, "T_world_camera")
     d_world = np.linalg.solve(K, np.column_stack([uv, np.ones(len(uv))]).T).T @ T_world_camera[:3, :3].T
     points = np.full((len(uv), 3), np.nan)
     valid = np.abs(d_world[:, 2]) >= 1e-12
@@ -167,11 +173,8 @@ def pixel_box_to_plane(box_px, K, T_world_camera, plane_z: float = 0.0) -> np.nd
         T_world_camera: ``(4, 4)`` optical frame (z forward, x right, y down) in the world.
     """
     b = _check_box(box_px, "box_px")
-    K = to_numpy(K)
-    if K.shape != (3, 3) or not np.isfinite(K).all():
-        raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
-    T = as_transform(T_world_camera, "T_world_camera")
-    corners, valid = pixels_to_plane([[b[0], b[1]], [b[2], b[1]], [b[2], b[3]], [b[0], b[3]]], K, T, plane_z)
+    corners = [[b[0], b[1]], [b[2], b[1]], [b[2], b[3]], [b[0], b[3]]]
+    corners, valid = pixels_to_plane(corners, K, T_world_camera, plane_z)
     if not valid.all():
         raise ValueError("T_world_camera: the plane is parallel to or behind the camera for some box corners")
     xy = corners[:, :2]
