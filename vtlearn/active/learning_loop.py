@@ -231,7 +231,7 @@ def paired_advantage(accuracy: np.ndarray, baseline: np.ndarray, skip_first: boo
     The Table 7.1 columns read one point of a noisy mean curve; this uses every (seed, round) pair.
     Both runs of a seed start from the same n₀ random labels, so round 0 is identical and is skipped
     by default. The p-value is the two-sided Wilcoxon signed-rank test of the paired differences
-    (``None`` when every difference is zero).
+    (``None`` when every difference is zero or there is only one pair).
 
     Shapes:
         accuracy (S, R), baseline (S, R) in [0, 1] -> {"mean_diff", "std_diff" (points),
