@@ -15,6 +15,7 @@ from vtlearn.models.components.pointnet_tnet import (
     feature_transform_regularizer,
     lengths_to_mask,
     masked_max_pool,
+    packed_max_pool,
 )
 from vtlearn.models.xavtnet import XAVTNet, normalize_padded, subsample_padded
 
@@ -85,6 +86,32 @@ def test_masked_max_pool_and_mlp_ignore_padding():
     x_garbage = x.clone()
     x_garbage[~mask] = 1e3
     assert torch.allclose(mlp(x_garbage, mask), y)
+
+
+def test_packed_max_pool_equals_padded_pool_with_its_gradient():
+    """The encoders' pool of packed points is the padded masked max, value and gradient, ties included."""
+    torch.manual_seed(0)
+    lengths = torch.tensor([5, 1, 3, 5])
+    mask = lengths_to_mask(lengths, 5)
+    packed = torch.randn(int(mask.sum()), 4)
+    packed[0] = packed[1] = packed[:5].amax(0) + 1.0  # a tie for the max of cloud 0: half the gradient each
+    packed[6:9, 2] = 0.0  # cloud 2 all zero in one channel (post-ReLU features)
+    a = packed.clone().requires_grad_()
+    b = packed.clone().requires_grad_()
+    padded = a.new_zeros(4, 5, 4).index_put((mask,), a)
+    ref = masked_max_pool(padded, mask)
+    out = packed_max_pool(b, mask)
+    assert torch.equal(out, ref)
+    g = torch.randn(4, 4)
+    ref.backward(g)
+    out.backward(g)
+    assert torch.equal(a.grad, b.grad)
+    assert torch.equal(b.grad[0], b.grad[1]) and torch.equal(2 * b.grad[0], g[0])
+    with pytest.raises(ValueError, match="packed"):
+        packed_max_pool(packed[:-1], mask)
+    mlp = MaskedPointMLP((4, 6)).train()
+    x = torch.randn(4, 5, 4)
+    assert torch.allclose(mlp.pooled(x, mask), masked_max_pool(mlp(x, mask), mask))
 
 
 @pytest.mark.parametrize("train_mode", [True, False])

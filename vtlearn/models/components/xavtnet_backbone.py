@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask, masked_max_pool
+from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
 
@@ -74,8 +74,7 @@ class PointNetEncoder(nn.Module):
         if self.feature_tnet is not None:
             trans_feat = self.feature_tnet(h, mask)
             h = (h @ trans_feat).masked_fill(~mask[..., None], 0.0)
-        h = self.mlp2(h, mask)  # B x N x global_dim
-        return masked_max_pool(h, mask), trans_input, trans_feat
+        return self.mlp2.pooled(h, mask), trans_input, trans_feat  # B x global_dim
 
 
 @dataclass
