@@ -13,7 +13,7 @@ from lightning.pytorch.loggers import CSVLogger
 
 from vtlearn.models.actor import ACTOR, actor_loss, bn_momentum_at, load_actor, reconstruct
 from vtlearn.models.actor_synthetic import PrimitiveDataModule
-from vtlearn.models.components.actor_attention import SelfAttentionUnit
+from vtlearn.models.components.actor_attention import MIN_WEIGHT, SelfAttentionUnit
 from vtlearn.models.components.actor_decoder import ActorDecoder
 from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import MaskedBatchNorm1d, PointNetFeatures
@@ -69,6 +69,23 @@ def test_attention_unit_matches_naive_formula():
     w = torch.exp(s) / torch.exp(s).sum(dim=0, keepdim=True)
     expected = x[0] + torch.stack([sum(w[j, i] * k[:, j] for j in range(6)) for i in range(6)], dim=1)
     torch.testing.assert_close(unit(x)[0], expected)
+
+
+def test_attention_weights_below_min_weight_are_zero_not_denormal():
+    """Sharp scores leave no denormal weight (a slow CPU path); the output matches the exact softmax."""
+    torch.manual_seed(0)
+    unit = SelfAttentionUnit(16, reduction=4)
+    with torch.no_grad():
+        unit.mlp_g.weight.mul_(30.0)  # scores spread over hundreds: many exp(s - max) underflow
+    x = torch.randn(2, 16, 40)
+    w = unit.attention_weights(x)
+    tiny = torch.finfo(w.dtype).tiny
+    assert ((w > 0) & (w < tiny)).sum() == 0
+    assert (w == 0).any() and w[w > 0].min() >= MIN_WEIGHT
+    g, h, k = unit.mlp_g(x), unit.mlp_h(x), unit.mlp_k(x)
+    exact = torch.softmax(torch.bmm(g.transpose(1, 2).double(), h.double()), dim=1)
+    assert ((exact > 0) & (exact < MIN_WEIGHT)).any()  # the case above is one the threshold changes
+    torch.testing.assert_close(unit(x), x + torch.bmm(k.double(), exact).float(), rtol=1e-5, atol=1e-5)
 
 
 def test_encoder_and_decoder_shapes():
@@ -269,6 +286,23 @@ def test_actor_loss_equals_foundation_chamfer_with_padding():
     torch.testing.assert_close(actor_loss(pred, target, alpha=5.0, target_lengths=lengths), expected)
     naive = 5.0 * sum(_naive_chamfer(pred[b], target[b, : lengths[b]]) for b in range(3)) / 3
     torch.testing.assert_close(actor_loss(pred, target, alpha=5.0, target_lengths=lengths), naive)
+
+
+def test_nearest_indices_kdtree_equals_distance_matrix_with_padding():
+    """The CPU k-d tree search finds the neighbours of the dense matrix path, padded targets excluded."""
+    from vtlearn.models.actor import _nearest_indices, _nearest_indices_dense
+
+    torch.manual_seed(4)
+    x, y = torch.rand(3, 300, 3), torch.rand(3, 250, 3)
+    lengths = torch.tensor([250, 40, 1])
+    y[1, 40:] = x[1, :210]  # padding on top of predicted points: must not be matched
+    got_xy, got_yx = _nearest_indices(x, y, lengths)
+    ref_xy, ref_yx = _nearest_indices_dense(x, y, lengths)
+    assert torch.equal(got_xy, ref_xy) and torch.equal(got_yx, ref_yx)
+    assert (got_xy[1] < 40).all() and (got_xy[2] == 0).all()
+    x_bad = x.clone()
+    x_bad[0, 0, 0] = float("nan")  # a diverged step still gives indices (and a NaN loss, as before)
+    assert _nearest_indices(x_bad, y, lengths)[0].shape == (3, 300)
 
 
 def test_strided_conv_transpose_matches_pytorch():

@@ -47,17 +47,44 @@ __all__ = [
 
 
 def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
-    """Nearest-neighbour indices both ways from one squared-distance matrix, without autograd.
+    """Nearest-neighbour indices both ways, without autograd: k-d trees on a CPU, else one
+    squared-distance matrix (:func:`_nearest_indices_dense`).
+
+    On a CPU the B x N x M matrix, its masked copy and its two argmins took 0.7 s of a 0.95 s training
+    step of ``configs/cpu/actor.yaml`` (B = 16, N = M = 2048); scipy's k-d trees find the same neighbours
+    in 0.05 s. The trees compare float64 distances. The matrix's expanded form ``|x|² + |y|² − 2 x·y``
+    loses about four digits to cancellation at neighbour distances in float32, so where two candidates
+    are that close it may pick the farther one; the trees pick the nearest (the two are tested equal on
+    clouds without such near-ties).
 
     Shapes: x (B, N, 3), y (B, M, 3) -> idx_xy (B, N) into y (valid y only), idx_yx (B, M) into x.
     """
+    if x.device.type != "cpu" or y.device.type != "cpu":
+        return _nearest_indices_dense(x, y, y_lengths)
+    from scipy.spatial import cKDTree
+
+    xs = x.detach().double().numpy()
+    ys = y.detach().double().numpy()
+    if not (np.isfinite(xs).all() and np.isfinite(ys).all()):
+        return _nearest_indices_dense(x, y, y_lengths)  # a diverged step: let the loss turn NaN as before
+    valid = [y.shape[1]] * y.shape[0] if y_lengths is None else y_lengths.tolist()
+    idx_xy = np.empty(xs.shape[:2], dtype=np.int64)
+    idx_yx = np.empty(ys.shape[:2], dtype=np.int64)
+    for b in range(xs.shape[0]):
+        idx_xy[b] = cKDTree(ys[b, : valid[b]]).query(xs[b])[1]
+        idx_yx[b] = cKDTree(xs[b]).query(ys[b])[1]
+    return torch.from_numpy(idx_xy), torch.from_numpy(idx_yx)
+
+
+def _nearest_indices_dense(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
+    """:func:`_nearest_indices` from one squared-distance matrix (any device). Shapes: as there."""
     with torch.no_grad():
         d2 = torch.baddbmm(
             (x * x).sum(-1)[:, :, None] + (y * y).sum(-1)[:, None, :], x, y.transpose(1, 2), alpha=-2.0
         )  # B x N x M
         idx_yx = d2.argmin(dim=1)
         if y_lengths is not None:
-            d2 = d2.masked_fill(~lengths_to_mask(y_lengths, y.shape[1])[:, None, :], float("inf"))
+            d2.masked_fill_(~lengths_to_mask(y_lengths, y.shape[1])[:, None, :], float("inf"))
         idx_xy = d2.argmin(dim=2)
     return idx_xy, idx_yx
 

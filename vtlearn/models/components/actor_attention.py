@@ -12,6 +12,13 @@ values of the valid points::
 
 Padded points are excluded by setting their scores to -inf before the softmax; their own outputs
 are meaningless and are masked out by the caller's max-pool.
+
+Weights below ``MIN_WEIGHT`` (1e-12) are set to 0 after the softmax. Together they move an output by
+less than ``N · 1e-12 · max|k|``, below float32 resolution, but left in place they become denormal
+floats once training sharpens the scores (about 1 % of the weights after a few steps), and every
+product with a denormal takes a slow path on x86 CPUs: the backward of ``mlp_k`` and of ``Wᵀ K``
+then took 60 % of a CPU training step of ``configs/cpu/actor.yaml``, and zeroing them made the step
+2.2× faster (docs/actor.md).
 """
 
 from __future__ import annotations
@@ -19,7 +26,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-__all__ = ["SelfAttentionUnit"]
+__all__ = ["MIN_WEIGHT", "SelfAttentionUnit"]
+
+MIN_WEIGHT = 1e-12
 
 
 class SelfAttentionUnit(nn.Module):
@@ -47,7 +56,8 @@ class SelfAttentionUnit(nn.Module):
         self.mlp_k = nn.Conv1d(self.channels, self.channels, kernel_size=1)
 
     def attention_weights(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
-        """W = softmax(Gᵀ H), normalised over the first index (the one Wᵀ K sums over).
+        """W = softmax(Gᵀ H), normalised over the first index (the one Wᵀ K sums over), with weights
+        below ``MIN_WEIGHT`` set to 0 (module docstring).
 
         Shapes:
             x: (B, C, N); returns (B, N, N) with ``W[b, j, i]``; columns sum to 1 over valid j.
@@ -57,7 +67,8 @@ class SelfAttentionUnit(nn.Module):
         scores = torch.bmm(g.transpose(1, 2), h)  # B x N x N, S_ji = g_j . h_i
         if mask is not None:
             scores = scores.masked_fill(~mask[:, :, None], float("-inf"))
-        return torch.softmax(scores, dim=1)
+        w = torch.softmax(scores, dim=1)
+        return w.masked_fill(w < MIN_WEIGHT, 0.0)
 
     def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
         if x.dim() != 3 or x.shape[1] != self.channels:
