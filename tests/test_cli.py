@@ -75,3 +75,12 @@ def test_significance_helpers_match_hand_computations_and_say_when_undefined():
     assert wilcoxon_p([1, -2, 3, -4, 5]) > 0.5
     assert welch_p([1.0], [2.0, 3.0]) is None and welch_p([2, 2], [2, 2]) is None
     assert wilcoxon_p([0, 0, 0]) is None and wilcoxon_p([1.0]) is None
+
+
+def test_format_table_prints_none_as_a_dash():
+    from vtlearn.bench_utils import format_table
+
+    text = format_table([{"m": "artreg", "p": None}, {"m": "icp", "p": 0.0123}, {"m": "pf"}], ["m", "p"], "t")
+    rows = text.splitlines()
+    assert rows[0] == "### t"
+    assert [r.split("|")[2].strip() for r in rows[3:]] == ["-", "0.012", ""]

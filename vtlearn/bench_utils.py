@@ -72,6 +72,8 @@ def to_jsonable(obj: Any) -> Any:
 
 
 def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"  # not available (e.g. a p-value of fewer than two runs), as the tables' blank cells
     if isinstance(v, (float, np.floating)):
         if not math.isfinite(v):
             return "nan"
@@ -81,7 +83,8 @@ def _fmt(v: Any) -> str:
 
 
 def format_table(rows: list[dict], columns: list[str], title: str | None = None) -> str:
-    """A markdown-style table of ``rows`` (dicts) restricted to ``columns``."""
+    """A markdown-style table of ``rows`` (dicts) restricted to ``columns``; None and missing cells
+    print as "-" and "", non-finite floats as "nan"."""
     cells = [[_fmt(r.get(c, "")) for c in columns] for r in rows]
     widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(columns)]
     lines = []
