@@ -15,20 +15,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from vtlearn.models.components.pointnet_tnet import lengths_to_mask  # one padded-batch mask for both nets
+
 __all__ = ["MaskedBatchNorm1d", "PointNetFeatures", "lengths_to_mask"]
-
-
-def lengths_to_mask(lengths: Tensor, n: int) -> Tensor:
-    """Boolean mask of the valid points of a padded batch.
-
-    Args:
-        lengths: number of valid points per cloud.
-        n: padded size.
-
-    Shapes:
-        lengths: (B,) int; returns (B, n) bool, ``mask[b, i] = i < lengths[b]``.
-    """
-    return torch.arange(n, device=lengths.device)[None, :] < lengths[:, None]
 
 
 class MaskedBatchNorm1d(nn.BatchNorm1d):

@@ -34,7 +34,11 @@ __all__ = [
 
 
 def lengths_to_mask(lengths: torch.Tensor, n: int) -> torch.Tensor:
-    """Boolean validity mask. Shapes: lengths (B,) int -> (B, n) bool."""
+    """Boolean validity mask of a padded batch, ``mask[b, i] = i < lengths[b]`` (xAVTNet and ACTOR).
+
+    Shapes:
+        lengths (B,) int -> (B, n) bool
+    """
     return torch.arange(n, device=lengths.device)[None, :] < lengths[:, None]
 
 
