@@ -50,9 +50,9 @@ def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Te
     """Nearest-neighbour indices both ways, without autograd: k-d trees on a CPU, else one
     squared-distance matrix (:func:`_nearest_indices_dense`).
 
-    On a CPU the B x N x M matrix, its masked copy and its two argmins took 0.7 s of a 0.95 s training
-    step of ``configs/cpu/actor.yaml`` (B = 16, N = M = 2048); scipy's k-d trees find the same neighbours
-    in 0.05 s. The trees compare float64 distances. The matrix's expanded form ``|x|² + |y|² − 2 x·y``
+    On a CPU the B x N x M matrix, its masked copy and its two argmins took 0.7 s of a 1.05 s training
+    step of ``configs/cpu/actor.yaml`` (B = 16, N = M = 2048); scipy's k-d trees find the neighbours in
+    0.05 s. The trees compare float64 distances. The matrix's expanded form ``|x|² + |y|² − 2 x·y``
     loses about four digits to cancellation at neighbour distances in float32, so where two candidates
     are that close it may pick the farther one; the trees pick the nearest (the two are tested equal on
     clouds without such near-ties).

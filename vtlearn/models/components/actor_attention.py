@@ -15,7 +15,7 @@ are meaningless and are masked out by the caller's max-pool.
 
 Weights below ``MIN_WEIGHT`` (1e-12) are set to 0 after the softmax. Together they move an output by
 less than ``N · 1e-12 · max|k|``, below float32 resolution, but left in place they become denormal
-floats once training sharpens the scores (about 1 % of the weights after a few steps), and every
+floats once training sharpens the scores (about 5 % of the weights after eight steps), and every
 product with a denormal takes a slow path on x86 CPUs: the backward of ``mlp_k`` and of ``Wᵀ K``
 then took 60 % of a CPU training step of ``configs/cpu/actor.yaml``, and zeroing them made the step
 2.2× faster (docs/actor.md).
