@@ -10,7 +10,13 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from vtlearn.active.learning_loop import ActiveLearningLoop, epochs_for, labels_to_reach, paired_advantage
+from vtlearn.active.learning_loop import (
+    ActiveLearningLoop,
+    bootstrap_label_ratio,
+    epochs_for,
+    labels_to_reach,
+    paired_advantage,
+)
 from vtlearn.active.mc_dropout import (
     acquisition_scores,
     bald_score,
@@ -244,6 +250,45 @@ def test_paired_advantage_hand_case():
         paired_advantage(base, base[:, :3])
     with pytest.raises(ValueError, match="at least one round"):
         paired_advantage(base[:, :1], base[:, :1])
+
+
+def test_bootstrap_label_ratio_hand_case():
+    n = [10, 20, 30, 40]
+    full = [1.0, 1.0]  # the 2 % line is 0.98
+    rand = np.array([[0.5, 0.9, 0.95, 0.99], [0.5, 0.9, 0.95, 0.99]])  # reaches at 40 labels
+    # Identical seeds: every draw is the same, so the interval collapses onto the point ratio 20 / 40.
+    same = np.array([[0.5, 0.99, 0.99, 0.99]] * 2)
+    got = bootstrap_label_ratio(n, same, rand, full, n_boot=200)
+    assert got["ratio"] == got["median"] == 0.5 and got["ci90"] == [0.5, 0.5]
+    assert got["p_target"] == 1.0 and got["never"] == 0 and got["undefined"] == 0
+    # Seed 0 reaches the line at 20 labels, seed 1 at 30, their mean at 30: ratio 0.75 on all seeds,
+    # and 0.5 only in the draws that take seed 0 twice (probability 1/4).
+    mixed = np.array([[0.5, 0.99, 0.99, 0.99], [0.5, 0.90, 0.99, 0.99]])
+    got = bootstrap_label_ratio(n, mixed, rand, full, n_boot=4000, seed=1)
+    assert got["ratio"] == 0.75 and got["ci90"] == [0.5, 0.75]
+    assert got["p_target"] == pytest.approx(0.25, abs=0.03)
+    # It agrees with the table's reading on the mean curves.
+    a = labels_to_reach(n, mixed.mean(0), 1.0, thresholds=(0.02,))[0.02]
+    assert got["ratio"] == a / labels_to_reach(n, rand.mean(0), 1.0, thresholds=(0.02,))[0.02]
+    # A lucky round that falls back out: 0.5 first reached, 0.75 sustained.
+    dips = np.array([[0.5, 0.99, 0.9, 0.99]] * 2)
+    assert bootstrap_label_ratio(n, dips, rand, full, n_boot=50)["ratio"] == 0.5
+    assert bootstrap_label_ratio(n, dips, rand, full, n_boot=50, sustained=True)["ratio"] == 1.0
+    # Never reached: an infinite ratio (None), never meeting the target; a baseline that never
+    # reaches the line leaves the ratio undefined.
+    low = np.full((2, 4), 0.5)
+    got = bootstrap_label_ratio(n, low, rand, full, n_boot=50)
+    assert got["ratio"] is None and got["never"] == 1.0 and got["p_target"] == 0.0
+    got = bootstrap_label_ratio(n, same, low, full, n_boot=50)
+    assert got["ratio"] is None and got["undefined"] == 1.0 and got["median"] is None
+    with pytest.raises(ValueError, match="rounds = len"):
+        bootstrap_label_ratio(n[:3], same, rand, full)
+    with pytest.raises(ValueError, match="one value per seed"):
+        bootstrap_label_ratio(n, same, rand, [1.0])
+    with pytest.raises(ValueError, match="finite"):
+        bootstrap_label_ratio(n, same * np.nan, rand, full)
+    with pytest.raises(ValueError, match="n_boot"):
+        bootstrap_label_ratio(n, same, rand, full, n_boot=0)
 
 
 @pytest.mark.parametrize("strategy,warm", [("entropy", False), ("bald", True), ("random", False),

@@ -203,6 +203,11 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
         assert m["curves"][strategy]["acc_mean"] == pytest.approx(
             [(a["accuracy"] + b["accuracy"]) / 2 for a, b in zip(*runs, strict=True)])
     assert m["paired_vs_random"]["entropy"]["pairs"] == 2
+    # the seed bootstrap of the merged run: one value per reading, and its point is the table's ratio
+    b = m["bootstrap_2pct"]["entropy"]
+    assert set(b) == {"reached", "sustained"} and b["reached"]["n_boot"] == 2000
+    assert b["reached"]["ratio"] == m["ratios_2pct"]["entropy"]
+    assert b["sustained"]["ratio"] == m["ratios_2pct_sustained"]["entropy"]
     for bad, what in (([str(out), str(out2)], "repeat seeds"), ([str(out4), str(out3)], "train_steps"),
                       ([str(out), str(tmp_path / "none.json")], "no such file")):
         assert main(["bench", "active-learning", "--merge", *bad, "--json", str(tmp_path / "x.json"),

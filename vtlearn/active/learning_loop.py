@@ -36,7 +36,8 @@ from tqdm.auto import tqdm
 from vtlearn.active.mc_dropout import QUERY_STRATEGIES, score_pool, select_power, select_top_k, split_strategy
 from vtlearn.bench_utils import wilcoxon_p
 
-__all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach"]
+__all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach",
+           "bootstrap_label_ratio"]
 
 log = logging.getLogger(__name__)
 
@@ -223,6 +224,80 @@ def labels_to_reach(
         else:
             out[t] = next((int(n) for n, w in zip(n_labels, ok, strict=True) if w), None)
     return out
+
+
+def _first_within(within: np.ndarray, sustained: bool) -> np.ndarray:
+    """Index of the first True per row (the first from which every later one is True when
+    ``sustained``), or -1 where there is none. Shapes: within (B, R) bool -> (B,) int."""
+    if sustained:
+        within = np.flip(np.logical_and.accumulate(np.flip(within, 1), axis=1), 1)
+    first = within.argmax(axis=1)
+    return np.where(within.any(axis=1), first, -1)
+
+
+def bootstrap_label_ratio(
+    n_labels: Sequence[int],
+    accuracy: np.ndarray,
+    baseline: np.ndarray,
+    full_accuracy: Sequence[float],
+    threshold: float = 0.02,
+    target: float = 0.65,
+    n_boot: int = 2000,
+    sustained: bool = False,
+    seed: int = 0,
+) -> dict:
+    """Seed bootstrap of the Table 7.1 ratio: the labels a strategy needs to come within ``threshold``
+    relative error of the full-pool model, over the labels the baseline (random) needs.
+
+    The table reads the first point of a mean curve over a few seeds that crosses a line, so one lucky
+    seed can move the ratio by a whole κ step. Here the seeds are drawn with replacement ``n_boot``
+    times; each draw takes the same seeds for the strategy, the baseline and the full-pool models (a
+    seed's runs share their n₀ labels), recomputes the three means and reads
+    :func:`labels_to_reach` again. A draw in which the strategy never reaches the line counts as an
+    infinite ratio; one in which the baseline never does is undefined and is left out of the quantiles.
+    The quantiles are empirical (no interpolation), since the ratios take a few discrete values.
+
+    Shapes:
+        n_labels (R,), accuracy (S, R), baseline (S, R), full_accuracy (S,) -> {"ratio" (all seeds),
+        "median", "ci90" ([5 %, 95 %] quantiles), "p_target" (share of draws with ratio ≤ ``target``),
+        "never" (share of draws where the strategy never reaches the line), "undefined" (share where the
+        baseline never does), "n_boot"}. A ratio or quantile that is infinite or undefined is None.
+    """
+    a, b = np.asarray(accuracy, dtype=float), np.asarray(baseline, dtype=float)
+    full = np.asarray(full_accuracy, dtype=float)
+    n = np.asarray(n_labels, dtype=float)
+    if a.ndim != 2 or a.shape != b.shape or a.shape[1] != n.shape[0] or a.shape[1] == 0:
+        raise ValueError(f"accuracy and baseline must both be (seeds, rounds) with rounds = len(n_labels) "
+                         f"= {n.shape[0]}, got {a.shape} and {b.shape}")
+    if full.shape != (a.shape[0],):
+        raise ValueError(f"full_accuracy must have one value per seed ({a.shape[0]}), got shape {full.shape}")
+    if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(full).all()) or (full <= 0).any():
+        raise ValueError("accuracy, baseline and full_accuracy must be finite, and full_accuracy > 0")
+    if not 0 <= threshold < 1:
+        raise ValueError(f"threshold must be in [0, 1), got {threshold}")
+    if n_boot < 1:
+        raise ValueError(f"n_boot must be >= 1, got {n_boot}")
+
+    def ratios(idx: np.ndarray) -> np.ndarray:  # idx (B, S) seed draws -> (B,) ratios (inf, nan)
+        f = full[idx].mean(1, keepdims=True)
+        ia = _first_within((f - a[idx].mean(1)) / f <= threshold, sustained)
+        ib = _first_within((f - b[idx].mean(1)) / f <= threshold, sustained)
+        out = np.where(ia >= 0, n[ia] / n[np.maximum(ib, 0)], np.inf)
+        return np.where(ib >= 0, out, np.nan)
+
+    point = ratios(np.arange(a.shape[0])[None])[0]
+    draws = np.random.default_rng(seed).integers(0, a.shape[0], size=(n_boot, a.shape[0]))
+    r = ratios(draws)
+    defined = r[~np.isnan(r)]
+    lo, med, hi = (np.quantile(defined, [0.05, 0.5, 0.95], method="inverted_cdf") if defined.size
+                   else (np.nan,) * 3)
+
+    def as_float(v: float) -> float | None:  # JSON has no inf or nan
+        return float(v) if np.isfinite(v) else None
+
+    return {"ratio": as_float(point), "median": as_float(med), "ci90": [as_float(lo), as_float(hi)],
+            "p_target": float((r <= target).mean()), "never": float(np.isinf(r).mean()),
+            "undefined": float(np.isnan(r).mean()), "n_boot": int(n_boot)}
 
 
 def paired_advantage(accuracy: np.ndarray, baseline: np.ndarray, skip_first: bool = True) -> dict:

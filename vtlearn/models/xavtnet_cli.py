@@ -520,7 +520,7 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
 
 def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[str, list]) -> int:
     """Table 7.1 analogue (first reached and sustained), ratios to random, paired comparison, plot, JSON."""
-    from vtlearn.active.learning_loop import labels_to_reach, paired_advantage
+    from vtlearn.active.learning_loop import bootstrap_label_ratio, labels_to_reach, paired_advantage
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
     seeds, pool, full = meta["seeds"], meta["pool_size"], meta["full_acc"]
@@ -563,6 +563,27 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                 out[strategy] = a / r if a is not None and r is not None else None
                 print(f"{strategy}/random labels at 2% relative error ({key.replace('_', ' ')}): "
                       f"{out[strategy] if out[strategy] is not None else 'n/a'} (target <= 0.65)")
+    # How much of that ratio is the draw of seeds: resample them (the same draw for every curve).
+    boot: dict[str, dict] = {}
+    if "random" in curves:
+        n_boot = int(getattr(args, "n_boot", 2000))
+        for strategy, acc in accs.items():
+            if strategy == "random":
+                continue
+            boot[strategy] = {key: bootstrap_label_ratio(curves[strategy]["n_labels"], acc, accs["random"],
+                                                         full, n_boot=n_boot, sustained=key == "sustained")
+                              for key in ("reached", "sustained")}
+
+        def cell(v):
+            return "-" if v is None else f"{v:.2f}"
+
+        print_table([{"strategy": s, "reading": key, "ratio": cell(b["ratio"]), "median": cell(b["median"]),
+                      "90% interval": f"{cell(b['ci90'][0])}-{cell(b['ci90'][1])}",
+                      "P(<=0.65)": b["p_target"], "never": b["never"]}
+                     for s, both in boot.items() for key, b in both.items()],
+                    ["strategy", "reading", "ratio", "median", "90% interval", "P(<=0.65)", "never"],
+                    f"Seed bootstrap of the 2% label ratio to random ({n_boot} draws of the "
+                    f"{len(seeds)} seeds; '-' = never reached)")
     # Every (seed, round) pair against random: the table reads one point of a noisy mean curve.
     paired: dict[str, dict] = {}
     if "random" in curves:
@@ -599,7 +620,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
         "bench": "active-learning", **meta,
         "curves": curves, "table_7_1": rows, "table_7_1_sustained": stay_rows,
         "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios, "ratios_2pct_sustained": ratios_stay,
-        "paired_vs_random": paired,
+        "paired_vs_random": paired, "bootstrap_2pct": boot,
         "machine": machine_info(),
     })
     print(f"wrote {args.json}")
@@ -887,6 +908,8 @@ def register_bench(sub) -> None:
     q.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                    help="train nothing: pool the seeds of earlier results made with the same protocol "
                         "(e.g. --seed 0 --seeds 3 and --seed 3 --seeds 3) into one table, plot and JSON")
+    q.add_argument("--n-boot", dest="n_boot", type=int, default=2000,
+                   help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default="runs/bench/active_learning.png")
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
