@@ -583,7 +583,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                      for s, both in boot.items() for key, b in both.items()],
                     ["strategy", "reading", "ratio", "median", "90% interval", "P(<=0.65)", "never"],
                     f"Seed bootstrap of the 2% label ratio to random ({n_boot} draws of the "
-                    f"{len(seeds)} seeds; '-' = never reached)")
+                    f"{len(seeds)} seeds; '-' = never reached, or random never reaches the line)")
     # Every (seed, round) pair against random: the table reads one point of a noisy mean curve.
     paired: dict[str, dict] = {}
     if "random" in curves:
