@@ -194,6 +194,7 @@ def test_subsample_and_normalize_padded():
         (dict(), {"train/mmd", "train/coral", "train/ce"}, set()),
         (dict(da_method="dann"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
         (dict(da_ramp_gamma=10.0), {"train/mmd", "train/da_scale"}, {"train/domain"}),
+        (dict(da_memory=6), {"train/mmd", "train/coral"}, {"train/domain"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -293,6 +294,42 @@ def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
             out_s, out_t = model._joint_forward(batch["source"], batch["target"])
         results[method] = mk_mmd(out_s.features["fc1"], out_t.features["fc1"]).item()
     assert results["vtloss"] < results["none"], results
+
+
+def test_da_memory_aligns_the_batch_followed_by_the_last_clouds():
+    """With ``da_memory`` VTLoss sees each domain's current features followed by those of the previous
+    batches (at most ``da_memory`` rows, without gradient); the alignment gradient of the current rows is
+    scaled by (rows in all) / (rows now)."""
+    loader = TinyCrossModalDM().train_dataloader()
+    b1, b2 = (b[0] for b in list(iter(loader))[:2])
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, dropout=0.0, da_memory=6).train()
+    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+    seen = []
+    forward = model.vtloss.forward
+    model.vtloss.forward = lambda *a, **k: seen.append(a) or forward(*a, **k)
+    model.training_step(b1, 0)
+    loss2 = model.training_step(b2, 1)
+    with torch.no_grad():  # train mode normalises by batch statistics: the same features again
+        s1, t1 = model._joint_forward(b1["source"], b1["target"])
+        s2, t2 = model._joint_forward(b2["source"], b2["target"])
+    assert seen[0][2]["fc1"].shape[0] == 4  # first step: the batch alone
+    for layer in ("fc1", "fc2"):  # second: the 4 current rows, then the previous 4
+        assert torch.allclose(seen[1][2][layer], torch.cat([s2.features[layer], s1.features[layer]]),
+                              atol=1e-5)
+        assert torch.allclose(seen[1][3][layer], torch.cat([t2.features[layer], t1.features[layer]]),
+                              atol=1e-5)
+    assert len(model._memory["source"]) == len(model._memory["target"]) == 6  # capacity: 2 of b1 dropped
+    # The same value as VTLoss on those rows; only the current rows' gradient differs (scaled 8/4).
+    expected, _ = model.vtloss(s2.logits, b2["source"]["label"], seen[1][2], seen[1][3])
+    assert loss2.item() == pytest.approx((expected + model._regulariser(s2)).item(), rel=1e-5)
+    leaf = {k: v.detach().requires_grad_() for k, v in s2.features.items()}
+    ext_s, _ = model._with_memory(leaf, t2.features)  # 4 rows now, 6 queued: gradient x 10/4
+    ext_s["fc1"].sum().backward()
+    assert torch.allclose(leaf["fc1"].grad, torch.full_like(leaf["fc1"], 2.5))
+    assert XAVTNet(**TINY, da_method="none", da_memory=6)._memory is None  # no alignment terms, no queue
+    with pytest.raises(ValueError, match="da_memory"):
+        XAVTNet(**TINY, da_memory=-1)
 
 
 def test_single_cloud_training_batch_is_skipped():

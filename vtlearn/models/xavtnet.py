@@ -44,6 +44,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
+from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
@@ -114,6 +115,12 @@ class XAVTNet(L.LightningModule):
         da_ramp_gamma: if set, VTLoss's MMD and CORAL terms are scaled by Ganin's ramp
             ``2/(1+exp(−γp)) − 1`` of the training progress ``p`` (the warm-up DAN and DANN use; beyond
             the thesis, whose eq. 7.8 weights are constant). ``None`` (default): constant weights.
+        da_memory: if > 0, VTLoss's MMD and CORAL terms see the current batch of each domain followed by
+            the detached fc features of that domain's last ``da_memory`` clouds
+            (:class:`~vtlearn.models.components.feature_queue.FeatureQueue`; beyond the thesis). The
+            current rows' alignment gradient is scaled by ``(batch + queued) / batch``, so a step
+            estimates the update of a batch that large at the cost of one batch. 0 (default): the batch
+            alone, as in eq. 7.8. Unused by the rows without MMD or CORAL (no-DA, DANN).
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -151,6 +158,7 @@ class XAVTNet(L.LightningModule):
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
+        da_memory: int = 0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -170,6 +178,8 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
         if da_ramp_gamma is not None and not (math.isfinite(da_ramp_gamma) and da_ramp_gamma > 0):
             raise ValueError(f"da_ramp_gamma: need a positive finite γ or None, got {da_ramp_gamma}")
+        if int(da_memory) != da_memory or da_memory < 0:
+            raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
         unknown = set(da_layers) - {"fc1", "fc2"}
@@ -194,6 +204,9 @@ class XAVTNet(L.LightningModule):
             mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
+        self._memory = (
+            {d: FeatureQueue(int(da_memory)) for d in DOMAINS} if da_memory and self.vtloss.adapts else None
+        )
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -364,7 +377,10 @@ class XAVTNet(L.LightningModule):
         if use_target and self.hparams.da_method == "vtloss":
             gamma = self.hparams.get("da_ramp_gamma")
             scale = 1.0 if gamma is None else dann_lambda(self._progress(), gamma)
-            loss, parts = self.vtloss(out_s.logits, y, out_s.features, out_t.features, da_scale=scale)
+            feats_s, feats_t = out_s.features, out_t.features
+            if self._memory is not None:
+                feats_s, feats_t = self._with_memory(feats_s, feats_t)
+            loss, parts = self.vtloss(out_s.logits, y, feats_s, feats_t, da_scale=scale)
             if gamma is not None:
                 parts["da_scale"] = torch.tensor(scale)
         elif use_target and self.hparams.da_method == "dann":
@@ -382,6 +398,19 @@ class XAVTNet(L.LightningModule):
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    def _with_memory(self, feats_s: dict, feats_t: dict) -> tuple[dict, dict]:
+        """The adapted layers' features of each domain followed by its queued ones (``da_memory``), the
+        current rows' gradient scaled by (rows in all) / (rows now); then the current rows are queued."""
+        out = []
+        for domain, feats in (("source", feats_s), ("target", feats_t)):
+            queue = self._memory[domain]
+            feats = {k: feats[k] for k in self.vtloss.layers}
+            b = next(iter(feats.values())).shape[0]
+            factor = (b + min(len(queue), queue.capacity)) / b
+            out.append(queue.extend({k: scale_grad(v, factor) for k, v in feats.items()}))
+            queue.push(feats)
+        return out[0], out[1]
 
     def _split_forward(self, src: dict, tgt: dict) -> tuple[XAVTNetOutput, XAVTNetOutput]:
         """One forward per domain, each normalised with its own batch statistics (``domain_bn``)."""
