@@ -121,6 +121,8 @@ class XAVTNet(L.LightningModule):
             current rows' alignment gradient is scaled by ``(batch + queued) / batch``, so a step
             estimates the update of a batch that large at the cost of one batch. 0 (default): the batch
             alone, as in eq. 7.8. Unused by the rows without MMD or CORAL (no-DA, DANN).
+        da_memory_rescale: scale the current rows' alignment gradient as above (default). ``False`` leaves
+            it as the loss gives it, ``batch / (batch + queued)`` of a real batch that large.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -159,6 +161,7 @@ class XAVTNet(L.LightningModule):
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
         da_memory: int = 0,
+        da_memory_rescale: bool = True,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -407,7 +410,7 @@ class XAVTNet(L.LightningModule):
             queue = self._memory[domain]
             feats = {k: feats[k] for k in self.vtloss.layers}
             b = next(iter(feats.values())).shape[0]
-            factor = (b + min(len(queue), queue.capacity)) / b
+            factor = (b + len(queue)) / b if self.hparams.get("da_memory_rescale", True) else 1.0
             out.append(queue.extend({k: scale_grad(v, factor) for k, v in feats.items()}))
             queue.push(feats)
         return out[0], out[1]
