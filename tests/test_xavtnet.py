@@ -327,6 +327,12 @@ def test_da_memory_aligns_the_batch_followed_by_the_last_clouds():
     ext_s, _ = model._with_memory(leaf, t2.features)  # 4 rows now, 6 queued: gradient x 10/4
     ext_s["fc1"].sum().backward()
     assert torch.allclose(leaf["fc1"].grad, torch.full_like(leaf["fc1"], 2.5))
+    plain = XAVTNet(**TINY, da_memory=6, da_memory_rescale=False)
+    plain._with_memory(s1.features, t1.features)
+    leaf = {k: v.detach().requires_grad_() for k, v in s2.features.items()}
+    ext_s, _ = plain._with_memory(leaf, t2.features)
+    ext_s["fc1"].sum().backward()
+    assert torch.allclose(leaf["fc1"].grad, torch.ones_like(leaf["fc1"]))  # unscaled
     assert XAVTNet(**TINY, da_method="none", da_memory=6)._memory is None  # no alignment terms, no queue
     with pytest.raises(ValueError, match="da_memory"):
         XAVTNet(**TINY, da_memory=-1)
