@@ -73,7 +73,7 @@ class PointNetEncoder(nn.Module):
         h = self.mlp1(x, mask)  # B x N x 64
         if self.feature_tnet is not None:
             trans_feat = self.feature_tnet(h, mask)
-            h = (h @ trans_feat).masked_fill(~mask[..., None], 0.0)
+            h = h @ trans_feat  # padded rows stay 0 (mlp1 zeroes them), and the pool reads valid rows only
         return self.mlp2.pooled(h, mask), trans_input, trans_feat  # B x global_dim
 
 
