@@ -128,6 +128,18 @@ def test_crossmodal_batches(cross_dir):
         )  # centred
 
 
+def test_crossmodal_target_batch_size_sets_the_target_stream_only(cross_dir):
+    dm = CrossModalDataModule(str(cross_dir), batch_size=2, target_batch_size=3)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))[0]
+    assert batch["source"]["points"].shape[0] == 2 and batch["target"]["points"].shape[0] == 3
+    assert dm.target_dataloader().batch_size == 3  # AdaBN reads the same stream
+    assert dm.test_dataloader().batch_size == dm.source_test_dataloader().batch_size == 2
+    assert CrossModalDataModule(str(cross_dir), batch_size=2).target_dataloader().batch_size == 2
+    with pytest.raises(ValueError, match="target_batch_size"):
+        CrossModalDataModule(str(cross_dir), target_batch_size=0)
+
+
 def test_crossmodal_target_split(cross_dir):
     """The unlabelled target stream holds the chosen split's tactile clouds (yaw-augmented, no labels);
     the labelled test loader is unchanged."""

@@ -165,8 +165,9 @@ class ShardedDataModule(pl.LightningDataModule):
             self._splits[split] = load_split(self.data_dir, split, self.verify)
         return self._splits[split]
 
-    def _loader(self, ds, shuffle: bool, collate_fn=None, persistent_workers: bool = True):
-        """A ``DataLoader`` over ``ds`` with the subclass's ``batch_size`` and ``num_workers``.
+    def _loader(self, ds, shuffle: bool, collate_fn=None, persistent_workers: bool = True,
+                batch_size: int | None = None):
+        """A ``DataLoader`` over ``ds`` with the subclass's ``batch_size`` (unless given) and ``num_workers``.
 
         ``collate_fn`` defaults to :func:`collate_clouds`; ``persistent_workers`` keeps worker processes
         between epochs (only when there are workers).
@@ -175,7 +176,7 @@ class ShardedDataModule(pl.LightningDataModule):
 
         return DataLoader(
             ds,
-            batch_size=self.batch_size,
+            batch_size=self.batch_size if batch_size is None else batch_size,
             shuffle=shuffle,
             num_workers=self.num_workers,
             collate_fn=collate_clouds if collate_fn is None else collate_fn,
