@@ -2,10 +2,11 @@
 
 Beyond the thesis. VTLoss (eq. 7.8) estimates MK-MMD (eq. 7.5-7.6) and CORAL (eq. 7.7) from one source and
 one target batch. docs/xavtnet.md measured that larger batches raise VTLoss's tactile accuracy by about
-1.7 points per doubling at equal steps, but the work doubles with them. A queue of the features of the
-last ``capacity`` clouds of each domain, appended to the current batch without gradient, gives the loss
-the statistics of ``batch + capacity`` clouds at the cost of one batch. The same idea holds the negative
-keys of MoCo (He et al., CVPR 2020) and the class centroids of memory-based UDA.
+1.7 points per doubling at about equal steps, but the work doubles with them. A queue of the features of
+the last ``capacity`` clouds of each domain, appended to the current batch without gradient, gives the
+loss the statistics of ``batch + capacity`` clouds at the cost of one batch, as MoCo's queue (He et al.,
+CVPR 2020) holds more negative keys than a batch. Measured there: at batch 32 a 224-cloud queue does not
+give batch 256's gain, so that gain is not the alignment statistics'.
 
 Only the current batch carries gradient. In a batch of ``n`` clouds each row's share of the gradient of
 a mean statistic is about ``1/n``, so the ``b`` current rows of ``n = b + capacity`` carry ``b/n`` of what
