@@ -29,6 +29,7 @@ def test_ablation_configs_match_bench_variants():
                                   "gpu/xavtnet.yaml", "cpu/xavtnet_lam500.yaml",
                                   "active_learning.yaml", "quick/active_learning.yaml",
                                   "cpu/active_learning.yaml", "cpu/active_learning_equal.yaml",
+                                  "cpu/active_learning_converged.yaml",
                                   "cpu/xavtnet_episodes.yaml", "cpu/xavtnet_tactile.yaml",
                                   "cpu/xavtnet_touchsim.yaml", "cpu/xavtnet_ramp.yaml",
                                   "cpu/xavtnet_balance.yaml", "cpu/xavtnet_objects.yaml",
