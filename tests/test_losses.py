@@ -1,4 +1,4 @@
-"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8)."""
+"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8) and information maximisation."""
 
 import math
 
@@ -14,6 +14,7 @@ from vtlearn.losses import (
     domain_adversarial_loss,
     gaussian_bandwidths,
     grad_reverse,
+    information_maximization,
     mk_mmd,
 )
 
@@ -256,3 +257,38 @@ def test_dann_schedule_and_domain_loss():
     ls = torch.randn(3, dtype=torch.float64, requires_grad=True)
     lt = torch.randn(4, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(domain_adversarial_loss, (ls, lt))
+
+
+def test_information_maximization_hand_computed():
+    logits = torch.tensor([[0.0, math.log(3.0)], [math.log(3.0), 0.0]], dtype=torch.float64)
+    # p_1 = (1/4, 3/4), p_2 = (3/4, 1/4): H(p_i) = -(1/4 ln 1/4 + 3/4 ln 3/4), p̄ = (1/2, 1/2): H = ln 2
+    h = -(0.25 * math.log(0.25) + 0.75 * math.log(0.75))
+    loss, parts = information_maximization(logits)
+    assert loss.item() == pytest.approx(h - math.log(2.0))
+    assert parts["cond_entropy"].item() == pytest.approx(h)
+    assert parts["marginal_entropy"].item() == pytest.approx(math.log(2.0))
+
+
+def test_information_maximization_bounds_and_gradient():
+    k = 4
+    # identical predictions on every cloud, uniform or confident: L_IM = 0
+    assert information_maximization(torch.zeros(5, k))[0].item() == pytest.approx(0.0, abs=1e-6)
+    same = torch.tensor([[30.0, 0, 0, 0]]).repeat(5, 1)
+    assert information_maximization(same)[0].item() == pytest.approx(0.0, abs=1e-6)
+    # confident predictions using every class equally: the minimum, -log k
+    spread = 30.0 * torch.eye(k).repeat(2, 1)
+    assert information_maximization(spread)[0].item() == pytest.approx(-math.log(k), abs=1e-6)
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(6, k, generator=g, dtype=torch.float64)
+    value = information_maximization(x)[0].item()
+    assert -math.log(k) <= value <= math.log(k)
+    assert torch.autograd.gradcheck(lambda z: information_maximization(z)[0], (x.requires_grad_(True),))
+
+
+@pytest.mark.parametrize("bad,match", [(torch.zeros(3), "shape"), (torch.zeros(0, 3), "shape"),
+                                       (torch.zeros(3, 1), "shape"),
+                                       (torch.tensor([[0.0, float("nan")]]), "NaN"),
+                                       ([[0.0, 1.0]], "torch.Tensor")])
+def test_information_maximization_rejects_bad_input(bad, match):
+    with pytest.raises(ValueError, match=match):
+        information_maximization(bad)

@@ -195,6 +195,8 @@ def test_subsample_and_normalize_padded():
         (dict(da_method="dann"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
         (dict(da_ramp_gamma=10.0), {"train/mmd", "train/da_scale"}, {"train/domain"}),
         (dict(da_memory=6), {"train/mmd", "train/coral"}, {"train/domain"}),
+        (dict(im_weight=1.0), {"train/mmd", "train/im", "train/cond_entropy"}, {"train/domain"}),
+        (dict(da_method="none", im_weight=1.0), {"train/im", "train/marginal_entropy"}, {"train/mmd"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -294,6 +296,44 @@ def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
             out_s, out_t = model._joint_forward(batch["source"], batch["target"])
         results[method] = mk_mmd(out_s.features["fc1"], out_t.features["fc1"]).item()
     assert results["vtloss"] < results["none"], results
+
+
+def test_im_weight_adds_the_target_information_maximisation():
+    """``im_weight`` adds w·L_IM of the target logits to the loss, and training with it makes the target
+    predictions more confident than no-DA's after the same steps while they keep using several classes."""
+    from vtlearn.losses import information_maximization
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, da_method="none", im_weight=2.5, dropout=0.0).train()
+    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+    torch.manual_seed(1)
+    loss = model.training_step(batch, 0)
+    torch.manual_seed(1)  # the same subsampling of the clouds
+    out_s, out_t = model._joint_forward(batch["source"], batch["target"])
+    ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
+    im = information_maximization(out_t.logits)[0]
+    expected = model.hparams.alpha * ce + 2.5 * im + model._regulariser(out_s)
+    assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+
+    entropy = {}
+    for weight in (0.0, 10.0):
+        torch.manual_seed(0)
+        model = XAVTNet(**TINY, da_method="none", im_weight=weight, dropout=0.0).train()
+        model._log_train = lambda *a, **k: None
+        opt = model.configure_optimizers()
+        for _ in range(10):
+            loss = model.training_step(batch, 0)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            _, out_t = model._joint_forward(batch["source"], batch["target"])
+        entropy[weight] = information_maximization(out_t.logits)[1]
+    assert entropy[10.0]["cond_entropy"] < entropy[0.0]["cond_entropy"], entropy
+    assert entropy[10.0]["marginal_entropy"] > 0.5, entropy  # not collapsed onto one of the 3 classes
+    with pytest.raises(ValueError, match="im_weight"):
+        XAVTNet(**TINY, im_weight=-1.0)
 
 
 def test_da_memory_aligns_the_batch_followed_by_the_last_clouds():

@@ -1,7 +1,8 @@
-"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7) and DANN gradient reversal."""
+"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7), DANN gradient reversal and information maximisation."""
 
 from vtlearn.losses.coral import coral, covariance
 from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
+from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.mmd import gaussian_bandwidths, mk_mmd, multi_kernel_matrix
 from vtlearn.losses.vtloss import VTLoss
 
@@ -16,4 +17,5 @@ __all__ = [
     "grad_reverse",
     "dann_lambda",
     "domain_adversarial_loss",
+    "information_maximization",
 ]

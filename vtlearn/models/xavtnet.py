@@ -18,6 +18,10 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 * ``"dann"``: DANN (Ganin et al. 2016), beyond the thesis: a domain discriminator on fc2 behind a
   gradient reversal layer whose λ follows Ganin's ramp over training; loss ``α·CE + dann_weight·L_dom``.
 
+``im_weight > 0`` (beyond the thesis) adds ``im_weight·L_IM`` of the target batch's logits to any of
+them, the information maximisation of :mod:`vtlearn.losses.info_max` (confident target predictions that
+use every class); with ``da_method="none"`` it is the only use of the target stream.
+
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
@@ -42,6 +46,7 @@ from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
+from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
@@ -123,6 +128,9 @@ class XAVTNet(L.LightningModule):
             alone, as in eq. 7.8. Unused by the rows without MMD or CORAL (no-DA, DANN).
         da_memory_rescale: scale the current rows' alignment gradient as above (default). ``False`` leaves
             it as the loss gives it, ``batch / (batch + queued)`` of a real batch that large.
+        im_weight: weight of the information-maximisation loss on the target batch's logits
+            (:func:`~vtlearn.losses.info_max.information_maximization`, beyond the thesis), added to the
+            loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -162,6 +170,7 @@ class XAVTNet(L.LightningModule):
         da_ramp_gamma: float | None = None,
         da_memory: int = 0,
         da_memory_rescale: bool = True,
+        im_weight: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -183,6 +192,8 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"da_ramp_gamma: need a positive finite γ or None, got {da_ramp_gamma}")
         if int(da_memory) != da_memory or da_memory < 0:
             raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
+        if not (math.isfinite(im_weight) and im_weight >= 0):
+            raise ValueError(f"im_weight: need a finite weight >= 0, got {im_weight}")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
         unknown = set(da_layers) - {"fc1", "fc2"}
@@ -365,7 +376,8 @@ class XAVTNet(L.LightningModule):
         src, tgt = batch["source"], batch["target"]
         y = src["label"]
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
-        adapts = self.vtloss.adapts or self.discriminator is not None
+        im_weight = self.hparams.get("im_weight", 0.0)
+        adapts = self.vtloss.adapts or self.discriminator is not None or im_weight > 0
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         if use_target:
             out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
@@ -398,6 +410,10 @@ class XAVTNet(L.LightningModule):
         else:
             ce = F.cross_entropy(out_s.logits, y)
             loss, parts = self.hparams.alpha * ce, {"ce": ce.detach()}
+        if use_target and im_weight > 0:
+            im, im_parts = information_maximization(out_t.logits)
+            loss = loss + im_weight * im
+            parts = {**parts, "im": im.detach(), **im_parts}
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
