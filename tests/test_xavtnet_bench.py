@@ -112,6 +112,13 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "tactile_oracle", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0
     assert [r["variant"] for r in json.loads(out2.read_text())["runs"]] == ["tactile_oracle"]
+    # each information-maximisation row (beyond the thesis) is compared with no-DA
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_im", "--seeds", "1",
+                 "--no-figures", "--json", str(out2)]) == 0
+    res3 = json.loads(out2.read_text())
+    assert [r["variant"] for r in res3["rows"]] == ["noda", "vtloss_im"]
+    assert res3["checks"]["vtloss_im_minus_noda"] == pytest.approx(
+        res3["rows"][1]["tactile_mean"] - res3["rows"][0]["tactile_mean"])
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "bogus",
                  "--json", str(out2)]) == 2
     # --source-points reaches the datamodule and is recorded; a bad range is refused by name
