@@ -278,6 +278,25 @@ def test_merge_active_learning_runs_protocol_rules(tmp_path):
     f = _al_result(tmp_path / "f.json", [5], kappa=64)
     with pytest.raises(ValueError, match="kappa"):
         merge_active_learning_runs([a, f])
+    # runs of other strategies on the same seeds are joined first, then pooled with other seeds
+    g = _al_result(tmp_path / "g.json", [0, 1], min_steps=250)
+    doc = json.loads(Path(g).read_text())
+    doc["curves"] = {"bald": doc["curves"]["entropy"]}
+    Path(g).write_text(json.dumps(doc))
+    meta, runs = merge_active_learning_runs([a, g])
+    assert list(runs) == ["entropy", "random", "bald"] and meta["seeds"] == [0, 1]
+    assert meta["full_acc"] == [0.9, 0.9] and meta["active"]["strategies"] == "entropy,random,bald"
+    meta, runs = merge_active_learning_runs([a, g, b])  # seed 3 has no bald: the common strategies
+    assert list(runs) == ["entropy", "random"] and meta["seeds"] == [0, 1, 3]
+    with pytest.raises(ValueError, match="repeat seeds"):  # the same (seed, strategy) twice
+        merge_active_learning_runs([a, a])
+    h = _al_result(tmp_path / "h.json", [1, 2])
+    with pytest.raises(ValueError, match="without having the same seeds"):
+        merge_active_learning_runs([a, h])
+    doc["full_acc"] = [0.9, 0.8]
+    Path(g).write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="other full-pool references"):
+        merge_active_learning_runs([a, g])
 
 
 def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_crossmodal, capsys):

@@ -483,10 +483,14 @@ _MERGE_ACTIVE_KEYS = ("n0", "kappa", "rounds", "mc_passes", "warm_start", "min_s
 def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]:
     """Pool the seeds of several `bench active-learning` JSONs made with the same protocol.
 
-    Returns the merged metadata and ``{strategy: [per-seed round histories]}`` for the strategies every
-    file has. Raises ValueError if a file is missing, is not an active-learning result, differs in the
-    protocol (model, data, pool, training length, n₀, κ, rounds, ...) or repeats a seed. Results
-    written before the model was recorded are compared on everything else.
+    Files with the same seeds and the same full-pool references (runs of other strategies on those seeds,
+    e.g. ``--strategies bald`` after ``--strategies entropy,random``) are joined strategy by strategy
+    first; the groups of different seeds are then pooled. Returns the merged metadata and ``{strategy:
+    [per-seed round histories]}`` for the strategies every group has. Raises ValueError if a file is
+    missing, is not an active-learning result, differs in the protocol (model, data, pool, training
+    length, n₀, κ, rounds, ...), repeats a (seed, strategy) pair, shares some seeds but not all with
+    another file, or has the seeds of another with different references. Results written before the model
+    was recorded are compared on everything else.
     """
     docs = []
     for path in paths:
@@ -511,18 +515,37 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
             if doc["active"].get(key) != first["active"].get(key):
                 raise ValueError(f"merge: {path} has active.{key}={doc['active'].get(key)!r}, {paths[0]} has "
                                  f"{first['active'].get(key)!r}")
-    seeds = [s for doc in docs for s in doc["seeds"]]
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"merge: the files repeat seeds {sorted(seeds)}; each seed may appear once")
-    strategies = [s for s in first["curves"] if all(s in doc["curves"] for doc in docs)]
+    groups: dict[tuple, dict] = {}  # seeds -> {"path", "full_acc", "curves"} joined over strategies
+    for path, doc in zip(paths, docs, strict=True):
+        key = tuple(doc["seeds"])
+        group = groups.get(key)
+        if group is None:
+            shared = [s for k in groups for s in k if s in key]
+            if shared:
+                raise ValueError(f"merge: {path} and another file repeat seeds {sorted(set(shared))} "
+                                 "without having the same seeds; each seed may appear in one group of files")
+            groups[key] = {"path": path, "full_acc": doc["full_acc"], "curves": dict(doc["curves"])}
+            continue
+        both = sorted(set(group["curves"]) & set(doc["curves"]))
+        if both:
+            raise ValueError(f"merge: {path} and {group['path']} repeat seeds {list(key)} with the "
+                             f"strategies {both}; each (seed, strategy) may appear once")
+        if doc["full_acc"] != group["full_acc"]:
+            raise ValueError(f"merge: {path} has the seeds of {group['path']} but other full-pool "
+                             f"references ({doc['full_acc']} against {group['full_acc']}), so it is not the "
+                             "same protocol")
+        group["curves"].update(doc["curves"])
+    strategies = [s for s in dict.fromkeys(s for g in groups.values() for s in g["curves"])
+                  if all(s in g["curves"] for g in groups.values())]
     if not strategies:
         raise ValueError("merge: the files have no strategy in common")
-    runs = {s: [r for doc in docs for r in doc["curves"][s]["runs"]] for s in strategies}
+    runs = {s: [r for g in groups.values() for r in g["curves"][s]["runs"]] for s in strategies}
+    seeds = [s for key in groups for s in key]
     meta = {key: first.get(key) for key in _MERGE_KEYS}
     meta["model"] = next((doc["model"] for doc in docs if "model" in doc), None)
     meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
                  "strategies": ",".join(strategies)}, "seeds": seeds,
-                 "full_acc": [a for doc in docs for a in doc["full_acc"]],
+                 "full_acc": [a for g in groups.values() for a in g["full_acc"]],
                  "accelerator": [doc.get("accelerator") for doc in docs], "merged_from": list(paths)})
     return meta, runs
 
@@ -916,7 +939,9 @@ def register_bench(sub) -> None:
                    help="(strategy, seed) loops and full-pool references run in parallel processes")
     q.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                    help="train nothing: pool the seeds of earlier results made with the same protocol "
-                        "(e.g. --seed 0 --seeds 3 and --seed 3 --seeds 3) into one table, plot and JSON")
+                        "(e.g. --seed 0 --seeds 3 and --seed 3 --seeds 3) into one table, plot and JSON; "
+                        "files of the same seeds with other strategies (e.g. --strategies bald) are "
+                        "joined first")
     q.add_argument("--n-boot", dest="n_boot", type=int, default=2000,
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default="runs/bench/active_learning.png")
