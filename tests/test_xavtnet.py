@@ -149,7 +149,7 @@ def test_xavtnet_shapes_and_input_checks():
     with pytest.raises(ValueError, match="da_method"):
         XAVTNet(da_method="mmd")
     with pytest.raises(ValueError, match="da_layers"):
-        XAVTNet(da_layers=["fc3"])
+        XAVTNet(da_layers=["fc4"])
 
 
 def test_untrained_tnet_is_identity_and_regulariser():
@@ -196,6 +196,7 @@ def test_subsample_and_normalize_padded():
         (dict(da_ramp_gamma=10.0), {"train/mmd", "train/da_scale"}, {"train/domain"}),
         (dict(da_memory=6), {"train/mmd", "train/coral"}, {"train/domain"}),
         (dict(im_weight=1.0), {"train/mmd", "train/im", "train/cond_entropy"}, {"train/domain"}),
+        (dict(da_layers=["fc1", "fc2", "fc3"]), {"train/mmd_fc3", "train/coral_fc3"}, {"train/domain"}),
         (dict(da_method="none", im_weight=1.0), {"train/im", "train/marginal_entropy"}, {"train/mmd"}),
     ],
 )

@@ -113,7 +113,9 @@ class XAVTNet(L.LightningModule):
         input_transform, feature_transform: the 3×3 and 64×64 T-nets.
         feature_transform_weight: weight of the orthogonality regulariser (PointNet: 0.001).
         da_method: "none", "vtloss" or "dann" (see module docstring).
-        use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows).
+        use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows). ``da_layers`` may also name
+            ``"fc3"``, the k logits (beyond the thesis, whose eq. 7.8 adapts fc1 and fc2): DAN adapts
+            fc6-fc8 of AlexNet, its logits included, and Deep CORAL applies CORAL to fc8 only.
         alpha, beta, lam: VTLoss weights α, β, λ (thesis: 10, 10, 10).
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
         dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
@@ -196,9 +198,9 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"im_weight: need a finite weight >= 0, got {im_weight}")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
-        unknown = set(da_layers) - {"fc1", "fc2"}
+        unknown = set(da_layers) - {"fc1", "fc2", "fc3"}
         if unknown:
-            raise ValueError(f"da_layers may only contain 'fc1' and 'fc2', got {sorted(unknown)}")
+            raise ValueError(f"da_layers may only contain 'fc1', 'fc2' and 'fc3', got {sorted(unknown)}")
         if class_names is not None:
             class_names = [str(n) for n in class_names]
             if len(class_names) != num_classes:
@@ -393,6 +395,8 @@ class XAVTNet(L.LightningModule):
             gamma = self.hparams.get("da_ramp_gamma")
             scale = 1.0 if gamma is None else dann_lambda(self._progress(), gamma)
             feats_s, feats_t = out_s.features, out_t.features
+            if "fc3" in self.vtloss.layers:  # the k logits, the layer DAN and Deep CORAL adapt
+                feats_s, feats_t = {**feats_s, "fc3": out_s.logits}, {**feats_t, "fc3": out_t.logits}
             if self._memory is not None:
                 feats_s, feats_t = self._with_memory(feats_s, feats_t)
             loss, parts = self.vtloss(out_s.logits, y, feats_s, feats_t, da_scale=scale)

@@ -49,9 +49,13 @@ VARIANTS: dict[str, dict] = {
     "noda_im": {"da_method": "none", "im_weight": 10.0},
     "vtloss_im": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"],
                   "im_weight": 10.0},
+    # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
+    # layer and Deep CORAL its fc8.
+    "vtloss_fc123": {"da_method": "vtloss", "use_mmd": True, "use_coral": True,
+                     "da_layers": ["fc1", "fc2", "fc3"]},
 }
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
