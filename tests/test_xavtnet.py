@@ -284,19 +284,25 @@ def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
     results = {}
     for method in ("none", "vtloss"):
-        torch.manual_seed(0)
-        model = XAVTNet(**TINY, da_method=method, dropout=0.0).train()
-        model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
-        opt = model.configure_optimizers()
-        for _ in range(10):
-            loss = model.training_step(batch, 0)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        with torch.no_grad():
-            out_s, out_t = model._joint_forward(batch["source"], batch["target"])
+        out_s, out_t = _trained_joint_outputs(batch, da_method=method)
         results[method] = mk_mmd(out_s.features["fc1"], out_t.features["fc1"]).item()
     assert results["vtloss"] < results["none"], results
+
+
+def _trained_joint_outputs(batch, steps=10, **kwargs):
+    """Train a tiny XAVTNet (seed 0, no dropout) for ``steps`` steps on one two-stream batch; return the
+    joint forward's (source, target) outputs on that batch, without gradient."""
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, dropout=0.0, **kwargs).train()
+    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+    opt = model.configure_optimizers()
+    for _ in range(steps):
+        loss = model.training_step(batch, 0)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        return model._joint_forward(batch["source"], batch["target"])
 
 
 def test_im_weight_adds_the_target_information_maximisation():
@@ -319,17 +325,7 @@ def test_im_weight_adds_the_target_information_maximisation():
 
     entropy = {}
     for weight in (0.0, 10.0):
-        torch.manual_seed(0)
-        model = XAVTNet(**TINY, da_method="none", im_weight=weight, dropout=0.0).train()
-        model._log_train = lambda *a, **k: None
-        opt = model.configure_optimizers()
-        for _ in range(10):
-            loss = model.training_step(batch, 0)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        with torch.no_grad():
-            _, out_t = model._joint_forward(batch["source"], batch["target"])
+        _, out_t = _trained_joint_outputs(batch, da_method="none", im_weight=weight)
         entropy[weight] = information_maximization(out_t.logits)[1]
     assert entropy[10.0]["cond_entropy"] < entropy[0.0]["cond_entropy"], entropy
     assert entropy[10.0]["marginal_entropy"] > 0.5, entropy  # not collapsed onto one of the 3 classes
