@@ -281,7 +281,7 @@ def test_information_maximization_bounds_and_gradient():
     g = torch.Generator().manual_seed(0)
     x = torch.randn(6, k, generator=g, dtype=torch.float64)
     value = information_maximization(x)[0].item()
-    assert -math.log(k) <= value <= math.log(k)
+    assert -math.log(k) <= value <= 1e-12  # H(mean p) >= mean H(p): the entropy is concave
     assert torch.autograd.gradcheck(lambda z: information_maximization(z)[0], (x.requires_grad_(True),))
 
 

@@ -8,9 +8,10 @@ cannot be met by putting every cloud in one class. This is the regularised infor
 of Krause, Perona and Gomes (NIPS 2010), used for unsupervised domain adaptation by Shi and Sha (ICML
 2012) and as the "IM" loss of SHOT (Liang, Hu and Feng, ICML 2020). Thesis eq. 7.8 aligns the marginal
 feature distributions only; this term adds what those papers found the alignment lacks, a target
-decision boundary that avoids dense regions of target data. Entropies are in nats, so for k classes
-``−log k ≤ L_IM ≤ log k``: ``−log k`` for confident predictions that use every class equally often, 0
-for identical predictions (confident or uniform) on every cloud.
+decision boundary that avoids dense regions of target data. Entropies are in nats, and the entropy
+is concave (H(p̄) ≥ mean H(p_i)), so for k classes ``−log k ≤ L_IM ≤ 0``: ``−log k`` for confident
+predictions that use every class equally often, 0 for identical predictions (confident or uniform) on
+every cloud.
 """
 
 from __future__ import annotations
