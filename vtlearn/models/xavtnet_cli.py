@@ -29,30 +29,28 @@ from vtlearn.bench_utils import csv_list, save_figure
 log = logging.getLogger(__name__)
 
 # Table 7.2/7.4 rows -> XAVTNet overrides; configs/xavtnet_ablation/<name>.yaml hold the same values.
+_VTLOSS = {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"]}
 VARIANTS: dict[str, dict] = {
     "noda": {"da_method": "none"},
-    "mmd": {"da_method": "vtloss", "use_mmd": True, "use_coral": False, "da_layers": ["fc1", "fc2"]},
-    "coral": {"da_method": "vtloss", "use_mmd": False, "use_coral": True, "da_layers": ["fc1", "fc2"]},
-    "vtloss_fc1": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1"]},
-    "vtloss_fc2": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc2"]},
-    "vtloss": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"]},
+    "mmd": {**_VTLOSS, "use_coral": False},
+    "coral": {**_VTLOSS, "use_mmd": False},
+    "vtloss_fc1": {**_VTLOSS, "da_layers": ["fc1"]},
+    "vtloss_fc2": {**_VTLOSS, "da_layers": ["fc2"]},
+    "vtloss": _VTLOSS,
     "dann": {"da_method": "dann"},
     # Beyond the thesis: batch-norm statistics per domain during training (models/components/domain_bn.py).
     # "noda_dbn" is no-DA whose target statistics follow the unlabelled tactile stream (AdaBN online);
     # "vtloss_dbn" is VTLoss with each domain normalised by its own statistics (DSBN, shared affine
     # parameters). --adabn re-estimates the target statistics of any row after training instead.
     "noda_dbn": {"da_method": "none", "domain_bn": True},
-    "vtloss_dbn": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"],
-                   "domain_bn": True},
+    "vtloss_dbn": {**_VTLOSS, "domain_bn": True},
     # Beyond the thesis: information maximisation on the target logits (losses/info_max.py), weighted
     # equally with the cross-entropy (im_weight = α = 10), alone ("noda_im") and added to VTLoss.
     "noda_im": {"da_method": "none", "im_weight": 10.0},
-    "vtloss_im": {"da_method": "vtloss", "use_mmd": True, "use_coral": True, "da_layers": ["fc1", "fc2"],
-                  "im_weight": 10.0},
+    "vtloss_im": {**_VTLOSS, "im_weight": 10.0},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
-    "vtloss_fc123": {"da_method": "vtloss", "use_mmd": True, "use_coral": True,
-                     "da_layers": ["fc1", "fc2", "fc3"]},
+    "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},
 }
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123")
