@@ -15,6 +15,7 @@ from vtlearn.losses import (
     gaussian_bandwidths,
     grad_reverse,
     information_maximization,
+    local_mmd,
     mk_mmd,
 )
 
@@ -233,6 +234,85 @@ def test_vtloss_gradcheck_and_errors():
         VTLoss(layers=("fc3",))(logits, labels, fs, ft)
     with pytest.raises(ValueError, match="features_source"):
         loss(logits, labels)
+
+
+def naive_local_mmd(xs, ys, xt, pt, h):
+    """DSAN's LMMD written out: per class present in both domains, a weighted V-statistic over pairs."""
+
+    def k(a, b):
+        d2 = sum((float(a[i]) - float(b[i])) ** 2 for i in range(len(a)))
+        return sum(math.exp(-d2 / float(hu)) for hu in h) / len(h)
+
+    ncls = len(pt[0])
+    pred = {max(range(ncls), key=lambda c: row[c]) for row in pt}
+    classes = [c for c in range(ncls) if c in set(ys) and c in pred]
+    total = 0.0
+    for c in classes:
+        ws = [1.0 if y == c else 0.0 for y in ys]
+        ws = [w / sum(ws) for w in ws]
+        wt = [row[c] for row in pt]
+        wt = [w / sum(wt) for w in wt]
+        ss = sum(ws[i] * ws[j] * k(xs[i], xs[j]) for i in range(len(xs)) for j in range(len(xs)))
+        tt = sum(wt[i] * wt[j] * k(xt[i], xt[j]) for i in range(len(xt)) for j in range(len(xt)))
+        st = sum(ws[i] * wt[j] * k(xs[i], xt[j]) for i in range(len(xs)) for j in range(len(xt)))
+        total += ss + tt - 2 * st
+    return total / len(classes)
+
+
+def test_local_mmd_matches_naive_loop_and_is_mk_mmd_for_one_class():
+    g = torch.Generator().manual_seed(3)
+    xs = torch.randn(8, 3, generator=g, dtype=torch.float64)
+    xt = torch.randn(6, 3, generator=g, dtype=torch.float64) + 0.3
+    ys = torch.tensor([0, 1, 2, 0, 1, 1, 0, 2])
+    pt = torch.randn(6, 4, generator=g, dtype=torch.float64).softmax(-1)  # class 3 never in the source
+    h = gaussian_bandwidths(torch.cat([xs, xt]))
+    got = local_mmd(xs, xt, ys, pt)
+    assert got.item() == pytest.approx(naive_local_mmd(xs.tolist(), ys.tolist(), xt.tolist(), pt.tolist(),
+                                                       h.tolist()), rel=1e-10)
+    one = local_mmd(xs, xt, torch.zeros(8, dtype=torch.long), torch.ones(6, 1, dtype=torch.float64))
+    assert one.item() == pytest.approx(mk_mmd(xs, xt).item(), rel=1e-12)
+
+
+def test_local_mmd_sees_a_class_swap_the_marginal_mmd_cannot():
+    g = torch.Generator().manual_seed(4)
+    a = torch.randn(20, 2, generator=g, dtype=torch.float64) * 0.1
+    b = a + torch.tensor([3.0, 0.0], dtype=torch.float64)
+    xs, ys = torch.cat([a, b]), torch.tensor([0] * 20 + [1] * 20)
+    xt = xs.clone()  # the same marginal ...
+    right = torch.nn.functional.one_hot(ys, 2).to(torch.float64)
+    swapped = right.flip(1)  # ... with the classes the other way round
+    assert mk_mmd(xs, xt).item() == pytest.approx(0.0, abs=1e-12)
+    assert local_mmd(xs, xt, ys, right).item() == pytest.approx(0.0, abs=1e-12)
+    assert local_mmd(xs, xt, ys, swapped).item() > 0.5
+    # the gradient reaches the features, never the (detached) target probabilities
+    feats = xt.clone().requires_grad_(True)
+    probs = swapped.clone().requires_grad_(True)
+    local_mmd(xs, feats, ys, probs).backward()
+    assert feats.grad.abs().sum() > 0 and probs.grad is None
+
+
+def test_local_mmd_in_vtloss_and_bad_input():
+    logits, labels, fs, ft = _feats(9)
+    probs = torch.randn(ft["fc1"].shape[0], 3, dtype=torch.float64).softmax(-1)
+    total, parts = VTLoss(mmd_conditional=True, use_coral=False)(logits, labels, fs, ft, target_probs=probs)
+    ce = torch.nn.functional.cross_entropy(logits, labels)
+    lmmd = local_mmd(fs["fc1"], ft["fc1"], labels, probs) + local_mmd(fs["fc2"], ft["fc2"], labels, probs)
+    assert total.item() == pytest.approx((10 * ce + 10 * lmmd).item())
+    with pytest.raises(ValueError, match="target_probs"):
+        VTLoss(mmd_conditional=True)(logits, labels, fs, ft)
+    with pytest.raises(ValueError, match="mmd_unbiased"):
+        VTLoss(mmd_conditional=True, mmd_unbiased=True)
+    xs, xt = fs["fc1"], ft["fc1"]
+    with pytest.raises(ValueError, match="target_probs"):
+        local_mmd(xs, xt, labels, probs[:-1])
+    with pytest.raises(ValueError, match="target_probs"):
+        local_mmd(xs, xt, labels, -probs)
+    with pytest.raises(ValueError, match="source_labels"):
+        local_mmd(xs, xt, labels.double(), probs)
+    with pytest.raises(ValueError, match="source_labels"):
+        local_mmd(xs, xt, labels + 3, probs)
+    with pytest.raises(ValueError, match="target"):
+        local_mmd(xs, xt * float("nan"), labels, probs)
 
 
 def test_grad_reverse_flips_and_scales_gradient():

@@ -130,7 +130,7 @@ def test_xavtnet_padding_does_not_change_outputs(train_mode):
     out_a = model(points, lengths)
     out_b = model(padded, lengths)
     assert torch.allclose(out_a.logits, out_b.logits, atol=1e-5)
-    for name in ("fc1", "fc2"):
+    for name in ("global", "fc1", "fc2"):
         assert torch.allclose(out_a.features[name], out_b.features[name], atol=1e-5)
 
 
@@ -139,6 +139,9 @@ def test_xavtnet_shapes_and_input_checks():
     out = model(torch.randn(2, 7, 3), torch.tensor([7, 4]))
     assert out.logits.shape == (2, 3)
     assert out.features["fc1"].shape == (2, 16) and out.features["fc2"].shape == (2, 8)
+    # "global" is the max-pooled PointNet feature, the input of fc1 (the layer da_layers may name)
+    assert out.features["global"].shape == (2, TINY["global_dim"])
+    assert torch.allclose(model.head.fc1(out.features["global"]), out.features["fc1"], atol=1e-6)
     assert out.trans_input.shape == (2, 3, 3) and out.trans_feat.shape == (2, 64, 64)
     with pytest.raises(ValueError, match="points"):
         model(torch.randn(2, 7))
@@ -150,6 +153,8 @@ def test_xavtnet_shapes_and_input_checks():
         XAVTNet(da_method="mmd")
     with pytest.raises(ValueError, match="da_layers"):
         XAVTNet(da_layers=["fc4"])
+    with pytest.raises(ValueError, match="mmd_conditional"):
+        XAVTNet(mmd_conditional=True, da_memory=8)
 
 
 def test_untrained_tnet_is_identity_and_regulariser():
@@ -197,6 +202,9 @@ def test_subsample_and_normalize_padded():
         (dict(da_memory=6), {"train/mmd", "train/coral"}, {"train/domain"}),
         (dict(im_weight=1.0), {"train/mmd", "train/im", "train/cond_entropy"}, {"train/domain"}),
         (dict(da_layers=["fc1", "fc2", "fc3"]), {"train/mmd_fc3", "train/coral_fc3"}, {"train/domain"}),
+        (dict(da_layers=["global", "fc1"]), {"train/mmd_global", "train/coral_global"}, {"train/mmd_fc2"}),
+        (dict(mmd_conditional=True, da_ramp_gamma=10.0), {"train/mmd_fc1", "train/da_scale"},
+         {"train/domain"}),
         (dict(da_method="none", im_weight=1.0), {"train/im", "train/marginal_entropy"}, {"train/mmd"}),
     ],
 )

@@ -1,8 +1,10 @@
-"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7), DANN gradient reversal and information maximisation."""
+"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7); beyond it DANN gradient reversal, information
+maximisation and DSAN's class-conditional LMMD."""
 
 from vtlearn.losses.coral import coral, covariance
 from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
+from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import gaussian_bandwidths, mk_mmd, multi_kernel_matrix
 from vtlearn.losses.vtloss import VTLoss
 
@@ -10,6 +12,7 @@ __all__ = [
     "coral",
     "covariance",
     "mk_mmd",
+    "local_mmd",
     "gaussian_bandwidths",
     "multi_kernel_matrix",
     "VTLoss",

@@ -19,6 +19,9 @@ VTLoss fc1         ``layers=("fc1",)``
 VTLoss fc2         ``layers=("fc2",)``
 VTLoss             defaults
 =================  =====================================================
+
+Beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional LMMD of
+DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class probabilities.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from vtlearn.losses.coral import coral
+from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import mk_mmd
 
 __all__ = ["VTLoss"]
@@ -45,10 +49,13 @@ class VTLoss(nn.Module):
             (xAVTNet exposes ``"fc1"`` and ``"fc2"``).
         use_mmd, use_coral: switch the MK-MMD and CORAL terms on or off.
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD options (see :func:`mk_mmd`).
+        mmd_conditional: the class-conditional LMMD (:func:`~vtlearn.losses.lmmd.local_mmd`, biased
+            estimator) in place of MK-MMD; ``forward`` then needs ``target_probs``.
 
     Shapes:
         logits_source (n_s, k), labels_source (n_s,) int64,
-        features_source[name] (n_s, d_name), features_target[name] (n_t, d_name)
+        features_source[name] (n_s, d_name), features_target[name] (n_t, d_name),
+        target_probs (n_t, k) (``mmd_conditional`` only)
         -> (scalar total, dict of detached scalar parts: "ce", "mmd", "coral", "mmd_<layer>", ...)
     """
 
@@ -63,6 +70,7 @@ class VTLoss(nn.Module):
         mmd_num_kernels: int = 5,
         mmd_kernel_mul: float = 2.0,
         mmd_unbiased: bool = False,
+        mmd_conditional: bool = False,
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
@@ -72,12 +80,15 @@ class VTLoss(nn.Module):
             layers = (layers,)
         if (use_mmd or use_coral) and len(layers) == 0:
             raise ValueError("layers must name at least one layer when MMD or CORAL is on")
+        if mmd_conditional and mmd_unbiased:
+            raise ValueError("mmd_unbiased: the conditional LMMD has the biased estimator only")
         self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
         self.layers = tuple(layers)
         self.use_mmd, self.use_coral = bool(use_mmd), bool(use_coral)
         self.mmd_kwargs = dict(
             num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul), unbiased=bool(mmd_unbiased)
         )
+        self.mmd_conditional = bool(mmd_conditional)
 
     @property
     def adapts(self) -> bool:
@@ -91,6 +102,7 @@ class VTLoss(nn.Module):
         features_source: Mapping[str, torch.Tensor] | None = None,
         features_target: Mapping[str, torch.Tensor] | None = None,
         da_scale: float = 1.0,
+        target_probs: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """``α·CE + s·β·MMD + s·λ·CORAL`` with ``s = da_scale`` (1 in eq. 7.8; a warm-up ramp may pass
         less early in training). Returns the total and its detached parts."""
@@ -109,6 +121,9 @@ class VTLoss(nn.Module):
             return total, parts
         if features_source is None or features_target is None:
             raise ValueError("features_source and features_target are required when MMD or CORAL is on")
+        if self.use_mmd and self.mmd_conditional and target_probs is None:
+            raise ValueError("target_probs: the conditional MMD (mmd_conditional) needs the target "
+                             "class probabilities")
         zero = logits_source.new_zeros(())
         mmd_sum, coral_sum = zero, zero
         for layer in self.layers:
@@ -116,7 +131,11 @@ class VTLoss(nn.Module):
                 raise ValueError(f"layer {layer!r} missing from features_source/features_target")
             fs, ft = features_source[layer], features_target[layer]
             if self.use_mmd:
-                m = mk_mmd(fs, ft, **self.mmd_kwargs)
+                if self.mmd_conditional:
+                    kw = {k: v for k, v in self.mmd_kwargs.items() if k != "unbiased"}
+                    m = local_mmd(fs, ft, labels_source, target_probs, **kw)
+                else:
+                    m = mk_mmd(fs, ft, **self.mmd_kwargs)
                 mmd_sum = mmd_sum + m
                 parts[f"mmd_{layer}"] = m.detach()
             if self.use_coral:
@@ -134,5 +153,5 @@ class VTLoss(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
-            f"use_mmd={self.use_mmd}, use_coral={self.use_coral}"
+            f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}"
         )

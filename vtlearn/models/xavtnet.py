@@ -31,7 +31,7 @@ forward and pooled statistics, as in DAN and Deep CORAL.
 
 Shapes:
     forward: points (B, N, 3) zero-padded, lengths (B,) int64 -> :class:`XAVTNetOutput`
-    (logits (B, k), features {"fc1": (B, 512), "fc2": (B, 256)}).
+    (logits (B, k), features {"global": (B, global_dim), "fc1": (B, 512), "fc2": (B, 256)}).
 """
 
 from __future__ import annotations
@@ -63,6 +63,7 @@ __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 
 DA_METHODS = ("none", "vtloss", "dann")
 LR_SCHEDULES = ("constant", "cosine")
+DA_LAYERS = ("global", "fc1", "fc2", "fc3")
 
 
 def subsample_padded(points: torch.Tensor, lengths: torch.Tensor, max_points: int, random: bool):
@@ -115,9 +116,15 @@ class XAVTNet(L.LightningModule):
         da_method: "none", "vtloss" or "dann" (see module docstring).
         use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows). ``da_layers`` may also name
             ``"fc3"``, the k logits (beyond the thesis, whose eq. 7.8 adapts fc1 and fc2): DAN adapts
-            fc6-fc8 of AlexNet, its logits included, and Deep CORAL applies CORAL to fc8 only.
+            fc6-fc8 of AlexNet, its logits included, and Deep CORAL applies CORAL to fc8 only. It may
+            name ``"global"``, the max-pooled PointNet feature that fc1 reads: the pool is where a cloud's
+            point count acts (a max over 30-120 touched points against one over 256 seen ones).
         alpha, beta, lam: VTLoss weights α, β, λ (thesis: 10, 10, 10).
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
+        mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
+            :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
+            batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
+            ``da_memory`` (the queue keeps features, not labels).
         dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
         da_ramp_gamma: if set, VTLoss's MMD and CORAL terms are scaled by Ganin's ramp
             ``2/(1+exp(−γp)) − 1`` of the training progress ``p`` (the warm-up DAN and DANN use; beyond
@@ -167,6 +174,7 @@ class XAVTNet(L.LightningModule):
         mmd_num_kernels: int = 5,
         mmd_kernel_mul: float = 2.0,
         mmd_unbiased: bool = False,
+        mmd_conditional: bool = False,
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
@@ -196,11 +204,14 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
         if not (math.isfinite(im_weight) and im_weight >= 0):
             raise ValueError(f"im_weight: need a finite weight >= 0, got {im_weight}")
+        if mmd_conditional and da_memory:
+            raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
+                             "target probabilities")
         if max_points is not None and max_points < 1:
             raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
-        unknown = set(da_layers) - {"fc1", "fc2", "fc3"}
+        unknown = set(da_layers) - set(DA_LAYERS)
         if unknown:
-            raise ValueError(f"da_layers may only contain 'fc1', 'fc2' and 'fc3', got {sorted(unknown)}")
+            raise ValueError(f"da_layers may only contain {list(DA_LAYERS)}, got {sorted(unknown)}")
         if class_names is not None:
             class_names = [str(n) for n in class_names]
             if len(class_names) != num_classes:
@@ -218,6 +229,7 @@ class XAVTNet(L.LightningModule):
         self.vtloss = VTLoss(
             alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
             mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
+            mmd_conditional=mmd_conditional,
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
         self._memory = (
@@ -264,7 +276,7 @@ class XAVTNet(L.LightningModule):
         points, lengths = self._prepare(points, lengths)
         g, trans_input, trans_feat = self.encoder(points, lengths)
         logits, feats = self.head(g)
-        return XAVTNetOutput(logits, feats, trans_input, trans_feat)
+        return XAVTNetOutput(logits, {"global": g, **feats}, trans_input, trans_feat)
 
     @contextlib.contextmanager
     def bn_domain(self, domain: str):
@@ -399,7 +411,8 @@ class XAVTNet(L.LightningModule):
                 feats_s, feats_t = {**feats_s, "fc3": out_s.logits}, {**feats_t, "fc3": out_t.logits}
             if self._memory is not None:
                 feats_s, feats_t = self._with_memory(feats_s, feats_t)
-            loss, parts = self.vtloss(out_s.logits, y, feats_s, feats_t, da_scale=scale)
+            probs_t = out_t.logits.detach().softmax(-1) if self.vtloss.mmd_conditional else None
+            loss, parts = self.vtloss(out_s.logits, y, feats_s, feats_t, da_scale=scale, target_probs=probs_t)
             if gamma is not None:
                 parts["da_scale"] = torch.tensor(scale)
         elif use_target and self.hparams.da_method == "dann":
@@ -512,7 +525,8 @@ class XAVTNet(L.LightningModule):
 
     @torch.no_grad()
     def extract_features(self, points: torch.Tensor, lengths: torch.Tensor | None = None) -> dict:
-        """fc1/fc2 features and logits in eval mode (for t-SNE, Fig. 7.4). Restores the training flag."""
+        """Global, fc1 and fc2 features and logits in eval mode (for t-SNE, Fig. 7.4); restores the
+        training flag."""
         was_training = self.training
         self.eval()
         try:

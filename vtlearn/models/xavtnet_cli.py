@@ -51,9 +51,14 @@ VARIANTS: dict[str, dict] = {
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},
+    # ... and on the max-pooled global feature that fc1 reads
+    "vtloss_g12": {**_VTLOSS, "da_layers": ["global", "fc1", "fc2"]},
+    # Beyond the thesis: DSAN's class-conditional LMMD in place of MK-MMD (losses/lmmd.py), with DSAN's
+    # warm-up ramp of the alignment weight (early pseudo-labels are an untrained classifier's guesses).
+    "vtloss_lmmd": {**_VTLOSS, "mmd_conditional": True, "da_ramp_gamma": 10.0},
 }
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"

@@ -82,7 +82,7 @@ class XAVTNetOutput:
     """Forward result: class logits, the adapted features and the T-net matrices."""
 
     logits: torch.Tensor  # B x k
-    features: dict[str, torch.Tensor]  # "fc1": B x 512, "fc2": B x 256
+    features: dict[str, torch.Tensor]  # "global": B x global_dim, "fc1": B x 512, "fc2": B x 256
     trans_input: torch.Tensor | None
     trans_feat: torch.Tensor | None
 
