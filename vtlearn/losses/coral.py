@@ -10,18 +10,9 @@ from __future__ import annotations
 
 import torch
 
+from vtlearn.losses.mmd import check_feature_pair, check_features
+
 __all__ = ["covariance", "coral"]
-
-
-def _check(x: torch.Tensor, name: str) -> None:
-    if not isinstance(x, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
-    if x.dim() != 2:
-        raise ValueError(f"{name} must have shape (n, d), got {tuple(x.shape)}")
-    if x.shape[0] < 2 or x.shape[1] < 1:
-        raise ValueError(f"{name} needs at least 2 rows (a covariance) and 1 column, got {tuple(x.shape)}")
-    if not torch.isfinite(x).all():
-        raise ValueError(f"{name} contains NaN or inf")
 
 
 def covariance(x: torch.Tensor) -> torch.Tensor:
@@ -30,7 +21,7 @@ def covariance(x: torch.Tensor) -> torch.Tensor:
     Shapes:
         x (n, d) -> (d, d)
     """
-    _check(x, "x")
+    check_features(x, "x", 2, " (a covariance)")
     n = x.shape[0]
     centred = x - x.mean(0, keepdim=True)
     return centred.T @ centred / (n - 1)
@@ -42,13 +33,7 @@ def coral(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     Shapes:
         source (n_s, d), target (n_t, d) -> scalar; ``n_s``, ``n_t`` ≥ 2 and may differ.
     """
-    _check(source, "source")
-    _check(target, "target")
-    if source.shape[1] != target.shape[1]:
-        raise ValueError(
-            f"source and target must have the same feature size, got {tuple(source.shape)} "
-            f"and {tuple(target.shape)}"
-        )
+    check_feature_pair(source, target, 2, " (a covariance)")
     d = source.shape[1]
     diff = covariance(source) - covariance(target)
     return (diff * diff).sum() / (4.0 * d * d)

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 
-from vtlearn.losses.mmd import _check_features, gaussian_bandwidths, multi_kernel_matrix
+from vtlearn.losses.mmd import check_feature_pair, kernel_bandwidths, multi_kernel_matrix
 
 __all__ = ["local_mmd"]
 
@@ -53,13 +53,7 @@ def local_mmd(
     Shapes:
         source (n_s, d), target (n_t, d), source_labels (n_s,) int, target_probs (n_t, k) -> scalar.
     """
-    _check_features(source, "source")
-    _check_features(target, "target")
-    if source.shape[1] != target.shape[1]:
-        raise ValueError(
-            f"source and target must have the same feature size, got {tuple(source.shape)} "
-            f"and {tuple(target.shape)}"
-        )
+    check_feature_pair(source, target)
     if not isinstance(target_probs, torch.Tensor) or target_probs.shape[:1] != target.shape[:1] \
             or target_probs.dim() != 2:
         shape = tuple(target_probs.shape) if isinstance(target_probs, torch.Tensor) else type(target_probs)
@@ -81,12 +75,7 @@ def local_mmd(
         return (source.sum() + target.sum()) * 0.0
     ws = ws[:, present] / ws[:, present].sum(0)
     wt = wt[:, present] / wt[:, present].sum(0).clamp_min(torch.finfo(wt.dtype).tiny)
-    if bandwidths is None:
-        h = gaussian_bandwidths(torch.cat([source, target]), num_kernels, kernel_mul)
-    else:
-        h = torch.as_tensor(bandwidths, dtype=source.dtype, device=source.device).reshape(-1)
-        if h.numel() == 0 or not torch.isfinite(h).all() or (h <= 0).any():
-            raise ValueError(f"bandwidths must be non-empty, finite and > 0, got {h.tolist()}")
+    h = kernel_bandwidths(source, target, num_kernels, kernel_mul, bandwidths)
     k_ss = multi_kernel_matrix(source, source, h)
     k_tt = multi_kernel_matrix(target, target, h)
     k_st = multi_kernel_matrix(source, target, h)

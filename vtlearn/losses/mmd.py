@@ -30,15 +30,49 @@ import torch
 __all__ = ["gaussian_bandwidths", "multi_kernel_matrix", "mk_mmd"]
 
 
-def _check_features(x: torch.Tensor, name: str, min_rows: int = 1) -> None:
+def check_features(x: torch.Tensor, name: str, min_rows: int = 1, why: str = "") -> None:
+    """A ValueError naming ``name`` unless ``x`` is a finite (n, d) tensor with ``n >= min_rows``, d >= 1
+    (``why``, e.g. " (a covariance)", is said after the row count)."""
     if not isinstance(x, torch.Tensor):
         raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
     if x.dim() != 2:
         raise ValueError(f"{name} must have shape (n, d), got {tuple(x.shape)}")
     if x.shape[0] < min_rows or x.shape[1] < 1:
-        raise ValueError(f"{name} needs at least {min_rows} rows and 1 column, got {tuple(x.shape)}")
+        raise ValueError(f"{name} needs at least {min_rows} rows{why} and 1 column, got {tuple(x.shape)}")
     if not torch.isfinite(x).all():
         raise ValueError(f"{name} contains NaN or inf")
+
+
+def check_feature_pair(source: torch.Tensor, target: torch.Tensor, min_rows: int = 1, why: str = "") -> None:
+    """:func:`check_features` for each domain, and the same feature size d in both."""
+    check_features(source, "source", min_rows, why)
+    check_features(target, "target", min_rows, why)
+    if source.shape[1] != target.shape[1]:
+        raise ValueError(
+            f"source and target must have the same feature size, got {tuple(source.shape)} "
+            f"and {tuple(target.shape)}"
+        )
+
+
+def kernel_bandwidths(
+    source: torch.Tensor,
+    target: torch.Tensor,
+    num_kernels: int = 5,
+    kernel_mul: float = 2.0,
+    bandwidths: Sequence[float] | torch.Tensor | None = None,
+) -> torch.Tensor:
+    """The ``h_u`` of one MK-MMD estimate: fixed ``bandwidths`` (checked), or the family of
+    :func:`gaussian_bandwidths` around the pooled sample's mean squared distance.
+
+    Shapes:
+        source (n_s, d), target (n_t, d) -> (b,)
+    """
+    if bandwidths is None:
+        return gaussian_bandwidths(torch.cat([source, target]), num_kernels, kernel_mul)
+    h = torch.as_tensor(bandwidths, dtype=source.dtype, device=source.device).reshape(-1)
+    if h.numel() == 0 or not torch.isfinite(h).all() or (h <= 0).any():
+        raise ValueError(f"bandwidths must be non-empty, finite and > 0, got {h.tolist()}")
+    return h
 
 
 def gaussian_bandwidths(
@@ -102,20 +136,8 @@ def mk_mmd(
     Shapes:
         source (n_s, d), target (n_t, d) -> scalar. ``n_s`` and ``n_t`` may differ.
     """
-    min_rows = 2 if unbiased else 1
-    _check_features(source, "source", min_rows)
-    _check_features(target, "target", min_rows)
-    if source.shape[1] != target.shape[1]:
-        raise ValueError(
-            f"source and target must have the same feature size, got {tuple(source.shape)} "
-            f"and {tuple(target.shape)}"
-        )
-    if bandwidths is None:
-        h = gaussian_bandwidths(torch.cat([source, target]), num_kernels, kernel_mul)
-    else:
-        h = torch.as_tensor(bandwidths, dtype=source.dtype, device=source.device).reshape(-1)
-        if h.numel() == 0 or not torch.isfinite(h).all() or (h <= 0).any():
-            raise ValueError(f"bandwidths must be non-empty, finite and > 0, got {h.tolist()}")
+    check_feature_pair(source, target, 2 if unbiased else 1)
+    h = kernel_bandwidths(source, target, num_kernels, kernel_mul, bandwidths)
     k_ss = multi_kernel_matrix(source, source, h)
     k_tt = multi_kernel_matrix(target, target, h)
     k_st = multi_kernel_matrix(source, target, h)
