@@ -27,7 +27,8 @@ from collections.abc import Sequence
 
 import torch
 
-__all__ = ["gaussian_bandwidths", "multi_kernel_matrix", "mk_mmd"]
+__all__ = ["gaussian_bandwidths", "multi_kernel_matrix", "mk_mmd", "check_features", "check_feature_pair",
+           "kernel_bandwidths"]
 
 
 def check_features(x: torch.Tensor, name: str, min_rows: int = 1, why: str = "") -> None:
