@@ -85,9 +85,8 @@ class VTLoss(nn.Module):
         self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
         self.layers = tuple(layers)
         self.use_mmd, self.use_coral = bool(use_mmd), bool(use_coral)
-        self.mmd_kwargs = dict(
-            num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul), unbiased=bool(mmd_unbiased)
-        )
+        self.kernel_kwargs = dict(num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul))
+        self.mmd_kwargs = {**self.kernel_kwargs, "unbiased": bool(mmd_unbiased)}
         self.mmd_conditional = bool(mmd_conditional)
 
     @property
@@ -132,8 +131,7 @@ class VTLoss(nn.Module):
             fs, ft = features_source[layer], features_target[layer]
             if self.use_mmd:
                 if self.mmd_conditional:
-                    kw = {k: v for k, v in self.mmd_kwargs.items() if k != "unbiased"}
-                    m = local_mmd(fs, ft, labels_source, target_probs, **kw)
+                    m = local_mmd(fs, ft, labels_source, target_probs, **self.kernel_kwargs)
                 else:
                     m = mk_mmd(fs, ft, **self.mmd_kwargs)
                 mmd_sum = mmd_sum + m

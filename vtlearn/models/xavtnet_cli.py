@@ -333,8 +333,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     checks = {}
     if {"vtloss", "noda"} <= means.keys():
         checks["vtloss_minus_noda"] = means["vtloss"] - means["noda"]
-    for name in [v for v in means if v.endswith(OPT_IN_SUFFIXES)] if "noda" in means else []:
-        checks[f"{name}_minus_noda"] = means[name] - means["noda"]
+    if "noda" in means:
+        for name in (v for v in means if v.endswith(OPT_IN_SUFFIXES)):
+            checks[f"{name}_minus_noda"] = means[name] - means["noda"]
     if {"vtloss", "mmd", "coral"} <= means.keys():
         checks["vtloss_beats_mmd_and_coral"] = means["vtloss"] > max(means["mmd"], means["coral"])
     if {"vtloss", "vtloss_fc1", "vtloss_fc2"} <= means.keys():
