@@ -373,3 +373,76 @@ def test_information_maximization_bounds_and_gradient():
 def test_information_maximization_rejects_bad_input(bad, match):
     with pytest.raises(ValueError, match=match):
         information_maximization(bad)
+
+
+def _naive_centroid_pseudo_labels(features, probs, fraction):
+    """SHOT eqs. 4-6 and CBST's per-class selection, one sample and one class at a time."""
+    n, k = probs.shape
+    f = [features[i] / features[i].norm() for i in range(n)]
+
+    def assign(weights):
+        cents = []
+        for c in range(k):
+            v = sum(weights[i][c] * f[i] for i in range(n))
+            cents.append(v / v.norm() if v.norm() > 0 else v)
+        return [max(range(k), key=lambda c: float(f[i] @ cents[c])) for i in range(n)]
+
+    labels = assign(probs)
+    labels = assign([[1.0 if labels[i] == c else 0.0 for c in range(k)] for i in range(n)])
+    out = [-1] * n
+    for c in set(labels):
+        members = sorted((i for i in range(n) if labels[i] == c), key=lambda i: -float(probs[i].max()))
+        for i in members[: math.ceil(fraction * len(members))]:
+            out[i] = c
+    return torch.tensor(out)
+
+
+@pytest.mark.parametrize("fraction", [1.0, 0.5, 0.2])
+def test_centroid_pseudo_labels_match_a_naive_loop(fraction):
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+
+    g = torch.Generator().manual_seed(3)
+    features = torch.randn(40, 6, generator=g, dtype=torch.float64)
+    probs = torch.softmax(2 * torch.randn(40, 4, generator=g, dtype=torch.float64), 1)
+    got = centroid_pseudo_labels(features, probs, fraction)
+    assert torch.equal(got, _naive_centroid_pseudo_labels(features, probs, fraction))
+    labelled = got[got >= 0]
+    assert (labelled < 4).all() and len(labelled) >= math.ceil(fraction * 40) - 4
+
+
+def test_centroid_pseudo_labels_follow_the_feature_clusters():
+    """Two tight clusters; the softmax calls two members of cluster 0 class 1. The centroids relabel
+    them; with fraction 0.5 each cluster keeps its most confident half."""
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+
+    g = torch.Generator().manual_seed(0)
+    centres = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    truth = torch.tensor([0] * 6 + [1] * 6)
+    features = centres[truth] + 0.05 * torch.randn(12, 3, generator=g)
+    confident = torch.tensor([0.9, 0.8, 0.7, 0.6, 0.55, 0.52])
+    p0 = torch.cat([confident, 1 - confident])  # P(class 0): cluster 1 is class 1 by the same margins
+    p0[[4, 5]] = torch.tensor([0.25, 0.45])  # two wrong predictions in cluster 0, the first confident
+    probs = torch.stack([p0, 1 - p0], 1)
+    assert (probs.argmax(1) != truth).sum() == 2
+    assert torch.equal(centroid_pseudo_labels(features, probs), truth)
+    half = centroid_pseudo_labels(features, probs, 0.5)
+    assert torch.equal(half, torch.tensor([0, 0, -1, -1, 0, -1, 1, 1, 1, -1, -1, -1]))
+
+
+@pytest.mark.parametrize(
+    "features, probs, fraction, match",
+    [
+        (torch.zeros(0, 3), torch.zeros(0, 2), 1.0, "features"),
+        (torch.full((2, 3), math.nan), torch.full((2, 2), 0.5), 1.0, "features"),
+        (torch.ones(3, 3), torch.full((2, 2), 0.5), 1.0, "same n"),
+        (torch.ones(2, 3), torch.ones(2, 1), 1.0, "k >= 2"),
+        (torch.ones(2, 3), torch.full((2, 2), 0.3), 1.0, "probs"),
+        (torch.ones(2, 3), torch.full((2, 2), 0.5), 0.0, "fraction"),
+        (torch.ones(2, 3), torch.full((2, 2), 0.5), 1.5, "fraction"),
+    ],
+)
+def test_centroid_pseudo_labels_reject_bad_input(features, probs, fraction, match):
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+
+    with pytest.raises(ValueError, match=match):
+        centroid_pseudo_labels(features, probs, fraction)

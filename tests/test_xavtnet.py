@@ -407,3 +407,100 @@ def test_checkpoint_round_trip_weights_only(tmp_path):
     assert torch.equal(model(x).logits, restored(x).logits)
     again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True).eval()
     assert torch.equal(again(x).logits, model(x).logits)
+
+
+class _Indexed(Dataset):
+    """Unlabelled clouds that carry their position, as CrossModalDataModule's target stream does."""
+
+    def __init__(self, clouds):
+        self.clouds = clouds
+
+    def __len__(self):
+        return len(self.clouds)
+
+    def __getitem__(self, i):
+        return self.clouds[i], i
+
+
+def _indexed_collate(items):
+    out = _collate([(p, 0) for p, _ in items], with_label=False)
+    out["index"] = torch.tensor([i for _, i in items])
+    return out
+
+
+class IndexedCrossModalDM(TinyCrossModalDM):
+    def train_dataloader(self):
+        loaders = super().train_dataloader().iterables
+        target = _Indexed([p for p, _ in _Clouds(8, 5, 12, 1, scale=2.0).items])
+        loaders["target"] = DataLoader(target, batch_size=4, shuffle=True, collate_fn=_indexed_collate)
+        return CombinedLoader(loaders, mode="max_size_cycle")
+
+
+def test_pseudo_labels_add_a_target_cross_entropy_from_the_start_epoch(tmp_path):
+    """From epoch ⌈start·max_epochs⌉ each epoch relabels the whole target stream by its centroids, and
+    the loss gains w·CE of the target logits against the kept labels."""
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+
+    seen = []
+
+    class Record(L.Callback):
+        def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+            labels = pl_module._pseudo_labels
+            seen.append((trainer.current_epoch, None if labels is None else labels.clone()))
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, pseudo_label_weight=2.0, pseudo_label_start=0.5, pseudo_label_fraction=0.5)
+    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path, callbacks=[Record()])
+    trainer.fit(model, datamodule=IndexedCrossModalDM())
+    assert [e for e, lab in seen if lab is None] == [0, 0, 0]  # epoch 0 of 2 trains before the start
+    labels = [lab for e, lab in seen if e == 1]
+    assert len(labels) == 3 and labels[0].shape == (8,)
+    assert 4 <= int((labels[0] >= 0).sum()) <= 6  # half of each pseudo-class, rounded up
+    assert {"train/pseudo_ce", "train/pseudo_kept"} <= set(trainer.callback_metrics)
+
+    # the labels are those of the centroid rule on the eval-mode features of the stream, in index order
+    loader = DataLoader(_Indexed([p for p, _ in _Clouds(8, 5, 12, 1, scale=2.0).items]), batch_size=3,
+                        collate_fn=_indexed_collate)
+    batch = _indexed_collate([loader.dataset[i] for i in range(8)])
+    out = model.extract_features(batch["points"], batch["lengths"])
+    expected = centroid_pseudo_labels(out["fc1"], out["logits"].softmax(-1), 0.5)
+    assert torch.equal(model.label_target(loader), expected)
+
+    # the step's loss: VTLoss's plus 2·CE(target logits, kept labels)
+    two = {"source": next(iter(TinyCrossModalDM().train_dataloader()))[0]["source"], "target": batch}
+    model._pseudo_labels = expected
+    model._log_train = lambda *a, **k: None
+    model.train()
+    torch.manual_seed(1)
+    loss = model.training_step(two, 0)
+    model._pseudo_labels = None
+    torch.manual_seed(1)
+    plain = model.training_step(two, 0)
+    torch.manual_seed(1)
+    _, out_t = model._joint_forward(two["source"], two["target"])
+    target = expected[two["target"]["index"]]
+    keep = target >= 0
+    assert keep.any() and not keep.all()
+    pce = torch.nn.functional.cross_entropy(out_t.logits[keep], target[keep]).item()
+    assert pce > 0 and loss.item() == pytest.approx(plain.item() + 2.0 * pce, rel=1e-5)
+
+
+def test_pseudo_labels_reject_bad_settings_and_streams(tmp_path):
+    for kwargs, match in [(dict(pseudo_label_weight=-1.0), "pseudo_label_weight"),
+                          (dict(pseudo_label_start=1.0), "pseudo_label_start"),
+                          (dict(pseudo_label_fraction=0.0), "pseudo_label_fraction"),
+                          (dict(pseudo_label_layer="fc3"), "pseudo_label_layer")]:
+        with pytest.raises(ValueError, match=match):
+            XAVTNet(**TINY, **kwargs)
+    trainer_kwargs = dict(max_epochs=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                          enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                          default_root_dir=tmp_path)
+    single = DataLoader(_Clouds(8, 5, 20, 3), batch_size=4, collate_fn=_collate)
+    with pytest.raises(ValueError, match="two-stream"):
+        L.Trainer(**trainer_kwargs).fit(XAVTNet(**TINY, pseudo_label_weight=1.0, pseudo_label_start=0.0),
+                                        train_dataloaders=single)
+    with pytest.raises(ValueError, match="index"):  # TinyCrossModalDM's target items have no index
+        L.Trainer(**trainer_kwargs).fit(XAVTNet(**TINY, pseudo_label_weight=1.0, pseudo_label_start=0.0),
+                                        datamodule=TinyCrossModalDM())

@@ -299,10 +299,11 @@ class CrossModalDataModule(ShardedDataModule):
 
     def dataset(
         self, split: str, modality: str, with_label: bool = True, train: bool | None = None,
-        keep: np.ndarray | None = None,
+        keep: np.ndarray | None = None, with_index: bool = False,
     ) -> CloudDataset:
         """Clouds of one split and modality; ``train`` (default: ``split == "train"``) turns on the
-        random yaw augmentation; ``keep`` (a boolean mask over the split's clouds) selects some of them.
+        random yaw augmentation; ``keep`` (a boolean mask over the split's clouds) selects some of them;
+        ``with_index`` adds each item's position in the dataset (``"index"``).
 
         Shapes:
             keep (n_clouds,) bool or None
@@ -321,16 +322,20 @@ class CrossModalDataModule(ShardedDataModule):
             seed=self.seed,
             scales=scales,
             with_label=with_label,
+            with_index=with_index,
         )
 
     def target_dataset(self) -> CloudDataset:
         """The unlabelled, yaw-augmented tactile clouds of the target stream (``target_split`` of
-        ``data_dir``, or of ``target_data_dir`` when set), less the ``target_holdout`` test clouds."""
+        ``data_dir``, or of ``target_data_dir`` when set), less the ``target_holdout`` test clouds. Items
+        are ``{"points", "index"}``: the index lets a model keep per-cloud pseudo-labels
+        (:meth:`~vtlearn.models.xavtnet.XAVTNet.label_target`)."""
         if self.target_data_dir is not None:
-            return self._target_data_dataset(self.target_split, with_label=False)
+            return self._target_data_dataset(self.target_split, with_label=False, with_index=True)
         if self.target_holdout > 0:
-            return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask())
-        return self.dataset(self.target_split, "tactile", with_label=False, train=True)
+            return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask(),
+                                with_index=True)
+        return self.dataset(self.target_split, "tactile", with_label=False, train=True, with_index=True)
 
     def holdout_mask(self) -> np.ndarray:
         """Which tactile clouds of the test split are held out of the target stream (``target_holdout``).
@@ -356,12 +361,12 @@ class CrossModalDataModule(ShardedDataModule):
         :meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`."""
         return self._loader(self.target_dataset(), shuffle=shuffle, batch_size=self.target_batch_size)
 
-    def _target_data_dataset(self, split: str, with_label: bool) -> CloudDataset:
+    def _target_data_dataset(self, split: str, with_label: bool, with_index: bool = False) -> CloudDataset:
         """Yaw-augmented tactile clouds of ``target_data_dir``'s ``split``."""
         clouds, labels, scales = modality_clouds(self._target_data_split(split), "tactile",
                                                  self.units == "metres")
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, scales=scales, with_label=with_label)
+                            seed=self.seed, scales=scales, with_label=with_label, with_index=with_index)
 
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""

@@ -22,6 +22,13 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 them, the information maximisation of :mod:`vtlearn.losses.info_max` (confident target predictions that
 use every class); with ``da_method="none"`` it is the only use of the target stream.
 
+``pseudo_label_weight > 0`` (beyond the thesis) adds self-training on the target stream: from epoch
+``⌈pseudo_label_start·max_epochs⌉`` on, each epoch starts with one pass over the target clouds, which
+get SHOT's centroid pseudo-labels with CBST's class-balanced selection
+(:func:`~vtlearn.losses.pseudo_labels.centroid_pseudo_labels`), and each step adds
+``pseudo_label_weight·CE`` of the target batch's logits against the kept labels. The target items must
+carry their ``"index"`` in the target dataset, as :class:`~vtlearn.datamodules.CrossModalDataModule`'s do.
+
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
@@ -47,6 +54,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
+from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
@@ -64,6 +72,7 @@ __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 DA_METHODS = ("none", "vtloss", "dann")
 LR_SCHEDULES = ("constant", "cosine")
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
+FEATURE_LAYERS = ("global", "fc1", "fc2")
 
 
 def subsample_padded(points: torch.Tensor, lengths: torch.Tensor, max_points: int, random: bool):
@@ -140,6 +149,13 @@ class XAVTNet(L.LightningModule):
         im_weight: weight of the information-maximisation loss on the target batch's logits
             (:func:`~vtlearn.losses.info_max.information_maximization`, beyond the thesis), added to the
             loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
+        pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
+            pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
+            ``da_method``. 0 (default): off, as in eq. 7.8.
+        pseudo_label_start: the share of ``max_epochs`` trained before the first labelling, in [0, 1).
+        pseudo_label_fraction: the share of each pseudo-class kept, the most confident first, in (0, 1].
+        pseudo_label_layer: the feature layer whose class centroids label the target clouds
+            (``"global"``, ``"fc1"`` or ``"fc2"``).
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -181,6 +197,10 @@ class XAVTNet(L.LightningModule):
         da_memory: int = 0,
         da_memory_rescale: bool = True,
         im_weight: float = 0.0,
+        pseudo_label_weight: float = 0.0,
+        pseudo_label_start: float = 1 / 3,
+        pseudo_label_fraction: float = 0.5,
+        pseudo_label_layer: str = "fc1",
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -204,6 +224,16 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
         if not (math.isfinite(im_weight) and im_weight >= 0):
             raise ValueError(f"im_weight: need a finite weight >= 0, got {im_weight}")
+        if not (math.isfinite(pseudo_label_weight) and pseudo_label_weight >= 0):
+            raise ValueError(f"pseudo_label_weight: need a finite weight >= 0, got {pseudo_label_weight}")
+        if not 0 <= pseudo_label_start < 1:
+            raise ValueError(f"pseudo_label_start: need a share of the epochs in [0, 1), got "
+                             f"{pseudo_label_start}")
+        if not 0 < pseudo_label_fraction <= 1:
+            raise ValueError(f"pseudo_label_fraction: need a share in (0, 1], got {pseudo_label_fraction}")
+        if pseudo_label_layer not in FEATURE_LAYERS:
+            raise ValueError(f"pseudo_label_layer: need one of {list(FEATURE_LAYERS)}, got "
+                             f"{pseudo_label_layer!r}")
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
@@ -235,6 +265,7 @@ class XAVTNet(L.LightningModule):
         self._memory = (
             {d: FeatureQueue(int(da_memory)) for d in DOMAINS} if da_memory and self.vtloss.adapts else None
         )
+        self._pseudo_labels: torch.Tensor | None = None  # per target-dataset index, -1 where not kept
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -391,7 +422,8 @@ class XAVTNet(L.LightningModule):
         y = src["label"]
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
         im_weight = self.hparams.get("im_weight", 0.0)
-        adapts = self.vtloss.adapts or self.discriminator is not None or im_weight > 0
+        pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
+        adapts = self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         if use_target:
             out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
@@ -431,9 +463,64 @@ class XAVTNet(L.LightningModule):
             im, im_parts = information_maximization(out_t.logits)
             loss = loss + im_weight * im
             parts = {**parts, "im": im.detach(), **im_parts}
+        if use_target and self._pseudo_labels is not None:
+            if "index" not in tgt:
+                raise ValueError("batch: pseudo_label_weight needs the target items' 'index' in the target "
+                                 "dataset (CrossModalDataModule's target stream has it)")
+            pseudo = self._pseudo_labels.to(tgt["index"].device)[tgt["index"]]
+            keep = pseudo >= 0
+            pce = F.cross_entropy(out_t.logits[keep], pseudo[keep]) if keep.any() else out_t.logits.sum() * 0
+            loss = loss + pl_weight * pce
+            parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    def on_train_epoch_start(self) -> None:
+        """Relabel the target stream (``pseudo_label_weight > 0``, from ``pseudo_label_start`` on)."""
+        self._pseudo_labels = None
+        hp = self.hparams
+        if hp.get("pseudo_label_weight", 0.0) <= 0:
+            return
+        if self.current_epoch < math.ceil(hp.pseudo_label_start * (self.trainer.max_epochs or 0)):
+            return
+        self._pseudo_labels = self.label_target(self._target_loader())
+
+    def _target_loader(self):
+        """The training target stream's dataset, in order, with the training loader's collate function."""
+        from torch.utils.data import DataLoader
+
+        loaders = self.trainer.train_dataloader  # the CombinedLoader's dict of loaders
+        loaders = getattr(loaders, "iterables", loaders)
+        target = loaders.get("target") if isinstance(loaders, dict) else None
+        if target is None:
+            raise ValueError("pseudo_label_weight: needs two-stream training ({'source': ..., 'target': ...} "
+                             "loaders, e.g. CrossModalDataModule.train_dataloader())")
+        return DataLoader(target.dataset, batch_size=target.batch_size or 64, shuffle=False,
+                          collate_fn=target.collate_fn)
+
+    @torch.no_grad()
+    def label_target(self, loader) -> torch.Tensor:
+        """Centroid pseudo-labels of the target clouds in ``loader`` (items with ``"index"``), in eval mode.
+
+        Shapes:
+            -> (max index + 1,) int64, -1 for indices not labelled or not kept
+        """
+        feats, probs, index = [], [], []
+        for batch in loader:
+            if "index" not in batch:
+                raise ValueError("loader: pseudo-labels need each target item's 'index'")
+            out = self.extract_features(batch["points"].to(self.device), batch["lengths"].to(self.device))
+            feats.append(out[self.hparams.pseudo_label_layer])
+            probs.append(out["logits"].softmax(-1))
+            index.append(batch["index"].to(self.device))
+        if not index:
+            raise ValueError("loader: no target clouds to label")
+        index = torch.cat(index)
+        labels = torch.full((int(index.max()) + 1,), -1, dtype=torch.long, device=self.device)
+        labels[index] = centroid_pseudo_labels(torch.cat(feats), torch.cat(probs),
+                                               self.hparams.pseudo_label_fraction)
+        return labels
 
     def _with_memory(self, feats_s: dict, feats_t: dict) -> tuple[dict, dict]:
         """The adapted layers' features of each domain followed by its queued ones (``da_memory``), the

@@ -56,9 +56,13 @@ VARIANTS: dict[str, dict] = {
     # Beyond the thesis: DSAN's class-conditional LMMD in place of MK-MMD (losses/lmmd.py), with DSAN's
     # warm-up ramp of the alignment weight (early pseudo-labels are an untrained classifier's guesses).
     "vtloss_lmmd": {**_VTLOSS, "mmd_conditional": True, "da_ramp_gamma": 10.0},
+    # Beyond the thesis: the pooled-feature row plus self-training on the target stream (SHOT's centroid
+    # pseudo-labels, CBST's class-balanced half; losses/pseudo_labels.py) from a third of the epochs on,
+    # weighted as the source cross-entropy (α = 10).
+    "vtloss_g12_pl": {**_VTLOSS, "da_layers": ["global", "fc1", "fc2"], "pseudo_label_weight": 10.0},
 }
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
