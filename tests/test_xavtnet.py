@@ -504,3 +504,20 @@ def test_pseudo_labels_reject_bad_settings_and_streams(tmp_path):
     with pytest.raises(ValueError, match="index"):  # TinyCrossModalDM's target items have no index
         L.Trainer(**trainer_kwargs).fit(XAVTNet(**TINY, pseudo_label_weight=1.0, pseudo_label_start=0.0),
                                         datamodule=TinyCrossModalDM())
+
+
+def test_pseudo_labels_start_by_the_share_of_steps_without_max_epochs(tmp_path):
+    """A run bounded by max_steps alone starts self-training after that share of its optimiser steps."""
+    starts = []
+
+    class Record(L.Callback):
+        def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+            if batch_idx == 0:  # after the module's on_train_epoch_start
+                starts.append((trainer.global_step, pl_module._pseudo_labels is not None))
+
+    model = XAVTNet(**TINY, pseudo_label_weight=1.0, pseudo_label_start=0.5)
+    trainer = L.Trainer(max_steps=12, max_epochs=-1, accelerator="cpu", logger=False,
+                        enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False,
+                        limit_val_batches=0, default_root_dir=tmp_path, callbacks=[Record()])
+    trainer.fit(model, datamodule=IndexedCrossModalDM())
+    assert starts == [(0, False), (3, False), (6, True), (9, True)]  # 3 steps per epoch

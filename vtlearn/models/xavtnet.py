@@ -152,7 +152,8 @@ class XAVTNet(L.LightningModule):
         pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
             pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
             ``da_method``. 0 (default): off, as in eq. 7.8.
-        pseudo_label_start: the share of ``max_epochs`` trained before the first labelling, in [0, 1).
+        pseudo_label_start: the share of ``max_epochs`` trained before the first labelling, in [0, 1)
+            (of the optimiser steps when the run is bounded by ``max_steps`` alone).
         pseudo_label_fraction: the share of each pseudo-class kept, the most confident first, in (0, 1].
         pseudo_label_layer: the feature layer whose class centroids label the target clouds
             (``"global"``, ``"fc1"`` or ``"fc2"``).
@@ -482,7 +483,11 @@ class XAVTNet(L.LightningModule):
         hp = self.hparams
         if hp.get("pseudo_label_weight", 0.0) <= 0:
             return
-        if self.current_epoch < math.ceil(hp.pseudo_label_start * (self.trainer.max_epochs or 0)):
+        max_epochs = self.trainer.max_epochs
+        if max_epochs is None or max_epochs < 0:  # a run bounded by max_steps: its share of the steps
+            if self._progress() < hp.pseudo_label_start:
+                return
+        elif self.current_epoch < math.ceil(hp.pseudo_label_start * max_epochs):
             return
         self._pseudo_labels = self.label_target(self._target_loader())
 
