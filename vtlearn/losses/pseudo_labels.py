@@ -29,6 +29,8 @@ import math
 import torch
 import torch.nn.functional as F
 
+from vtlearn.losses.mmd import check_features
+
 __all__ = ["centroid_pseudo_labels"]
 
 
@@ -49,13 +51,8 @@ def centroid_pseudo_labels(
     Shapes:
         features (n, d), probs (n, k), n ≥ 1, k ≥ 2 -> (n,) int64 in {-1, 0, ..., k-1}
     """
-    for name, t in (("features", features), ("probs", probs)):
-        if not isinstance(t, torch.Tensor):
-            raise ValueError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
-        if t.dim() != 2 or t.shape[0] < 1:
-            raise ValueError(f"{name} must have shape (n >= 1, ·), got {tuple(t.shape)}")
-        if not torch.isfinite(t).all():
-            raise ValueError(f"{name} contains NaN or inf")
+    check_features(features, "features")
+    check_features(probs, "probs")
     n, k = probs.shape
     if features.shape[0] != n or k < 2:
         raise ValueError(f"features {tuple(features.shape)} and probs {tuple(probs.shape)}: need (n, d) and "
