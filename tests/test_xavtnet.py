@@ -206,6 +206,9 @@ def test_subsample_and_normalize_padded():
         (dict(mmd_conditional=True, da_ramp_gamma=10.0), {"train/mmd_fc1", "train/da_scale"},
          {"train/domain"}),
         (dict(da_method="none", im_weight=1.0), {"train/im", "train/marginal_entropy"}, {"train/mmd"}),
+        (dict(consistency_weight=1.0), {"train/consistency", "train/consistency_w", "train/mmd"},
+         {"train/domain"}),
+        (dict(da_method="none", consistency_weight=1.0), {"train/consistency"}, {"train/mmd"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -521,3 +524,83 @@ def test_pseudo_labels_start_by_the_share_of_steps_without_max_epochs(tmp_path):
                         limit_val_batches=0, default_root_dir=tmp_path, callbacks=[Record()])
     trainer.fit(model, datamodule=IndexedCrossModalDM())
     assert starts == [(0, False), (3, False), (6, True), (9, True)]  # 3 steps per epoch
+
+
+def test_mean_teacher_averages_the_trained_weights_and_is_not_optimised(tmp_path):
+    """The teacher starts at the network's weights and follows θ' ← d·θ' + (1 − d)·θ after every optimiser
+    step; the optimiser never holds its parameters, and checkpoints keep it (weights_only)."""
+    student_after = []
+
+    class Record(L.Callback):  # callbacks run before the module's on_train_batch_end
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            student_after.append({k: v.detach().clone() for k, v in pl_module.encoder.state_dict().items()})
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=2.0, ema_decay=0.5)
+    model.encoder.load_state_dict(XAVTNet(**TINY).encoder.state_dict())  # weights changed after __init__
+    start = {k: v.clone() for k, v in model.encoder.state_dict().items()}
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp_path,
+                        callbacks=[Record()])
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    held = {id(p) for group in trainer.optimizers[0].param_groups for p in group["params"]}
+    assert not held & {id(p) for p in model.teacher.parameters()}
+    assert {id(p) for p in model.encoder.parameters()} <= held
+    assert len(student_after) == 3
+    for k, v in model.teacher["encoder"].state_dict().items():
+        if not v.is_floating_point():
+            continue
+        expected = start[k]
+        for step in student_after:
+            expected = 0.5 * expected + 0.5 * step[k]
+        assert torch.allclose(v, expected, atol=1e-6), k
+    # the average lags the trained weights
+    assert not torch.equal(next(model.teacher["encoder"].parameters()), next(model.encoder.parameters()))
+
+    path = tmp_path / "mt.ckpt"
+    trainer.save_checkpoint(path)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True)
+    for (k, v), (_, w) in zip(again.teacher.state_dict().items(), model.teacher.state_dict().items(),
+                              strict=True):
+        assert torch.equal(v, w), k
+    assert XAVTNet(**TINY).teacher is None  # no teacher, no extra weights, without the consistency term
+
+
+def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
+    """The step's loss is VTLoss on the perturbed target copy plus w·r(p)·L_cons between the network's
+    logits of that copy and the eval-mode teacher's logits of another one."""
+    from vtlearn.losses.consistency import softmax_consistency
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_keep=0.5,
+                    consistency_jitter=0.05).train()
+    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+    with torch.no_grad():  # a teacher that differs from the network
+        for p in model.teacher.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    torch.manual_seed(1)
+    loss = model.training_step(batch, 0)
+    torch.manual_seed(1)  # the same draws, in the step's order
+    teacher_logits = model._teacher_logits(batch["target"])
+    target = model._perturb(batch["target"])
+    out_s, out_t = model._joint_forward(batch["source"], target)
+    vt = model.vtloss(out_s.logits, batch["source"]["label"], out_s.features, out_t.features)[0]
+    cons = softmax_consistency(out_t.logits, teacher_logits)
+    assert cons.item() > 1e-4
+    assert target["lengths"].sum() < batch["target"]["lengths"].sum()  # points were dropped
+    assert model.teacher.training is False  # the teacher ran in eval mode
+    expected = vt + 3.0 * cons + model._regulariser(out_s)
+    assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+
+
+def test_mean_teacher_rejects_bad_settings():
+    for kwargs, match in [(dict(consistency_weight=-1.0), "consistency_weight"),
+                          (dict(consistency_weight=float("inf")), "consistency_weight"),
+                          (dict(consistency_rampup=1.5), "consistency_rampup"),
+                          (dict(ema_decay=1.0), "ema_decay"),
+                          (dict(consistency_keep=0.0), "consistency_keep"),
+                          (dict(consistency_jitter=-0.1), "consistency_jitter"),
+                          (dict(consistency_weight=1.0, domain_bn=True), "domain_bn")]:
+        with pytest.raises(ValueError, match=match):
+            XAVTNet(**TINY, **kwargs)

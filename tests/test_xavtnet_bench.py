@@ -23,6 +23,7 @@ def test_ablation_configs_match_bench_variants():
         args = cfg["model"]["init_args"]
         for key, value in overrides.items():
             assert args[key] == value, (name, key)
+        XAVTNet(**args)  # the config's other keys are valid arguments too
 
 
 @pytest.mark.parametrize("path", ["xavtnet.yaml", "quick/xavtnet.yaml", "cpu/xavtnet.yaml",

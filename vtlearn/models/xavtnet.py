@@ -29,6 +29,17 @@ get SHOT's centroid pseudo-labels with CBST's class-balanced selection
 ``pseudo_label_weight·CE`` of the target batch's logits against the kept labels. The target items must
 carry their ``"index"`` in the target dataset, as :class:`~vtlearn.datamodules.CrossModalDataModule`'s do.
 
+``consistency_weight > 0`` (beyond the thesis) adds a mean teacher on the target stream (Tarvainen and
+Valpola 2017; French et al. 2018 for domain adaptation): a copy of the network, ``teacher``, follows the
+trained weights as an exponential moving average (``ema_decay``) and is never optimised. Each step the
+target batch goes through the network as a perturbed copy (point dropout to a share in
+``[consistency_keep, 1]`` of its points and Gaussian jitter of ``consistency_jitter``, the same copy
+that the other target terms see), and through the teacher, in eval mode and without gradient, as
+another perturbed copy; the step adds ``consistency_weight·r(p)·L_cons`` of the two softmaxes
+(:func:`~vtlearn.losses.consistency.softmax_consistency`), with Tarvainen's sigmoid ramp-up ``r`` over the
+first ``consistency_rampup`` of the training progress ``p``. Evaluation uses the trained network, not the
+teacher, so the row differs from the others by the loss term alone.
+
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
@@ -44,6 +55,7 @@ Shapes:
 from __future__ import annotations
 
 import contextlib
+import copy
 import math
 
 import lightning as L
@@ -52,12 +64,14 @@ import torch.nn.functional as F
 from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
+from vtlearn.losses.consistency import softmax_consistency
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
+from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
@@ -157,6 +171,15 @@ class XAVTNet(L.LightningModule):
         pseudo_label_fraction: the share of each pseudo-class kept, the most confident first, in (0, 1].
         pseudo_label_layer: the feature layer whose class centroids label the target clouds
             (``"global"``, ``"fc1"`` or ``"fc2"``).
+        consistency_weight: weight of the mean-teacher consistency on the target stream (module
+            docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no teacher.
+        consistency_rampup: the share of the training progress over which the consistency weight ramps up
+            (Tarvainen's ``exp(−5(1 − t)²)``), in [0, 1]; 0: full weight from the first step.
+        ema_decay: the teacher's moving-average decay per optimiser step, in [0, 1).
+        consistency_keep: the least share of a target cloud's points kept by each perturbation, in (0, 1].
+        consistency_jitter: the standard deviation of the perturbations' point jitter, in the clouds' units
+            (CrossModalDataModule's default canonical units: the object fits the unit cube, and the
+            simulated contacts lie a median 0.037 from their nearest neighbour).
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -202,6 +225,11 @@ class XAVTNet(L.LightningModule):
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
         pseudo_label_layer: str = "fc1",
+        consistency_weight: float = 0.0,
+        consistency_rampup: float = 1 / 3,
+        ema_decay: float = 0.99,
+        consistency_keep: float = 0.5,
+        consistency_jitter: float = 0.01,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -235,6 +263,22 @@ class XAVTNet(L.LightningModule):
         if pseudo_label_layer not in FEATURE_LAYERS:
             raise ValueError(f"pseudo_label_layer: need one of {list(FEATURE_LAYERS)}, got "
                              f"{pseudo_label_layer!r}")
+        if not (math.isfinite(consistency_weight) and consistency_weight >= 0):
+            raise ValueError(f"consistency_weight: need a finite weight >= 0, got {consistency_weight}")
+        if not 0 <= consistency_rampup <= 1:
+            raise ValueError(f"consistency_rampup: need a share of the training in [0, 1], got "
+                             f"{consistency_rampup}")
+        if not 0 <= ema_decay < 1:
+            raise ValueError(f"ema_decay: need a decay in [0, 1), got {ema_decay}")
+        if not 0 < consistency_keep <= 1:
+            raise ValueError(f"consistency_keep: need a share of the points in (0, 1], got "
+                             f"{consistency_keep}")
+        if not (math.isfinite(consistency_jitter) and consistency_jitter >= 0):
+            raise ValueError(f"consistency_jitter: need a finite standard deviation >= 0, got "
+                             f"{consistency_jitter}")
+        if consistency_weight > 0 and domain_bn:
+            raise ValueError("consistency_weight: not with domain_bn=True (the teacher keeps one set of "
+                             "batch-norm statistics)")
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
@@ -267,6 +311,13 @@ class XAVTNet(L.LightningModule):
             {d: FeatureQueue(int(da_memory)) for d in DOMAINS} if da_memory and self.vtloss.adapts else None
         )
         self._pseudo_labels: torch.Tensor | None = None  # per target-dataset index, -1 where not kept
+        # The mean teacher: saved in checkpoints (a resumed run keeps its average), never optimised.
+        self.teacher = (
+            torch.nn.ModuleDict({"encoder": copy.deepcopy(self.encoder), "head": copy.deepcopy(self.head)})
+            if consistency_weight > 0 else None
+        )
+        if self.teacher is not None:
+            self.teacher.requires_grad_(False)
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -424,8 +475,13 @@ class XAVTNet(L.LightningModule):
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
         im_weight = self.hparams.get("im_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
-        adapts = self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
+        adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
+                  or self.teacher is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
+        teacher_logits = None
+        if use_target and self.teacher is not None:
+            teacher_logits = self._teacher_logits(tgt)
+            tgt = self._perturb(tgt)
         if use_target:
             out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
         else:
@@ -473,9 +529,46 @@ class XAVTNet(L.LightningModule):
             pce = F.cross_entropy(out_t.logits[keep], pseudo[keep]) if keep.any() else out_t.logits.sum() * 0
             loss = loss + pl_weight * pce
             parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
+        if teacher_logits is not None:
+            cons = softmax_consistency(out_t.logits, teacher_logits)
+            hp = self.hparams
+            w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
+            loss = loss + w * cons
+            parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    def _perturb(self, batch: dict) -> dict:
+        """A perturbed copy of a target batch (``consistency_keep``, ``consistency_jitter``)."""
+        points, lengths = check_cloud_batch(batch["points"], batch.get("lengths"))
+        points, lengths = perturb_padded(points, lengths, self.hparams.consistency_keep,
+                                         self.hparams.consistency_jitter)
+        return {**batch, "points": points, "lengths": lengths}
+
+    @torch.no_grad()
+    def _teacher_logits(self, batch: dict) -> torch.Tensor:
+        """The teacher's logits of a perturbed copy of ``batch``, in eval mode (batch norm on its running
+        statistics, no dropout)."""
+        batch = self._perturb(batch)
+        self.teacher.eval()  # Lightning's model.train() reaches the teacher too
+        points, lengths = self._prepare(batch["points"], batch["lengths"])
+        g, _, _ = self.teacher["encoder"](points, lengths)
+        return self.teacher["head"](g)[0]
+
+    def on_fit_start(self) -> None:
+        """A run from step 0 starts the teacher at the network's weights (which may have been loaded since
+        ``__init__``); a resumed run keeps the teacher of its checkpoint."""
+        if self.teacher is not None and self.global_step == 0:
+            self._update_teacher(0.0)
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        if self.teacher is not None:
+            self._update_teacher(self.hparams.ema_decay)
+
+    def _update_teacher(self, decay: float) -> None:
+        ema_update(self.teacher["encoder"], self.encoder, decay)
+        ema_update(self.teacher["head"], self.head, decay)
 
     def on_train_epoch_start(self) -> None:
         """Relabel the target stream (``pseudo_label_weight > 0``, from ``pseudo_label_start`` on)."""
@@ -628,7 +721,8 @@ class XAVTNet(L.LightningModule):
         return {**out.features, "logits": out.logits}
 
     def configure_optimizers(self):
-        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        params = [p for n, p in self.named_parameters() if not n.startswith("teacher.")]
+        opt = torch.optim.Adam(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         if self.hparams.get("lr_schedule", "constant") == "constant":
             return opt
         total = max(1, int(self.trainer.estimated_stepping_batches))

@@ -1,0 +1,38 @@
+"""Mean-teacher consistency between two predictions of the same unlabelled clouds (beyond the thesis).
+
+    L_cons = (1/n)·Σ_i Σ_c (softmax(z_i)_c − softmax(z'_i)_c)²
+
+``z`` are the student network's logits of a perturbed copy of each target cloud and ``z'`` the logits of
+an exponential moving average of its weights (the teacher) on another perturbed copy, without gradient.
+This is the squared-difference consistency of Mean Teacher (Tarvainen and Valpola, NeurIPS 2017),
+which French, Mackiewicz and Fisher (ICLR 2018) used for unsupervised domain adaptation: the target
+clouds, which carry no labels, ask the student to agree with a smoothed version of itself under input
+noise. Thesis eq. 7.8 has no such term. The squared difference is bounded (0 ≤ L_cons ≤ 2), so a wrong
+teacher cannot pull the student as hard as a cross-entropy against its argmax would.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["softmax_consistency"]
+
+
+def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tensor) -> torch.Tensor:
+    """L_cons of a batch; the gradient flows into ``student_logits`` only.
+
+    Shapes:
+        student_logits (n, k), teacher_logits (n, k), n ≥ 1, k ≥ 2 -> scalar in [0, 2]
+    """
+    for name, z in (("student_logits", student_logits), ("teacher_logits", teacher_logits)):
+        if not isinstance(z, torch.Tensor):
+            raise ValueError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+        if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 2:
+            raise ValueError(f"{name} must have shape (n >= 1, k >= 2), got {tuple(z.shape)}")
+        if not torch.isfinite(z).all():
+            raise ValueError(f"{name} contains NaN or inf")
+    if student_logits.shape != teacher_logits.shape:
+        raise ValueError(f"student_logits {tuple(student_logits.shape)} and teacher_logits "
+                         f"{tuple(teacher_logits.shape)} must have the same shape")
+    diff = student_logits.softmax(-1) - teacher_logits.detach().softmax(-1)
+    return diff.pow(2).sum(-1).mean()
