@@ -11,19 +11,24 @@ from vtlearn.losses.consistency import softmax_consistency
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 
 
-def _naive_consistency(zs, zt):
+def _naive_consistency(zs, zt, threshold=0.0):
     total = 0.0
     for i in range(zs.shape[0]):
         es = [math.exp(v) for v in zs[i].tolist()]
         et = [math.exp(v) for v in zt[i].tolist()]
-        total += sum((a / sum(es) - b / sum(et)) ** 2 for a, b in zip(es, et, strict=True))
+        if max(et) / sum(et) >= threshold:
+            total += sum((a / sum(es) - b / sum(et)) ** 2 for a, b in zip(es, et, strict=True))
     return total / zs.shape[0]
 
 
-def test_softmax_consistency_matches_a_naive_loop_and_a_hand_case():
+@pytest.mark.parametrize("threshold", [0.0, 0.6, 0.8])
+def test_softmax_consistency_matches_a_naive_loop_and_a_hand_case(threshold):
     g = torch.Generator().manual_seed(0)
-    zs, zt = torch.randn(7, 5, generator=g), torch.randn(7, 5, generator=g)
-    assert softmax_consistency(zs, zt).item() == pytest.approx(_naive_consistency(zs, zt), rel=1e-6)
+    zs, zt = torch.randn(7, 5, generator=g), 2 * torch.randn(7, 5, generator=g)
+    naive = _naive_consistency(zs, zt, threshold)
+    assert softmax_consistency(zs, zt, threshold).item() == pytest.approx(naive, rel=1e-6)
+    if threshold > 0:  # some clouds, not all, fall under the threshold
+        assert 0 < naive < _naive_consistency(zs, zt)
     # hand case: one-hot-like softmaxes on different classes differ by 1 twice -> 2; equal logits -> 0
     big = torch.tensor([[50.0, 0.0]])
     assert softmax_consistency(big, big.flip(-1)).item() == pytest.approx(2.0, abs=1e-6)
@@ -47,11 +52,12 @@ def test_softmax_consistency_gradient_reaches_the_student_only():
     (torch.randn(2, 3), torch.randn(2, 1), "teacher_logits"),
     (torch.full((2, 3), float("nan")), torch.randn(2, 3), "student_logits contains NaN"),
     (torch.randn(2, 3), torch.randn(3, 3), "same shape"),
+    (torch.randn(2, 3), torch.randn(2, 3), "threshold"),
     ([[1.0, 2.0]], torch.randn(1, 2), "torch.Tensor"),
 ])
 def test_softmax_consistency_rejects_bad_input(zs, zt, match):
     with pytest.raises(ValueError, match=match):
-        softmax_consistency(zs, zt)
+        softmax_consistency(zs, zt, 1.0 if match == "threshold" else 0.0)
 
 
 def test_ema_update_averages_parameters_and_statistics_and_copies_counts():

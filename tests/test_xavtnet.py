@@ -601,6 +601,7 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(ema_decay=1.0), "ema_decay"),
                           (dict(consistency_keep=0.0), "consistency_keep"),
                           (dict(consistency_jitter=-0.1), "consistency_jitter"),
+                          (dict(consistency_threshold=1.0), "consistency_threshold"),
                           (dict(consistency_weight=1.0, domain_bn=True), "domain_bn")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)

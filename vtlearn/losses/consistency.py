@@ -1,6 +1,6 @@
 """Mean-teacher consistency between two predictions of the same unlabelled clouds (beyond the thesis).
 
-    L_cons = (1/n)·Σ_i Σ_c (softmax(z_i)_c − softmax(z'_i)_c)²
+    L_cons = (1/n)·Σ_i m_i·Σ_c (softmax(z_i)_c − softmax(z'_i)_c)²,    m_i = [max_c softmax(z'_i)_c ≥ τ]
 
 ``z`` are the student network's logits of a perturbed copy of each target cloud and ``z'`` the logits of
 an exponential moving average of its weights (the teacher) on another perturbed copy, without gradient.
@@ -8,7 +8,9 @@ This is the squared-difference consistency of Mean Teacher (Tarvainen and Valpol
 which French, Mackiewicz and Fisher (ICLR 2018) used for unsupervised domain adaptation: the target
 clouds, which carry no labels, ask the student to agree with a smoothed version of itself under input
 noise. Thesis eq. 7.8 has no such term. The squared difference is bounded (0 ≤ L_cons ≤ 2), so a wrong
-teacher cannot pull the student as hard as a cross-entropy against its argmax would.
+teacher cannot pull the student as hard as a cross-entropy against its argmax would. French et al. count
+only the clouds on which the teacher is confident (``threshold`` τ; 0 counts every cloud), averaging over
+the whole batch.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ import torch
 __all__ = ["softmax_consistency"]
 
 
-def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tensor) -> torch.Tensor:
-    """L_cons of a batch; the gradient flows into ``student_logits`` only.
+def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tensor,
+                        threshold: float = 0.0) -> torch.Tensor:
+    """L_cons of a batch, counting the clouds whose teacher confidence is at least ``threshold``; the
+    gradient flows into ``student_logits`` only.
 
     Shapes:
         student_logits (n, k), teacher_logits (n, k), n ≥ 1, k ≥ 2 -> scalar in [0, 2]
@@ -34,5 +38,8 @@ def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tens
     if student_logits.shape != teacher_logits.shape:
         raise ValueError(f"student_logits {tuple(student_logits.shape)} and teacher_logits "
                          f"{tuple(teacher_logits.shape)} must have the same shape")
-    diff = student_logits.softmax(-1) - teacher_logits.detach().softmax(-1)
-    return diff.pow(2).sum(-1).mean()
+    if not 0 <= threshold < 1:
+        raise ValueError(f"threshold: need a confidence in [0, 1), got {threshold}")
+    p_teacher = teacher_logits.detach().softmax(-1)
+    per_cloud = (student_logits.softmax(-1) - p_teacher).pow(2).sum(-1)
+    return (per_cloud * (p_teacher.amax(-1) >= threshold)).mean()

@@ -180,6 +180,8 @@ class XAVTNet(L.LightningModule):
         consistency_jitter: the standard deviation of the perturbations' point jitter, in the clouds' units
             (CrossModalDataModule's default canonical units: the object fits the unit cube, and the
             simulated contacts lie a median 0.037 from their nearest neighbour).
+        consistency_threshold: French et al.'s confidence threshold: only the target clouds whose teacher
+            softmax peaks at this value or above count, in [0, 1); 0 (default): every cloud.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -230,6 +232,7 @@ class XAVTNet(L.LightningModule):
         ema_decay: float = 0.99,
         consistency_keep: float = 0.5,
         consistency_jitter: float = 0.01,
+        consistency_threshold: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -276,6 +279,9 @@ class XAVTNet(L.LightningModule):
         if not (math.isfinite(consistency_jitter) and consistency_jitter >= 0):
             raise ValueError(f"consistency_jitter: need a finite standard deviation >= 0, got "
                              f"{consistency_jitter}")
+        if not 0 <= consistency_threshold < 1:
+            raise ValueError(f"consistency_threshold: need a confidence in [0, 1), got "
+                             f"{consistency_threshold}")
         if consistency_weight > 0 and domain_bn:
             raise ValueError("consistency_weight: not with domain_bn=True (the teacher keeps one set of "
                              "batch-norm statistics)")
@@ -530,8 +536,8 @@ class XAVTNet(L.LightningModule):
             loss = loss + pl_weight * pce
             parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
         if teacher_logits is not None:
-            cons = softmax_consistency(out_t.logits, teacher_logits)
             hp = self.hparams
+            cons = softmax_consistency(out_t.logits, teacher_logits, hp.get("consistency_threshold", 0.0))
             w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
             loss = loss + w * cons
             parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
