@@ -568,7 +568,7 @@ def test_mean_teacher_averages_the_trained_weights_and_is_not_optimised(tmp_path
 
 def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     """The step's loss is VTLoss on the perturbed target copy plus w·r(p)·L_cons between the network's
-    logits of that copy and the eval-mode teacher's logits of another one."""
+    logits of that copy and the teacher's logits of another one."""
     from vtlearn.losses.consistency import softmax_consistency
 
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
@@ -582,16 +582,50 @@ def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     torch.manual_seed(1)
     loss = model.training_step(batch, 0)
     torch.manual_seed(1)  # the same draws, in the step's order
-    teacher_logits = model._teacher_logits(batch["target"])
+    teacher_logits = model._teacher_logits(batch["source"], batch["target"])
     target = model._perturb(batch["target"])
     out_s, out_t = model._joint_forward(batch["source"], target)
     vt = model.vtloss(out_s.logits, batch["source"]["label"], out_s.features, out_t.features)[0]
     cons = softmax_consistency(out_t.logits, teacher_logits)
     assert cons.item() > 1e-4
     assert target["lengths"].sum() < batch["target"]["lengths"].sum()  # points were dropped
-    assert model.teacher.training is False  # the teacher ran in eval mode
+    assert model.teacher.training is False  # the teacher's dropout was off, and it is left in eval mode
     expected = vt + 3.0 * cons + model._regulariser(out_s)
     assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+
+
+def test_mean_teacher_normalises_as_the_network_trains_and_keeps_its_running_statistics():
+    """teacher_norm="batch": a teacher equal to the network gives the target logits of the network's
+    training forward on the joint batch (dropout off), depends on the source batch, and leaves its running
+    statistics alone; "running" is the eval-mode network on the target copy alone."""
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    src, tgt = batch["source"], batch["target"]
+    model = XAVTNet(**TINY, consistency_weight=1.0, dropout=0.0)
+    model._update_teacher(0.0)  # the teacher equals the network
+    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
+    torch.manual_seed(3)
+    teacher = model.train()._teacher_logits(src, tgt)
+    torch.manual_seed(3)
+    copy = model._perturb(tgt)
+    with torch.no_grad():
+        expected = model._joint_forward(src, copy)[1].logits
+    assert torch.allclose(teacher, expected, atol=1e-5)
+    for k, v in model.teacher.state_dict().items():
+        if k in running:
+            assert torch.equal(v, running[k]), k
+    other = {**src, "points": src["points"] + 0.5}  # other source clouds, other batch statistics
+    torch.manual_seed(3)
+    assert not torch.allclose(model._teacher_logits(other, tgt), teacher, atol=1e-3)
+
+    model = XAVTNet(**TINY, consistency_weight=1.0, teacher_norm="running")
+    model._update_teacher(0.0)
+    torch.manual_seed(3)
+    teacher = model.train()._teacher_logits(src, tgt)
+    torch.manual_seed(3)
+    copy = model._perturb(tgt)
+    with torch.no_grad():
+        expected = model.eval()(copy["points"], copy["lengths"]).logits
+    assert torch.allclose(teacher, expected, atol=1e-5)
 
 
 def test_mean_teacher_rejects_bad_settings():
@@ -602,6 +636,7 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(consistency_keep=0.0), "consistency_keep"),
                           (dict(consistency_jitter=-0.1), "consistency_jitter"),
                           (dict(consistency_threshold=1.0), "consistency_threshold"),
+                          (dict(teacher_norm="eval"), "teacher_norm"),
                           (dict(consistency_weight=1.0, domain_bn=True), "domain_bn")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)

@@ -63,8 +63,9 @@ VARIANTS: dict[str, dict] = {
     # Beyond the thesis: the pooled-feature row plus a mean teacher on the target stream (French et al.'s
     # self-ensembling for UDA): softmax consistency with an EMA of the weights under point dropout and
     # jitter, on the clouds the teacher gives 0.9 or more, weighted α·3/k as French weights his per-class
-    # mean against the cross-entropy. Without the threshold the tactile predictions collapse onto one or two
-    # classes at weights 10-100 (docs/xavtnet.md).
+    # mean against the cross-entropy; the teacher normalises with the joint batch's statistics (the
+    # default teacher_norm). Without the threshold the tactile predictions collapse onto one or two classes
+    # at weights 10-100 (docs/xavtnet.md).
     "vtloss_g12_mt": {**_VTLOSS, "da_layers": ["global", "fc1", "fc2"], "consistency_weight": 2.5,
                       "consistency_threshold": 0.9},
 }
