@@ -204,8 +204,8 @@ class XAVTNet(L.LightningModule):
             statistics of the source batch and that copy together, as the network normalises its own
             training forward (``_joint_forward``), leaving the teacher's running statistics as they are.
             ``"running"``: eval mode, on the running statistics averaged from the network's. With
-            ``"running"`` the bench row's teacher scored 15-21 % on the tactile stream while the network
-            scored 40-48 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
+            ``"running"`` the bench row's teacher scored 8-25 % on the tactile stream while the network
+            scored 37-49 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
