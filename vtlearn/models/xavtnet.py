@@ -586,13 +586,13 @@ class XAVTNet(L.LightningModule):
         statistics are left as they are) or the running statistics (``"running"``)."""
         tgt = self._perturb(tgt)
         self.teacher.eval()  # Lightning's model.train() reaches the teacher too
+        bns = []  # the batch norms normalised by batch statistics: none for "running"
         if self.hparams.get("teacher_norm", "running") == "running":
-            points, lengths = self._prepare(tgt["points"], tgt["lengths"])
-            g, _, _ = self.teacher["encoder"](points, lengths)
-            return self.teacher["head"](g)[0]
-        points, lengths, b = _concat_streams(src, tgt)
+            points, lengths, b = tgt["points"], tgt["lengths"], 0
+        else:
+            points, lengths, b = _concat_streams(src, tgt)
+            bns = [m for m in self.teacher.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
         points, lengths = self._prepare(points, lengths)
-        bns = [m for m in self.teacher.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
         momenta = [m.momentum for m in bns]
         try:
             for m in bns:  # batch statistics; momentum 0 keeps the running ones unchanged
