@@ -628,6 +628,90 @@ def test_mean_teacher_normalises_as_the_network_trains_and_keeps_its_running_sta
     assert torch.allclose(teacher, expected, atol=1e-5)
 
 
+
+def _bn_batch_means(model, batches):
+    """Each batch norm's per-channel input mean for each joint batch, from forward hooks."""
+    bns = [m for m in (*model.encoder.modules(), *model.head.modules())
+           if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    seen = {i: [] for i in range(len(bns))}
+    hooks = [m.register_forward_hook(lambda mod, inp, out, i=i: seen[i].append(
+        inp[0].transpose(0, 1).reshape(inp[0].shape[1], -1).mean(1).detach())) for i, m in enumerate(bns)]
+    with torch.no_grad():
+        for points, lengths in batches:
+            model.train()(points, lengths)
+    for h in hooks:
+        h.remove()
+    return bns, seen
+
+
+def test_reestimated_bn_statistics_average_the_joint_batches():
+    """The running means become the exact mean of the batch means over the loader's joint source + target
+    batches, with no weight changed and the model's mode kept; one-stream loaders and domain_bn models are
+    refused with a ValueError."""
+    from vtlearn.models.xavtnet import _concat_streams
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=1.0)
+    loader = TinyCrossModalDM().train_dataloader()
+    joint = [_concat_streams(b["source"], b["target"])[:2] for b, _, _ in loader]
+    assert len(joint) == 3 and joint[0][0].shape[0] == 8  # 4 source + 4 target clouds per batch
+    weights = {k: v.clone() for k, v in model.state_dict().items() if "running" not in k and "num_" not in k}
+    reference = XAVTNet(**TINY, consistency_weight=1.0)
+    reference.load_state_dict(model.state_dict())
+    bns, means = _bn_batch_means(reference, joint)
+    model.eval()
+    assert model.reestimate_bn_statistics(loader) == 24
+    assert not model.training
+    model_bns = [m for m in (*model.encoder.modules(), *model.head.modules())
+                 if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    assert len(model_bns) == len(bns) >= 5
+    for i, m in enumerate(model_bns):
+        assert torch.allclose(m.running_mean, torch.stack(means[i]).mean(0), atol=1e-5), i
+        assert m.momentum == 0.1  # restored
+    for k, v in model.state_dict().items():
+        if k in weights:
+            assert torch.equal(v, weights[k]), k
+    # two passes average the same batches twice: the same statistics
+    before = model_bns[-1].running_mean.clone()
+    assert model.reestimate_bn_statistics(loader, passes=2) == 48
+    assert torch.allclose(model_bns[-1].running_mean, before, atol=1e-5)
+
+    one_stream = DataLoader(_Clouds(6, 5, 12, 2), batch_size=3, collate_fn=_collate)
+    with pytest.raises(ValueError, match="two-stream"):
+        model.reestimate_bn_statistics(one_stream)
+    with pytest.raises(ValueError, match="passes"):
+        model.reestimate_bn_statistics(loader, passes=0)
+    with pytest.raises(ValueError, match="domain_bn"):
+        XAVTNet(**TINY, domain_bn=True).reestimate_bn_statistics(loader)
+
+
+def test_adopt_teacher_puts_the_averaged_weights_in_the_network(tmp_path):
+    """After a training, adopt_teacher gives the network the teacher's weights (the teacher keeps them) and
+    the batch-norm statistics those weights have on the joint batches; without a teacher it is a
+    ValueError."""
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=2.0, ema_decay=0.5)
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    teacher = {k: v.clone() for k, v in model.teacher.state_dict().items()}
+    # the average lags the network
+    assert not torch.equal(next(model.teacher["encoder"].parameters()), next(model.encoder.parameters()))
+    reference = XAVTNet(**TINY, consistency_weight=2.0)
+    reference.encoder.load_state_dict(model.teacher["encoder"].state_dict())
+    reference.head.load_state_dict(model.teacher["head"].state_dict())
+    reference.reestimate_bn_statistics(TinyCrossModalDM().train_dataloader())
+    assert model.adopt_teacher(TinyCrossModalDM().train_dataloader()) == 24
+    for part in ("encoder", "head"):
+        for (k, v), (_, w) in zip(getattr(model, part).state_dict().items(),
+                                  getattr(reference, part).state_dict().items(), strict=True):
+            assert torch.allclose(v, w, atol=1e-6), (part, k)
+    for k, v in model.teacher.state_dict().items():
+        assert torch.equal(v, teacher[k]), k
+    with pytest.raises(ValueError, match="no teacher"):
+        XAVTNet(**TINY).adopt_teacher(TinyCrossModalDM().train_dataloader())
+
+
 def test_mean_teacher_rejects_bad_settings():
     for kwargs, match in [(dict(consistency_weight=-1.0), "consistency_weight"),
                           (dict(consistency_weight=float("inf")), "consistency_weight"),

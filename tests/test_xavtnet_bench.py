@@ -155,6 +155,16 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert all(0 <= r["tactile_acc_adabn"] <= 100 for r in res3["runs"])
     assert "noda_adabn_minus_noda" in res3["checks"]
     assert "tactile_acc_adabn" in capsys.readouterr().out
+    # a mean-teacher row is scored again with re-estimated statistics and as its teacher; no-DA is not
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_g12_mt", "--seeds",
+                 "1", "--no-figures", "--json", str(out2)]) == 0
+    res4 = json.loads(out2.read_text())
+    noda, mt = res4["runs"]
+    assert "tactile_acc_teacher" not in noda and "tactile_acc_bn" not in noda
+    assert all(0 <= mt[k] <= 100 for k in ("tactile_acc_bn", "tactile_acc_teacher", "visual_acc_teacher"))
+    assert res4["checks"]["vtloss_g12_mt_teacher_minus_noda"] == pytest.approx(
+        mt["tactile_acc_teacher"] - noda["tactile_acc"])
+    assert "tactile_acc_teacher" in capsys.readouterr().out
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):

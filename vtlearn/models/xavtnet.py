@@ -39,7 +39,7 @@ perturbed copy, normalised by the batch statistics of the source batch and that 
 network's own training forward is (``teacher_norm``); the step adds ``consistency_weight·r(p)·L_cons``
 of the two softmaxes (:func:`~vtlearn.losses.consistency.softmax_consistency`), with Tarvainen's sigmoid
 ramp-up ``r`` over the first ``consistency_rampup`` of the training progress ``p``. Evaluation uses the
-trained network, not the teacher.
+trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weights in its place.
 
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
@@ -105,6 +105,26 @@ def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, i
     n = max(ps.shape[1], pt.shape[1])
     points = torch.cat([F.pad(ps, (0, 0, 0, n - ps.shape[1])), F.pad(pt, (0, 0, 0, n - pt.shape[1]))])
     return points, torch.cat([ls, lt]), ps.shape[0]
+
+
+@torch.no_grad()
+def _average_bn_statistics(bns: list, batches, model) -> int:
+    """Run ``model`` on each ``(points, lengths)`` of ``batches`` (batches of fewer than 2 clouds are
+    skipped) with the k-th batch's momentum at ``1/(k+1)``, so that the running statistics of the batch
+    norms ``bns`` (in training mode, reset by the caller) end as the exact mean of the batch statistics.
+    Returns the number of clouds; a ValueError if no batch was used."""
+    n_batches, n_clouds = 0, 0
+    for points, lengths in batches:
+        if points.shape[0] < 2:
+            continue
+        for m in bns:
+            m.momentum = 1.0 / (n_batches + 1)
+        model(points, lengths)
+        n_batches += 1
+        n_clouds += int(points.shape[0])
+    if n_batches == 0:
+        raise ValueError("loader: no batch of >= 2 clouds to estimate batch-norm statistics from")
+    return n_clouds
 
 
 def subsample_padded(points: torch.Tensor, lengths: torch.Tensor, max_points: int, random: bool):
@@ -442,26 +462,89 @@ class XAVTNet(L.LightningModule):
         for m in bns:
             getattr(m, f"running_mean_{domain}").zero_()
             getattr(m, f"running_var_{domain}").fill_(1.0)
-        was_training, n_batches, n_clouds = self.training, 0, 0
+        was_training = self.training
         self.train()
         try:
             with self.bn_domain(domain):
-                for _ in range(int(passes)):
-                    for batch in loader:
-                        if batch["points"].shape[0] < 2:
-                            continue
-                        for m in bns:  # running = mean of the batch statistics so far
-                            m.momentum = 1.0 / (n_batches + 1)
-                        self(batch["points"], batch.get("lengths"))
-                        n_batches += 1
-                        n_clouds += int(batch["points"].shape[0])
+                batches = ((b["points"], b.get("lengths")) for _ in range(int(passes)) for b in loader)
+                return _average_bn_statistics(bns, batches, self)
         finally:
             for m in bns:
                 m.momentum = momentum
             self.train(was_training)
-        if n_batches == 0:
-            raise ValueError("loader: no batch of >= 2 clouds to estimate batch-norm statistics from")
-        return n_clouds
+
+    @torch.no_grad()
+    def reestimate_bn_statistics(self, loader, passes: int = 1) -> int:
+        """Set every batch norm's running statistics to the exact average of its batch statistics over the
+        joint source + target batches of ``loader``, the batches the network normalised with in training
+        (:meth:`_joint_forward`); no weight changes. This is SWA's batch-norm update (Izmailov et al., UAI
+        2018) on the two-stream batches: the running statistics of a training are an exponential average
+        of statistics that belonged to earlier weights, these belong to the current ones. Dropout stays
+        off, and the clouds are subsampled as in evaluation.
+
+        Args:
+            loader: two-stream batches ``{"source": {...}, "target": {...} or None}`` (labels are not
+                read), e.g. :meth:`~vtlearn.datamodules.CrossModalDataModule.train_dataloader` (a
+                CombinedLoader, whose items ``(batch, batch_idx, dataloader_idx)`` are unpacked); a batch
+                without a target part, or with a single target cloud, counts its source clouds alone.
+            passes: passes over ``loader``.
+
+        Returns:
+            the number of clouds the statistics were averaged over (counted once per pass).
+
+        Shapes:
+            loader batches: source/target points (B, N, 3), lengths (B,)
+        """
+        if self.hparams.get("domain_bn", False):
+            raise ValueError("reestimate_bn_statistics: the model has domain_bn=True; re-estimate one "
+                             "domain's statistics with adapt_bn_statistics instead")
+        if int(passes) < 1:
+            raise ValueError(f"passes: need >= 1, got {passes}")
+        bns = [m for m in (*self.encoder.modules(), *self.head.modules())
+               if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+        momenta = [m.momentum for m in bns]
+
+        def joint(batch):
+            if isinstance(batch, tuple):  # a CombinedLoader's (batch, batch_idx, dataloader_idx)
+                batch = batch[0]
+            if not isinstance(batch, dict) or "source" not in batch:
+                raise ValueError("loader: need two-stream batches {'source': ..., 'target': ...}, got one "
+                                 "labelled stream")
+            src, tgt = batch["source"], batch.get("target")
+            if tgt is None or tgt["points"].shape[0] < 2:  # training skips such a target batch too
+                return src["points"], src.get("lengths")
+            points, lengths, _ = _concat_streams(src, tgt)
+            return points, lengths
+
+        was_training = self.training
+        self.eval()
+        for m in bns:
+            m.reset_running_stats()
+            m.train()
+        try:
+            return _average_bn_statistics(bns, (joint(b) for _ in range(int(passes)) for b in loader), self)
+        finally:
+            for m, momentum in zip(bns, momenta, strict=True):
+                m.momentum = momentum
+            self.train(was_training)
+
+    def adopt_teacher(self, loader, passes: int = 1) -> int:
+        """Replace the network's weights by the mean teacher's average and re-estimate their batch-norm
+        statistics on ``loader`` (:meth:`reestimate_bn_statistics`), so that evaluation, prediction and
+        checkpoints from here on use the teacher. Mean Teacher evaluates the averaged model (Tarvainen and
+        Valpola 2017), and an average of the weights along a constant-rate Adam trajectory is a flatter,
+        less noisy point than its last step (SWA). The teacher's own running statistics are an average of
+        statistics that belonged to other weights, hence the re-estimation (docs/xavtnet.md). The teacher
+        keeps its weights, so training can go on.
+
+        Returns:
+            the number of clouds the statistics were averaged over.
+        """
+        if self.teacher is None:
+            raise ValueError("adopt_teacher: the model has no teacher (consistency_weight is 0)")
+        ema_update(self.encoder, self.teacher["encoder"], 0.0)
+        ema_update(self.head, self.teacher["head"], 0.0)
+        return self.reestimate_bn_statistics(loader, passes)
 
     def _convert_to_domain_bn(self) -> None:
         """Every batch norm of the encoder and head becomes a :class:`DomainBatchNorm` (both domains start

@@ -200,6 +200,12 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`) and score the tactile clouds again
     (``tactile_acc_adabn``).
 
+    A row with a mean teacher (``consistency_weight > 0``) is scored twice more, after the features: with
+    the network's batch-norm statistics re-estimated on the joint training batches
+    (:meth:`~vtlearn.models.xavtnet.XAVTNet.reestimate_bn_statistics`, ``tactile_acc_bn``), and with the
+    teacher's weights and statistics so re-estimated (:meth:`~vtlearn.models.xavtnet.XAVTNet.adopt_teacher`,
+    ``tactile_acc_teacher`` and ``visual_acc_teacher``).
+
     ``accelerator`` is Lightning's (``cpu``, ``gpu``, ``auto``); Lightning hands the model back on the CPU
     after each fit and test, so the feature extraction below runs there.
 
@@ -239,7 +245,17 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
             with model.bn_domain("source"):
                 source = _collect_features(model, dm.source_test_dataloader())
             feats = (*source, *_collect_features(model, dm.test_dataloader()))
+    if model.teacher is not None:  # last: both change the model
+        model.reestimate_bn_statistics(dm.train_dataloader())
+        row["tactile_acc_bn"] = 100 * _test_acc(trainer, model, dm.test_dataloader())
+        model.adopt_teacher(dm.train_dataloader())
+        row["tactile_acc_teacher"] = 100 * _test_acc(trainer, model, dm.test_dataloader())
+        row["visual_acc_teacher"] = 100 * _test_acc(trainer, model, dm.source_test_dataloader())
     return row, feats, dm.class_names
+
+
+def _test_acc(trainer, model, loader) -> float:
+    return float(trainer.test(model, dataloaders=loader, verbose=False)[0]["test/acc"])
 
 
 def _map_jobs(fn, job_args: list[tuple], workers: int):
@@ -310,6 +326,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             keep[row["variant"]] = feats
         bar.update()
         extra = f"  tactile after AdaBN {row['tactile_acc_adabn']:.1f}%" if adabn else ""
+        if "tactile_acc_teacher" in row:
+            extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
+                      f"{row['tactile_acc_teacher']:.1f}% (visual {row['visual_acc_teacher']:.1f}%)")
         tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
                    f"visual {row['visual_acc']:.1f}%{extra}  ({row['fit_s']:.0f} s)")
     bar.close()
@@ -333,10 +352,18 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             spread = a.std(ddof=1) if len(a) > 1 else 0.0
             rows[-1].update({"tactile_acc_adabn": f"{a.mean():.2f} ± {spread:.2f}",
                              "tactile_adabn_mean": float(a.mean())})
+        for key in ("tactile_acc_bn", "tactile_acc_teacher"):
+            a = np.array([r[key] for r in per_run if r["variant"] == variant and key in r])
+            if len(a):
+                spread = a.std(ddof=1) if len(a) > 1 else 0.0
+                rows[-1].update({key: f"{a.mean():.2f} ± {spread:.2f}", key.replace("_acc", "") + "_mean":
+                                 float(a.mean())})
+    teacher_cols = [c for c in ("tactile_acc_bn", "tactile_acc_teacher") if any(c in r for r in rows)]
     source = "+".join(data_kwargs.get("source_splits", ["train"]))
     held = float(data_kwargs.get("target_holdout", 0.0))
     holdout = f" less the {held:g} of their tactile clouds held out for the test" if held > 0 else ""
-    print_table(rows, ["variant", "tactile_acc", *(["tactile_acc_adabn"] if adabn else []), "visual_acc",
+    print_table(rows, ["variant", "tactile_acc", *(["tactile_acc_adabn"] if adabn else []), *teacher_cols,
+                       "visual_acc",
                        "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
                 f"{max_epochs} epochs, unlabelled target: {data_kwargs.get('target_split', 'train')} "
@@ -348,6 +375,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if "noda" in means:
         for name in (v for v in means if v.endswith(OPT_IN_SUFFIXES)):
             checks[f"{name}_minus_noda"] = means[name] - means["noda"]
+        for r in rows:
+            if "tactile_teacher_mean" in r:
+                checks[f"{r['variant']}_teacher_minus_noda"] = r["tactile_teacher_mean"] - means["noda"]
     if {"vtloss", "mmd", "coral"} <= means.keys():
         checks["vtloss_beats_mmd_and_coral"] = means["vtloss"] > max(means["mmd"], means["coral"])
     if {"vtloss", "vtloss_fc1", "vtloss_fc2"} <= means.keys():
