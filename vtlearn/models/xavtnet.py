@@ -41,6 +41,12 @@ of the two softmaxes (:func:`~vtlearn.losses.consistency.softmax_consistency`), 
 ramp-up ``r`` over the first ``consistency_rampup`` of the training progress ``p``. Evaluation uses the
 trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weights in its place.
 
+``rotation_weight > 0`` (beyond the thesis) adds a self-supervised task shared by both domains: every step
+the source and target clouds, each turned by a random number of quarter turns about the canonical x axis,
+go through the encoder in one more forward (batch statistics, running ones untouched), and a rotation
+head on the pooled feature must name the turn (:mod:`~vtlearn.models.components.rotation_task`; Sun et
+al. 2019, GAST). The step adds ``rotation_weight·CE`` of that head.
+
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
@@ -74,6 +80,7 @@ from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, conver
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
+from vtlearn.models.components.rotation_task import RotationHead, random_quarter_turns
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
     PointNetEncoder,
@@ -105,6 +112,22 @@ def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, i
     n = max(ps.shape[1], pt.shape[1])
     points = torch.cat([F.pad(ps, (0, 0, 0, n - ps.shape[1])), F.pad(pt, (0, 0, 0, n - pt.shape[1]))])
     return points, torch.cat([ls, lt]), ps.shape[0]
+
+
+@contextlib.contextmanager
+def _batch_statistics_only(bns: list):
+    """Inside the block the batch norms ``bns`` normalise by the batch's statistics (training mode) and
+    leave their running statistics as they are (momentum 0); their modes and momenta are restored after."""
+    states = [(m.training, m.momentum) for m in bns]
+    try:
+        for m in bns:
+            m.train()
+            m.momentum = 0.0
+        yield
+    finally:
+        for m, (training, momentum) in zip(bns, states, strict=True):
+            m.momentum = momentum
+            m.train(training)
 
 
 @torch.no_grad()
@@ -226,6 +249,9 @@ class XAVTNet(L.LightningModule):
             ``"running"``: eval mode, on the running statistics averaged from the network's. With
             ``"running"`` the bench row's teacher scored 8-25 % on the tactile stream while the network
             scored 37-49 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
+        rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
+            (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
+            rotation head.
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -278,6 +304,7 @@ class XAVTNet(L.LightningModule):
         consistency_jitter: float = 0.01,
         consistency_threshold: float = 0.0,
         teacher_norm: str = "batch",
+        rotation_weight: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -329,6 +356,11 @@ class XAVTNet(L.LightningModule):
                              f"{consistency_threshold}")
         if teacher_norm not in TEACHER_NORMS:
             raise ValueError(f"teacher_norm: expected one of {TEACHER_NORMS}, got {teacher_norm!r}")
+        if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
+            raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
+        if rotation_weight > 0 and domain_bn:
+            raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
+                             "share one forward)")
         if consistency_weight > 0 and domain_bn:
             raise ValueError("consistency_weight: not with domain_bn=True (the teacher keeps one set of "
                              "batch-norm statistics)")
@@ -371,6 +403,7 @@ class XAVTNet(L.LightningModule):
         )
         if self.teacher is not None:
             self.teacher.requires_grad_(False)
+        self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -592,7 +625,7 @@ class XAVTNet(L.LightningModule):
         im_weight = self.hparams.get("im_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
-                  or self.teacher is not None)
+                  or self.teacher is not None or self.rotation_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = None
         if use_target and self.teacher is not None:
@@ -651,6 +684,10 @@ class XAVTNet(L.LightningModule):
             w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
             loss = loss + w * cons
             parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
+        if use_target and self.rotation_head is not None:
+            rot, rot_acc = self._rotation_loss(src, tgt)
+            loss = loss + self.hparams.rotation_weight * rot
+            parts = {**parts, "rotation": rot.detach(), "rotation_acc": rot_acc}
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
@@ -661,6 +698,19 @@ class XAVTNet(L.LightningModule):
         points, lengths = perturb_padded(points, lengths, self.hparams.consistency_keep,
                                          self.hparams.consistency_jitter)
         return {**batch, "points": points, "lengths": lengths}
+
+    def _rotation_loss(self, src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """The cross-entropy of the rotation head on the source and target clouds, each turned by a random
+        number of quarter turns about x (:mod:`~vtlearn.models.components.rotation_task`), and its accuracy.
+        The turned clouds share one forward, normalised by their own batch statistics; the running
+        statistics are left to the clouds that evaluation sees."""
+        points, lengths, _ = _concat_streams(src, tgt)
+        turned, turns = random_quarter_turns(points)
+        bns = [m for m in self.encoder.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+        with _batch_statistics_only(bns):
+            g, _, _ = self.encoder(*self._prepare(turned, lengths))
+        logits = self.rotation_head(g)
+        return F.cross_entropy(logits, turns), (logits.detach().argmax(-1) == turns).float().mean()
 
     @torch.no_grad()
     def _teacher_logits(self, src: dict, tgt: dict) -> torch.Tensor:
@@ -676,17 +726,9 @@ class XAVTNet(L.LightningModule):
             points, lengths, b = _concat_streams(src, tgt)
             bns = [m for m in self.teacher.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
         points, lengths = self._prepare(points, lengths)
-        momenta = [m.momentum for m in bns]
-        try:
-            for m in bns:  # batch statistics; momentum 0 keeps the running ones unchanged
-                m.train()
-                m.momentum = 0.0
+        with _batch_statistics_only(bns):
             g, _, _ = self.teacher["encoder"](points, lengths)
             return self.teacher["head"](g)[0][b:]
-        finally:
-            for m, momentum in zip(bns, momenta, strict=True):
-                m.momentum = momentum
-            self.teacher.eval()
 
     def on_fit_start(self) -> None:
         """A run from step 0 starts the teacher at the network's weights (which may have been loaded since

@@ -69,8 +69,11 @@ VARIANTS: dict[str, dict] = {
     "vtloss_g12_mt": {**_VTLOSS, "da_layers": ["global", "fc1", "fc2"], "consistency_weight": 2.5,
                       "consistency_threshold": 0.9},
 }
+# Beyond the thesis: the teacher row plus rotation prediction on both domains' clouds (Sun et al. 2019;
+# GAST's quarter turns of object clouds), weighted as the source cross-entropy (α = 10).
+VARIANTS["vtloss_g12_mt_rot"] = {**VARIANTS["vtloss_g12_mt"], "rotation_weight": 10.0}
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
