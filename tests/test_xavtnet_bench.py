@@ -148,11 +148,13 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-views", "0", "--no-figures", "--json", str(out2)]) == 2
     assert "source_views" in capsys.readouterr().err
-    # --adabn scores every row a second time with target statistics; the *_dbn rows train with them
-    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_dbn", "--seeds", "1",
-                 "--adabn", "--no-figures", "--json", str(out2)]) == 0
+    # --adabn scores every row a second time with target statistics; the *_dbn rows train with them; a
+    # teacher row is scored as its teacher too (on a copy, so AdaBN's conversion does not stop it)
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_dbn,vtloss_g12_mt",
+                 "--seeds", "1", "--adabn", "--no-figures", "--json", str(out2)]) == 0
     res3 = json.loads(out2.read_text())
     assert all(0 <= r["tactile_acc_adabn"] <= 100 for r in res3["runs"])
+    assert 0 <= res3["runs"][2]["tactile_acc_teacher"] <= 100
     assert "noda_adabn_minus_noda" in res3["checks"]
     assert "tactile_acc_adabn" in capsys.readouterr().out
     # a mean-teacher row is scored again with re-estimated statistics and as its teacher; no-DA is not

@@ -203,11 +203,12 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`) and score the tactile clouds again
     (``tactile_acc_adabn``).
 
-    A row with a mean teacher (``consistency_weight > 0``) is scored twice more, after the features: with
-    the network's batch-norm statistics re-estimated on the joint training batches
-    (:meth:`~vtlearn.models.xavtnet.XAVTNet.reestimate_bn_statistics`, ``tactile_acc_bn``), and with the
-    teacher's weights and statistics so re-estimated (:meth:`~vtlearn.models.xavtnet.XAVTNet.adopt_teacher`,
-    ``tactile_acc_teacher`` and ``visual_acc_teacher``).
+    A row with a mean teacher (``consistency_weight > 0``) is scored twice more, on a copy of the trained
+    model, after the features: with the network's batch-norm statistics re-estimated on the joint training
+    batches (:meth:`~vtlearn.models.xavtnet.XAVTNet.reestimate_bn_statistics`, ``tactile_acc_bn``), and with
+    the teacher's weights and statistics so re-estimated
+    (:meth:`~vtlearn.models.xavtnet.XAVTNet.adopt_teacher`, ``tactile_acc_teacher`` and
+    ``visual_acc_teacher``).
 
     ``accelerator`` is Lightning's (``cpu``, ``gpu``, ``auto``); Lightning hands the model back on the CPU
     after each fit and test, so the feature extraction below runs there.
@@ -215,6 +216,8 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     Returns (row, (fc2 features and labels of visual and tactile test clouds) or None, class names).
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
+    import copy
+
     import lightning as L
     import torch
 
@@ -238,6 +241,8 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
     row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
            "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
+    # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
+    probe = copy.deepcopy(model) if model.teacher is not None else None
     if adabn:
         model.adapt_bn_statistics(dm.target_dataloader())
         adapted = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
@@ -248,12 +253,12 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
             with model.bn_domain("source"):
                 source = _collect_features(model, dm.source_test_dataloader())
             feats = (*source, *_collect_features(model, dm.test_dataloader()))
-    if model.teacher is not None:  # last: both change the model
-        model.reestimate_bn_statistics(dm.train_dataloader())
-        row["tactile_acc_bn"] = 100 * _test_acc(trainer, model, dm.test_dataloader())
-        model.adopt_teacher(dm.train_dataloader())
-        row["tactile_acc_teacher"] = 100 * _test_acc(trainer, model, dm.test_dataloader())
-        row["visual_acc_teacher"] = 100 * _test_acc(trainer, model, dm.source_test_dataloader())
+    if probe is not None:
+        probe.reestimate_bn_statistics(dm.train_dataloader())
+        row["tactile_acc_bn"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
+        probe.adopt_teacher(dm.train_dataloader())
+        row["tactile_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
+        row["visual_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.source_test_dataloader())
     return row, feats, dm.class_names
 
 
