@@ -114,6 +114,12 @@ def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, i
     return points, torch.cat([ls, lt]), ps.shape[0]
 
 
+def _batch_norms(*modules: torch.nn.Module) -> list:
+    """Every batch norm inside ``modules``, in module order."""
+    return [m for mod in modules for m in mod.modules()
+            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+
+
 @contextlib.contextmanager
 def _batch_statistics_only(bns: list):
     """Inside the block the batch norms ``bns`` normalise by the batch's statistics (training mode) and
@@ -533,8 +539,7 @@ class XAVTNet(L.LightningModule):
                              "domain's statistics with adapt_bn_statistics instead")
         if int(passes) < 1:
             raise ValueError(f"passes: need >= 1, got {passes}")
-        bns = [m for m in (*self.encoder.modules(), *self.head.modules())
-               if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+        bns = _batch_norms(self.encoder, self.head)
         momenta = [m.momentum for m in bns]
 
         def joint(batch):
@@ -706,7 +711,7 @@ class XAVTNet(L.LightningModule):
         statistics are left to the clouds that evaluation sees."""
         points, lengths, _ = _concat_streams(src, tgt)
         turned, turns = random_quarter_turns(points)
-        bns = [m for m in self.encoder.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+        bns = _batch_norms(self.encoder)
         with _batch_statistics_only(bns):
             g, _, _ = self.encoder(*self._prepare(turned, lengths))
         logits = self.rotation_head(g)
@@ -724,7 +729,7 @@ class XAVTNet(L.LightningModule):
             points, lengths, b = tgt["points"], tgt["lengths"], 0
         else:
             points, lengths, b = _concat_streams(src, tgt)
-            bns = [m for m in self.teacher.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+            bns = _batch_norms(self.teacher)
         points, lengths = self._prepare(points, lengths)
         with _batch_statistics_only(bns):
             g, _, _ = self.teacher["encoder"](points, lengths)

@@ -77,6 +77,9 @@ OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
+# Per-run tactile accuracies beyond the row's own, each summarised as "<key> mean ± std" where runs have it:
+# after AdaBN (--adabn), and a teacher row's network with re-estimated statistics and its teacher.
+EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher")
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
                "warm_start": False, "min_steps": 0, "power_beta": 1.0, "equal_steps": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
@@ -235,17 +238,17 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     loader = dm.labelled_target_train_dataloader() if oracle else dm.train_dataloader()
     trainer.fit(model, train_dataloaders=loader)
     fit_s = time.perf_counter() - t0
-    tactile = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
+    tactile = _test_acc(trainer, model, dm.test_dataloader())
     conf = model.last_test_confusion.numpy()
     with model.bn_domain("source"):  # visual clouds: the source statistics (only differ with domain_bn)
-        visual = trainer.test(model, dataloaders=dm.source_test_dataloader(), verbose=False)[0]["test/acc"]
+        visual = _test_acc(trainer, model, dm.source_test_dataloader())
     row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
            "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
     probe = copy.deepcopy(model) if model.teacher is not None else None
     if adabn:
         model.adapt_bn_statistics(dm.target_dataloader())
-        adapted = trainer.test(model, dataloaders=dm.test_dataloader(), verbose=False)[0]["test/acc"]
+        adapted = _test_acc(trainer, model, dm.test_dataloader())
         row["tactile_acc_adabn"] = 100 * float(adapted)
     feats = None
     if features:
@@ -355,24 +358,17 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             "tactile_mean": float(t.mean()), "tactile_std": float(t.std(ddof=1)) if len(t) > 1 else 0.0,
             "visual_mean": float(v.mean()), "seeds": len(t),
         })
-        if adabn:
-            a = np.array([r["tactile_acc_adabn"] for r in per_run if r["variant"] == variant])
-            spread = a.std(ddof=1) if len(a) > 1 else 0.0
-            rows[-1].update({"tactile_acc_adabn": f"{a.mean():.2f} ± {spread:.2f}",
-                             "tactile_adabn_mean": float(a.mean())})
-        for key in ("tactile_acc_bn", "tactile_acc_teacher"):
+        for key in EXTRA_SCORES:  # "tactile_acc_adabn" -> its text and "tactile_adabn_mean", ...
             a = np.array([r[key] for r in per_run if r["variant"] == variant and key in r])
             if len(a):
                 spread = a.std(ddof=1) if len(a) > 1 else 0.0
                 rows[-1].update({key: f"{a.mean():.2f} ± {spread:.2f}", key.replace("_acc", "") + "_mean":
                                  float(a.mean())})
-    teacher_cols = [c for c in ("tactile_acc_bn", "tactile_acc_teacher") if any(c in r for r in rows)]
+    extra_cols = [c for c in EXTRA_SCORES if any(c in r for r in rows)]
     source = "+".join(data_kwargs.get("source_splits", ["train"]))
     held = float(data_kwargs.get("target_holdout", 0.0))
     holdout = f" less the {held:g} of their tactile clouds held out for the test" if held > 0 else ""
-    print_table(rows, ["variant", "tactile_acc", *(["tactile_acc_adabn"] if adabn else []), *teacher_cols,
-                       "visual_acc",
-                       "thesis_V→T", "seeds"],
+    print_table(rows, ["variant", "tactile_acc", *extra_cols, "visual_acc", "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
                 f"{max_epochs} epochs, unlabelled target: {data_kwargs.get('target_split', 'train')} "
                 f"instances{holdout}, labelled visual source: {source}")
