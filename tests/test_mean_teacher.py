@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-from vtlearn.losses.consistency import softmax_consistency
+from vtlearn.losses.consistency import probability_consistency, softmax_consistency
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 
 
@@ -36,6 +36,18 @@ def test_softmax_consistency_matches_a_naive_loop_and_a_hand_case(threshold):
     # uniform teacher, student (log 3, 0): p = (3/4, 1/4) against (1/2, 1/2) -> 2·(1/4)² = 1/8
     assert softmax_consistency(torch.tensor([[math.log(3.0), 0.0]]), torch.zeros(1, 2)).item() == \
         pytest.approx(0.125, rel=1e-6)
+
+
+def test_probability_consistency_is_softmax_consistency_on_the_teacher_softmax():
+    torch.manual_seed(0)
+    zs, zt = torch.randn(6, 4), 2 * torch.randn(6, 4)
+    for threshold in (0.0, 0.6):
+        assert torch.allclose(probability_consistency(zs, zt.softmax(-1), threshold),
+                              softmax_consistency(zs, zt, threshold))
+    with pytest.raises(ValueError, match="same shape"):
+        probability_consistency(zs, torch.rand(5, 4))
+    with pytest.raises(ValueError, match="teacher_probs contains NaN"):
+        probability_consistency(zs, torch.full((6, 4), float("nan")))
 
 
 def test_softmax_consistency_gradient_reaches_the_student_only():

@@ -594,6 +594,48 @@ def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
 
 
+def test_distribution_alignment_targets_the_aligned_teacher_and_tracks_both_priors(tmp_path):
+    """consistency_align: each step moves ρ_s towards the source batch's label frequencies and ρ_t towards
+    the teacher's mean target probabilities (momentum ALIGN_MOMENTUM), and the consistency compares the
+    network with the teacher's probabilities aligned by them; checkpoints keep both running means."""
+    from vtlearn.losses.consistency import probability_consistency
+    from vtlearn.models.components.class_balance import align_distribution
+    from vtlearn.models.xavtnet import ALIGN_MOMENTUM
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_align=True).train()
+    model._log_train = lambda *a, **k: None
+    assert torch.equal(model.align_source_prior, torch.full((3,), 1 / 3))
+    with torch.no_grad():
+        for p in model.teacher.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    torch.manual_seed(1)
+    loss = model.training_step(batch, 0)
+    torch.manual_seed(1)
+    teacher_probs = model._teacher_logits(batch["source"], batch["target"]).softmax(-1)
+    target = model._perturb(batch["target"])
+    out_s, out_t = model._joint_forward(batch["source"], target)
+    y = batch["source"]["label"]
+    m = ALIGN_MOMENTUM
+    rho_s = m / 3 + (1 - m) * torch.bincount(y, minlength=3).float() / len(y)
+    rho_t = m / 3 + (1 - m) * teacher_probs.mean(0)
+    assert torch.allclose(model.align_source_prior, rho_s, atol=1e-6)
+    assert torch.allclose(model.align_target_mean, rho_t, atol=1e-6)
+    cons = probability_consistency(out_t.logits, align_distribution(teacher_probs, rho_s, rho_t))
+    vt = model.vtloss(out_s.logits, y, out_s.features, out_t.features)[0]
+    assert loss.item() == pytest.approx((vt + 3.0 * cons + model._regulariser(out_s)).item(), rel=1e-5)
+
+    trainer = L.Trainer(max_steps=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    path = tmp_path / "align.ckpt"
+    trainer.save_checkpoint(path)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True)
+    assert torch.equal(again.align_target_mean, model.align_target_mean)
+    assert not hasattr(XAVTNet(**TINY, consistency_weight=1.0), "align_target_mean")
+
+
 def test_mean_teacher_normalises_as_the_network_trains_and_keeps_its_running_statistics():
     """teacher_norm="batch": a teacher equal to the network gives the target logits of the network's
     training forward on the joint batch (dropout off), depends on the source batch, and leaves its running
@@ -802,6 +844,7 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(consistency_jitter=-0.1), "consistency_jitter"),
                           (dict(consistency_threshold=1.0), "consistency_threshold"),
                           (dict(teacher_norm="eval"), "teacher_norm"),
+                          (dict(consistency_align=True), "consistency_align"),
                           (dict(consistency_weight=1.0, domain_bn=True), "domain_bn")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)

@@ -157,16 +157,28 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert 0 <= res3["runs"][2]["tactile_acc_teacher"] <= 100
     assert "noda_adabn_minus_noda" in res3["checks"]
     assert "tactile_acc_adabn" in capsys.readouterr().out
-    # a mean-teacher row is scored again with re-estimated statistics and as its teacher; no-DA is not
-    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_g12_mt", "--seeds",
-                 "1", "--no-figures", "--json", str(out2)]) == 0
+    # a mean-teacher row (here with distribution alignment) is scored again with re-estimated statistics
+    # and as its teacher; no-DA is not. --balanced adds every row's class-balanced assignment, compared
+    # like for like with no-DA's
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_g12_mt_align",
+                 "--seeds", "1", "--balanced", "--no-figures", "--json", str(out2)]) == 0
     res4 = json.loads(out2.read_text())
     noda, mt = res4["runs"]
     assert "tactile_acc_teacher" not in noda and "tactile_acc_bn" not in noda
-    assert all(0 <= mt[k] <= 100 for k in ("tactile_acc_bn", "tactile_acc_teacher", "visual_acc_teacher"))
-    assert res4["checks"]["vtloss_g12_mt_teacher_minus_noda"] == pytest.approx(
+    assert "tactile_acc_teacher_balanced" not in noda
+    assert all(0 <= mt[k] <= 100 for k in ("tactile_acc_bn", "tactile_acc_teacher", "visual_acc_teacher",
+                                           "tactile_acc_balanced", "tactile_acc_teacher_balanced"))
+    checks = res4["checks"]
+    assert checks["vtloss_g12_mt_align_teacher_minus_noda"] == pytest.approx(
         mt["tactile_acc_teacher"] - noda["tactile_acc"])
-    assert "tactile_acc_teacher" in capsys.readouterr().out
+    assert checks["noda_balanced_minus_noda"] == pytest.approx(noda["tactile_acc_balanced"]
+                                                               - noda["tactile_acc"])
+    assert checks["vtloss_g12_mt_align_balanced_minus_noda_balanced"] == pytest.approx(
+        mt["tactile_acc_balanced"] - noda["tactile_acc_balanced"])
+    assert checks["vtloss_g12_mt_align_teacher_balanced_minus_noda_balanced"] == pytest.approx(
+        mt["tactile_acc_teacher_balanced"] - noda["tactile_acc_balanced"])
+    printed = capsys.readouterr().out
+    assert "tactile_acc_teacher" in printed and "tactile_acc_balanced" in printed
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):

@@ -402,6 +402,17 @@ class CrossModalDataModule(ShardedDataModule):
                             seed=self.seed, scales=scales, subsample=subsample, fuse_views=self.source_views,
                             groups=groups, touch_pitch=pitch)
 
+    def source_class_prior(self) -> np.ndarray:
+        """The class frequencies of the labelled visual training clouds (``source_splits``), the prior
+        that class-balanced predictions on the target stream assume
+        (:mod:`vtlearn.models.components.class_balance`).
+
+        Shapes:
+            -> (num_classes,) summing to 1
+        """
+        labels = np.asarray(self.source_train_dataset().labels)
+        return np.bincount(labels, minlength=self.num_classes) / len(labels)
+
     def train_dataloader(self) -> CombinedLoader | DataLoader:
         """Source and target streams (``train_on="visual"``), or the labelled tactile training clouds
         (``train_on="tactile"``)."""

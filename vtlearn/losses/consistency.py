@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["softmax_consistency"]
+__all__ = ["softmax_consistency", "probability_consistency"]
 
 
 def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tensor,
@@ -28,18 +28,33 @@ def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tens
     Shapes:
         student_logits (n, k), teacher_logits (n, k), n ≥ 1, k ≥ 2 -> scalar in [0, 2]
     """
-    for name, z in (("student_logits", student_logits), ("teacher_logits", teacher_logits)):
+    if not isinstance(teacher_logits, torch.Tensor):
+        raise ValueError(f"teacher_logits must be a torch.Tensor, got {type(teacher_logits).__name__}")
+    return probability_consistency(student_logits, teacher_logits.detach().softmax(-1), threshold,
+                                   name="teacher_logits")
+
+
+def probability_consistency(student_logits: torch.Tensor, teacher_probs: torch.Tensor,
+                            threshold: float = 0.0, name: str = "teacher_probs") -> torch.Tensor:
+    """L_cons against the teacher's probabilities ``p'`` themselves (for instance after distribution
+    alignment, :func:`~vtlearn.models.components.class_balance.align_distribution`); ``m_i`` reads the
+    peak of ``p'``. ``name`` is the argument the errors name.
+
+    Shapes:
+        student_logits (n, k), teacher_probs (n, k) rows of probabilities -> scalar in [0, 2]
+    """
+    for arg, z in (("student_logits", student_logits), (name, teacher_probs)):
         if not isinstance(z, torch.Tensor):
-            raise ValueError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+            raise ValueError(f"{arg} must be a torch.Tensor, got {type(z).__name__}")
         if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 2:
-            raise ValueError(f"{name} must have shape (n >= 1, k >= 2), got {tuple(z.shape)}")
+            raise ValueError(f"{arg} must have shape (n >= 1, k >= 2), got {tuple(z.shape)}")
         if not torch.isfinite(z).all():
-            raise ValueError(f"{name} contains NaN or inf")
-    if student_logits.shape != teacher_logits.shape:
-        raise ValueError(f"student_logits {tuple(student_logits.shape)} and teacher_logits "
-                         f"{tuple(teacher_logits.shape)} must have the same shape")
+            raise ValueError(f"{arg} contains NaN or inf")
+    if student_logits.shape != teacher_probs.shape:
+        raise ValueError(f"student_logits {tuple(student_logits.shape)} and {name} "
+                         f"{tuple(teacher_probs.shape)} must have the same shape")
     if not 0 <= threshold < 1:
         raise ValueError(f"threshold: need a confidence in [0, 1), got {threshold}")
-    p_teacher = teacher_logits.detach().softmax(-1)
+    p_teacher = teacher_probs.detach()
     per_cloud = (student_logits.softmax(-1) - p_teacher).pow(2).sum(-1)
     return (per_cloud * (p_teacher.amax(-1) >= threshold)).mean()

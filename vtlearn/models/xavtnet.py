@@ -40,6 +40,9 @@ network's own training forward is (``teacher_norm``); the step adds ``consistenc
 of the two softmaxes (:func:`~vtlearn.losses.consistency.softmax_consistency`), with Tarvainen's sigmoid
 ramp-up ``r`` over the first ``consistency_rampup`` of the training progress ``p``. Evaluation uses the
 trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weights in its place.
+``consistency_align=True`` first aligns the teacher's probabilities with the source class frequencies
+(ReMixMatch's distribution alignment, :mod:`~vtlearn.models.components.class_balance`), so that the classes
+the teacher over-predicts on the target stream weigh less in its targets and the neglected ones more.
 
 ``rotation_weight > 0`` (beyond the thesis) adds a self-supervised task shared by both domains: every step
 the source and target clouds, each turned by a random number of quarter turns about the canonical x axis,
@@ -71,11 +74,12 @@ import torch.nn.functional as F
 from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
-from vtlearn.losses.consistency import softmax_consistency
+from vtlearn.losses.consistency import probability_consistency
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
+from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
@@ -96,6 +100,8 @@ LR_SCHEDULES = ("constant", "cosine")
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
 FEATURE_LAYERS = ("global", "fc1", "fc2")
 TEACHER_NORMS = ("batch", "running")
+# The running class frequencies of consistency_align: ReMixMatch averages the last 128 batches' predictions
+ALIGN_MOMENTUM = 0.99
 
 
 def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, int]:
@@ -255,6 +261,13 @@ class XAVTNet(L.LightningModule):
             ``"running"``: eval mode, on the running statistics averaged from the network's. With
             ``"running"`` the bench row's teacher scored 8-25 % on the tactile stream while the network
             scored 37-49 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
+        consistency_align: ReMixMatch's distribution alignment of the teacher's target probabilities before
+            the threshold and the consistency
+            (:func:`~vtlearn.models.components.class_balance.align_distribution`, beyond the thesis):
+            ``p̃ = normalise(p ⊙ ρ_s / ρ_t)``, with ``ρ_s`` a running mean of the source batches' class
+            frequencies and ``ρ_t`` one of the teacher's target probabilities (momentum ``ALIGN_MOMENTUM``
+            per step, both starting uniform and kept in checkpoints). It assumes the target classes occur
+            as often as the source's. Needs ``consistency_weight > 0``.
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
@@ -310,6 +323,7 @@ class XAVTNet(L.LightningModule):
         consistency_jitter: float = 0.01,
         consistency_threshold: float = 0.0,
         teacher_norm: str = "batch",
+        consistency_align: bool = False,
         rotation_weight: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
@@ -362,6 +376,9 @@ class XAVTNet(L.LightningModule):
                              f"{consistency_threshold}")
         if teacher_norm not in TEACHER_NORMS:
             raise ValueError(f"teacher_norm: expected one of {TEACHER_NORMS}, got {teacher_norm!r}")
+        if consistency_align and consistency_weight <= 0:
+            raise ValueError("consistency_align: needs consistency_weight > 0 (it aligns the teacher's "
+                             "targets)")
         if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
             raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
         if rotation_weight > 0 and domain_bn:
@@ -409,6 +426,9 @@ class XAVTNet(L.LightningModule):
         )
         if self.teacher is not None:
             self.teacher.requires_grad_(False)
+        if consistency_align:  # ρ_s and ρ_t of the distribution alignment, saved with the weights
+            self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
+            self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
@@ -685,7 +705,10 @@ class XAVTNet(L.LightningModule):
             parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
         if teacher_logits is not None:
             hp = self.hparams
-            cons = softmax_consistency(out_t.logits, teacher_logits, hp.get("consistency_threshold", 0.0))
+            teacher_probs = teacher_logits.softmax(-1)
+            if hp.get("consistency_align", False):
+                teacher_probs = self._align_teacher(teacher_probs, y)
+            cons = probability_consistency(out_t.logits, teacher_probs, hp.get("consistency_threshold", 0.0))
             w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
             loss = loss + w * cons
             parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
@@ -696,6 +719,22 @@ class XAVTNet(L.LightningModule):
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
+
+    @torch.no_grad()
+    def _align_teacher(self, teacher_probs: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Update the running ρ_s (source labels ``y``) and ρ_t (``teacher_probs``) and return the aligned
+        probabilities (``consistency_align``).
+
+        Shapes:
+            teacher_probs (n, k), y (B,) int64 -> (n, k)
+        """
+        m, k = ALIGN_MOMENTUM, teacher_probs.shape[1]
+        freq = torch.bincount(y, minlength=k).to(self.align_source_prior) / y.numel()
+        self.align_source_prior.mul_(m).add_(freq, alpha=1 - m)
+        self.align_target_mean.mul_(m).add_(teacher_probs.mean(0).to(self.align_target_mean), alpha=1 - m)
+        # renormalised against rounding drift; a class not yet seen keeps a share of its uniform start
+        return align_distribution(teacher_probs, self.align_source_prior / self.align_source_prior.sum(),
+                                  self.align_target_mean / self.align_target_mean.sum())
 
     def _perturb(self, batch: dict) -> dict:
         """A perturbed copy of a target batch (``consistency_keep``, ``consistency_jitter``)."""

@@ -72,14 +72,20 @@ VARIANTS: dict[str, dict] = {
 # Beyond the thesis: the teacher row plus rotation prediction on both domains' clouds (Sun et al. 2019;
 # GAST's quarter turns of object clouds), weighted as the source cross-entropy (α = 10).
 VARIANTS["vtloss_g12_mt_rot"] = {**VARIANTS["vtloss_g12_mt"], "rotation_weight": 10.0}
+# Beyond the thesis: the teacher row with ReMixMatch's distribution alignment of the teacher's targets to
+# the source class frequencies (models/components/class_balance.py; AdaMatch's assumption that the target
+# classes occur as often as the source's).
+VARIANTS["vtloss_g12_mt_align"] = {**VARIANTS["vtloss_g12_mt"], "consistency_align": True}
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
 # Per-run tactile accuracies beyond the row's own, each summarised as "<key> mean ± std" where runs have it:
-# after AdaBN (--adabn), and a teacher row's network with re-estimated statistics and its teacher.
-EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher")
+# after AdaBN (--adabn), a teacher row's network with re-estimated statistics and its teacher, and the
+# class-balanced assignments of the network and the teacher (--balanced).
+EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher", "tactile_acc_balanced",
+                "tactile_acc_teacher_balanced")
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
                "warm_start": False, "min_steps": 0, "power_beta": 1.0, "equal_steps": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
@@ -199,7 +205,7 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
 
 
 def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_epochs: int, threads: int,
-                    features: bool, accelerator: str = "cpu", adabn: bool = False):
+                    features: bool, accelerator: str = "cpu", adabn: bool = False, balanced: bool = False):
     """Train one (variant, seed) of the Table 7.2/7.4 analogue and score it on tactile and visual test clouds.
 
     ``adabn``: afterwards, re-estimate the target batch-norm statistics on the unlabelled target stream
@@ -212,6 +218,10 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     the teacher's weights and statistics so re-estimated
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adopt_teacher`, ``tactile_acc_teacher`` and
     ``visual_acc_teacher``).
+
+    ``balanced``: also score the class-balanced assignment of the whole tactile test set
+    (:func:`_balanced_acc`, ``tactile_acc_balanced``; on a teacher row its teacher's as well,
+    ``tactile_acc_teacher_balanced``), before AdaBN.
 
     ``accelerator`` is Lightning's (``cpu``, ``gpu``, ``auto``); Lightning hands the model back on the CPU
     after each fit and test, so the feature extraction below runs there.
@@ -244,6 +254,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         visual = _test_acc(trainer, model, dm.source_test_dataloader())
     row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
            "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
+    prior = dm.source_class_prior() if balanced else None
+    if balanced:
+        row["tactile_acc_balanced"] = _balanced_acc(model, dm.test_dataloader(), prior)
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
     probe = copy.deepcopy(model) if model.teacher is not None else None
     if adabn:
@@ -262,11 +275,36 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         probe.adopt_teacher(dm.train_dataloader())
         row["tactile_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
         row["visual_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.source_test_dataloader())
+        if balanced:
+            row["tactile_acc_teacher_balanced"] = _balanced_acc(probe, dm.test_dataloader(), prior)
     return row, feats, dm.class_names
 
 
 def _test_acc(trainer, model, loader) -> float:
     return float(trainer.test(model, dataloaders=loader, verbose=False)[0]["test/acc"])
+
+
+def _balanced_acc(model, loader, prior: np.ndarray) -> float:
+    """Accuracy (%) of the class-balanced assignment of every cloud of ``loader`` at once: the model's
+    eval-mode probabilities rescaled by Sinkhorn-Knopp to the class frequencies ``prior``
+    (:func:`~vtlearn.models.components.class_balance.sinkhorn_balance`). Transductive, label-free: the
+    labels only score the assignment. The model is on the CPU (Lightning hands it back there)."""
+    import torch
+
+    from vtlearn.models.components.class_balance import sinkhorn_balance
+
+    was_training = model.training
+    model.eval()
+    probs, labels = [], []
+    try:
+        with torch.no_grad():
+            for batch in loader:
+                probs.append(model(batch["points"], batch.get("lengths")).logits.softmax(-1))
+                labels.append(batch["label"])
+    finally:
+        model.train(was_training)
+    q = sinkhorn_balance(torch.cat(probs), torch.as_tensor(prior))
+    return 100 * float((q.argmax(-1) == torch.cat(labels)).double().mean())
 
 
 def _map_jobs(fn, job_args: list[tuple], workers: int):
@@ -323,8 +361,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     jobs = [(v, s) for v in variants for s in seeds]
     figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
     adabn = bool(getattr(args, "adabn", False))
+    balanced = bool(getattr(args, "balanced", False))
     job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs,
-                 args.accelerator, adabn) for variant, seed in jobs]
+                 args.accelerator, adabn, balanced) for variant, seed in jobs]
     results = _map_jobs(_crossmodal_job, job_args, args.workers)
     per_run: list[dict] = []
     keep: dict = {}
@@ -340,6 +379,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         if "tactile_acc_teacher" in row:
             extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
                       f"{row['tactile_acc_teacher']:.1f}% (visual {row['visual_acc_teacher']:.1f}%)")
+        if balanced:
+            extra += f"  balanced {row['tactile_acc_balanced']:.1f}%"
+            if "tactile_acc_teacher_balanced" in row:
+                extra += f"  teacher balanced {row['tactile_acc_teacher_balanced']:.1f}%"
         tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
                    f"visual {row['visual_acc']:.1f}%{extra}  ({row['fit_s']:.0f} s)")
     bar.close()
@@ -391,6 +434,15 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         checks["noda_adabn_minus_noda"] = adapted["noda"] - means["noda"]
         if "vtloss" in adapted:
             checks["vtloss_adabn_minus_noda"] = adapted["vtloss"] - means["noda"]
+    if balanced and "noda" in means:  # like for like: both rows' balanced assignments
+        noda_bal = next(r["tactile_balanced_mean"] for r in rows if r["variant"] == "noda")
+        checks["noda_balanced_minus_noda"] = noda_bal - means["noda"]
+        for r in rows:
+            if r["variant"] != "noda":
+                checks[f"{r['variant']}_balanced_minus_noda_balanced"] = r["tactile_balanced_mean"] - noda_bal
+            if "tactile_teacher_balanced_mean" in r:
+                checks[f"{r['variant']}_teacher_balanced_minus_noda_balanced"] = (
+                    r["tactile_teacher_balanced_mean"] - noda_bal)
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
 
@@ -952,6 +1004,10 @@ def register_bench(sub) -> None:
     p.add_argument("--adabn", action="store_true",
                    help="also score every row after re-estimating its target batch-norm statistics on the "
                         "unlabelled target stream (AdaBN, XAVTNet.adapt_bn_statistics): tactile_acc_adabn")
+    p.add_argument("--balanced", action="store_true",
+                   help="also score every row's class-balanced assignment of the whole tactile test set "
+                        "(Sinkhorn-Knopp to the source class frequencies; transductive, label-free): "
+                        "tactile_acc_balanced, and tactile_acc_teacher_balanced on teacher rows")
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
