@@ -177,6 +177,11 @@ def test_crossmodal_source_splits_add_the_test_objects_to_the_labelled_source(cr
     assert pts <= {tuple(q) for v in mates for q in np.round(v, 5)}  # fused with its own instance's views
     a, b = next(iter(plain.test_dataloader())), next(iter(known.test_dataloader()))
     assert torch.equal(a["points"], b["points"])
+    # the class frequencies of the source, as the balanced predictions assume them
+    both = np.concatenate([tr["visual_label"], te["visual_label"]])
+    prior = known.source_class_prior()
+    assert prior.shape == (known.num_classes,)
+    np.testing.assert_allclose(prior, np.bincount(both, minlength=known.num_classes) / len(both))
     for bad in (["val2"], [], ["train", "train"]):
         with pytest.raises(ValueError, match="source_splits"):
             CrossModalDataModule(str(cross_dir), source_splits=bad)
