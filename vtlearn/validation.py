@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["as_points", "as_transform", "check_not_collinear", "to_numpy"]
+__all__ = ["as_points", "as_transform", "check_class_scores", "check_not_collinear", "to_numpy"]
 
 
 def to_numpy(x: Any, dtype=np.float64) -> np.ndarray:
@@ -89,3 +89,20 @@ def check_not_collinear(points: np.ndarray, name: str, *, tol: float = 1e-9) -> 
     scale = max(float(s[0]), 1e-300)
     if s[0] <= tol or s[1] / scale <= tol:
         raise ValueError(f"{name}: points are degenerate (all coincident or collinear); need a 2-D spread")
+
+
+def check_class_scores(z: Any, name: str) -> None:
+    """A ValueError naming ``name`` unless ``z`` is a finite torch tensor of per-class scores (logits or
+    probabilities) of shape (n >= 1, k >= 2).
+
+    Shapes:
+        z (n, k)
+    """
+    import torch
+
+    if not isinstance(z, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+    if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 2:
+        raise ValueError(f"{name} must have shape (n >= 1, k >= 2), got {tuple(z.shape)}")
+    if not torch.isfinite(z).all():
+        raise ValueError(f"{name} contains NaN or inf")

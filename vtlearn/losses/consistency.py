@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import torch
 
+from vtlearn.validation import check_class_scores
+
 __all__ = ["softmax_consistency", "probability_consistency"]
 
 
@@ -43,13 +45,8 @@ def probability_consistency(student_logits: torch.Tensor, teacher_probs: torch.T
     Shapes:
         student_logits (n, k), teacher_probs (n, k) rows of probabilities -> scalar in [0, 2]
     """
-    for arg, z in (("student_logits", student_logits), (name, teacher_probs)):
-        if not isinstance(z, torch.Tensor):
-            raise ValueError(f"{arg} must be a torch.Tensor, got {type(z).__name__}")
-        if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 2:
-            raise ValueError(f"{arg} must have shape (n >= 1, k >= 2), got {tuple(z.shape)}")
-        if not torch.isfinite(z).all():
-            raise ValueError(f"{arg} contains NaN or inf")
+    check_class_scores(student_logits, "student_logits")
+    check_class_scores(teacher_probs, name)
     if student_logits.shape != teacher_probs.shape:
         raise ValueError(f"student_logits {tuple(student_logits.shape)} and {name} "
                          f"{tuple(teacher_probs.shape)} must have the same shape")

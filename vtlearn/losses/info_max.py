@@ -19,6 +19,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from vtlearn.validation import check_class_scores
+
 __all__ = ["information_maximization"]
 
 
@@ -29,12 +31,7 @@ def information_maximization(logits: torch.Tensor) -> tuple[torch.Tensor, dict[s
         logits (n, k), n ≥ 1, k ≥ 2 -> (scalar L_IM, {"cond_entropy": scalar, "marginal_entropy": scalar},
         the parts detached)
     """
-    if not isinstance(logits, torch.Tensor):
-        raise ValueError(f"logits must be a torch.Tensor, got {type(logits).__name__}")
-    if logits.dim() != 2 or logits.shape[0] < 1 or logits.shape[1] < 2:
-        raise ValueError(f"logits must have shape (n >= 1, k >= 2), got {tuple(logits.shape)}")
-    if not torch.isfinite(logits).all():
-        raise ValueError("logits contains NaN or inf")
+    check_class_scores(logits, "logits")
     log_p = F.log_softmax(logits, dim=1)
     p = log_p.exp()
     cond = -(p * log_p).sum(1).mean()
