@@ -363,3 +363,30 @@ def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_cr
     torch.save({"state_dict": {"decoder.w": torch.zeros(2)}, "hyper_parameters": {}}, other)
     assert main(["adapt-bn", "--ckpt", str(other), "--data", str(tiny_crossmodal), "--out", str(out)]) == 2
     assert "not an xAVTNet checkpoint" in capsys.readouterr().err
+
+
+def test_balanced_accuracy_scores_the_balanced_assignment_and_keeps_the_random_state():
+    """_balanced_acc is the accuracy of the Sinkhorn assignment of the whole loader's eval-mode
+    probabilities, and leaves torch's random state as it found it, so that --balanced does not move the
+    scores computed after it."""
+    import torch
+
+    from vtlearn.models.components.class_balance import sinkhorn_balance
+    from vtlearn.models.xavtnet_cli import _balanced_acc
+
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8]).train()
+    clouds = torch.randn(12, 20, 3)
+    labels = torch.arange(12) % 3
+    loader = torch.utils.data.DataLoader(
+        [{"points": p, "lengths": torch.tensor(20), "label": y} for p, y in zip(clouds, labels, strict=True)],
+        batch_size=5)
+    state = torch.random.get_rng_state()
+    acc = _balanced_acc(model, loader, [1 / 3, 1 / 3, 1 / 3])
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert model.training  # the training flag is restored
+    with torch.no_grad():
+        probs = model.eval()(clouds, torch.full((12,), 20)).logits.softmax(-1)
+    expected = (sinkhorn_balance(probs).argmax(-1) == labels).double().mean() * 100
+    assert acc == pytest.approx(float(expected))
+

@@ -288,7 +288,9 @@ def _balanced_acc(model, loader, prior: np.ndarray) -> float:
     """Accuracy (%) of the class-balanced assignment of every cloud of ``loader`` at once: the model's
     eval-mode probabilities rescaled by Sinkhorn-Knopp to the class frequencies ``prior``
     (:func:`~vtlearn.models.components.class_balance.sinkhorn_balance`). Transductive, label-free: the
-    labels only score the assignment. The model is on the CPU (Lightning hands it back there)."""
+    labels only score the assignment. The model is on the CPU (Lightning hands it back there). Torch's
+    random state is restored afterwards (iterating a loader draws from it), so the scores computed after
+    this one do not depend on whether it ran."""
     import torch
 
     from vtlearn.models.components.class_balance import sinkhorn_balance
@@ -297,7 +299,7 @@ def _balanced_acc(model, loader, prior: np.ndarray) -> float:
     model.eval()
     probs, labels = [], []
     try:
-        with torch.no_grad():
+        with torch.no_grad(), torch.random.fork_rng():
             for batch in loader:
                 probs.append(model(batch["points"], batch.get("lengths")).logits.softmax(-1))
                 labels.append(batch["label"])
