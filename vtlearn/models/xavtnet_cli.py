@@ -143,11 +143,13 @@ def _trainer(max_epochs: int, accelerator: str = "cpu"):
                      num_sanity_val_steps=0, limit_val_batches=0)
 
 
-def _collect_features(model, loader):
+def _collect_features(model, loader, layer: str = "fc2"):
+    """The eval-mode ``layer`` (a key of ``XAVTNet.extract_features``: ``"fc2"``, ``"logits"``, ...) of
+    every cloud of ``loader``, and their labels, as numpy arrays."""
     feats, labels = [], []
     for batch in loader:
         out = model.extract_features(batch["points"], batch["lengths"])
-        feats.append(out["fc2"].numpy())
+        feats.append(out[layer].numpy())
         labels.append(batch["label"].numpy())
     return np.concatenate(feats), np.concatenate(labels)
 
@@ -295,18 +297,10 @@ def _balanced_acc(model, loader, prior: np.ndarray) -> float:
 
     from vtlearn.models.components.class_balance import sinkhorn_balance
 
-    was_training = model.training
-    model.eval()
-    probs, labels = [], []
-    try:
-        with torch.no_grad(), torch.random.fork_rng():
-            for batch in loader:
-                probs.append(model(batch["points"], batch.get("lengths")).logits.softmax(-1))
-                labels.append(batch["label"])
-    finally:
-        model.train(was_training)
-    q = sinkhorn_balance(torch.cat(probs), torch.as_tensor(prior))
-    return 100 * float((q.argmax(-1) == torch.cat(labels)).double().mean())
+    with torch.random.fork_rng():
+        logits, labels = _collect_features(model, loader, "logits")
+    q = sinkhorn_balance(torch.from_numpy(logits).softmax(-1), torch.as_tensor(prior))
+    return 100 * float((q.argmax(-1).numpy() == labels).mean())
 
 
 def _map_jobs(fn, job_args: list[tuple], workers: int):
