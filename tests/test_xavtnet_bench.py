@@ -154,8 +154,18 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--seeds", "1", "--adabn", "--no-figures", "--json", str(out2)]) == 0
     res3 = json.loads(out2.read_text())
     assert all(0 <= r["tactile_acc_adabn"] <= 100 for r in res3["runs"])
-    assert 0 <= res3["runs"][2]["tactile_acc_teacher"] <= 100
-    assert "noda_adabn_minus_noda" in res3["checks"]
+    noda, dbn, mt = res3["runs"]
+    assert 0 <= mt["tactile_acc_teacher"] <= 100 and 0 <= mt["tactile_acc_teacher_adabn"] <= 100
+    assert "tactile_acc_teacher_adabn" not in noda
+    checks = res3["checks"]
+    assert checks["noda_adabn_minus_noda"] == pytest.approx(noda["tactile_acc_adabn"] - noda["tactile_acc"])
+    # every other row against plain no-DA and, like for like, against no-DA after AdaBN
+    assert checks["vtloss_dbn_adabn_minus_noda"] == pytest.approx(
+        dbn["tactile_acc_adabn"] - noda["tactile_acc"])
+    assert checks["vtloss_g12_mt_adabn_minus_noda_adabn"] == pytest.approx(
+        mt["tactile_acc_adabn"] - noda["tactile_acc_adabn"])
+    assert checks["vtloss_g12_mt_teacher_adabn_minus_noda_adabn"] == pytest.approx(
+        mt["tactile_acc_teacher_adabn"] - noda["tactile_acc_adabn"])
     assert "tactile_acc_adabn" in capsys.readouterr().out
     # a mean-teacher row (here with distribution alignment) is scored again with re-estimated statistics
     # and as its teacher; no-DA is not. --balanced adds every row's class-balanced assignment, compared

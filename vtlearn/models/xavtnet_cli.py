@@ -84,8 +84,8 @@ ORACLE = "tactile_oracle"
 # Per-run tactile accuracies beyond the row's own, each summarised as "<key> mean ± std" where runs have it:
 # after AdaBN (--adabn), a teacher row's network with re-estimated statistics and its teacher, and the
 # class-balanced assignments of the network and the teacher (--balanced).
-EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher", "tactile_acc_balanced",
-                "tactile_acc_teacher_balanced")
+EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher", "tactile_acc_teacher_adabn",
+                "tactile_acc_balanced", "tactile_acc_teacher_balanced")
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
                "warm_start": False, "min_steps": 0, "power_beta": 1.0, "equal_steps": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
@@ -219,7 +219,8 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     batches (:meth:`~vtlearn.models.xavtnet.XAVTNet.reestimate_bn_statistics`, ``tactile_acc_bn``), and with
     the teacher's weights and statistics so re-estimated
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adopt_teacher`, ``tactile_acc_teacher`` and
-    ``visual_acc_teacher``).
+    ``visual_acc_teacher``); with ``adabn`` that teacher is scored once more after AdaBN
+    (``tactile_acc_teacher_adabn``).
 
     ``balanced``: also score the class-balanced assignment of the whole tactile test set
     (:func:`_balanced_acc`, ``tactile_acc_balanced``; on a teacher row its teacher's as well,
@@ -279,6 +280,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         row["visual_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.source_test_dataloader())
         if balanced:
             row["tactile_acc_teacher_balanced"] = _balanced_acc(probe, dm.test_dataloader(), prior)
+        if adabn:  # the teacher's weights with AdaBN's target statistics, as the network above
+            probe.adapt_bn_statistics(dm.target_dataloader())
+            row["tactile_acc_teacher_adabn"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
     return row, feats, dm.class_names
 
 
@@ -375,6 +379,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         if "tactile_acc_teacher" in row:
             extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
                       f"{row['tactile_acc_teacher']:.1f}% (visual {row['visual_acc_teacher']:.1f}%)")
+            if "tactile_acc_teacher_adabn" in row:
+                extra += f"  teacher after AdaBN {row['tactile_acc_teacher_adabn']:.1f}%"
         if balanced:
             extra += f"  balanced {row['tactile_acc_balanced']:.1f}%"
             if "tactile_acc_teacher_balanced" in row:
@@ -425,11 +431,16 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         checks["vtloss_beats_mmd_and_coral"] = means["vtloss"] > max(means["mmd"], means["coral"])
     if {"vtloss", "vtloss_fc1", "vtloss_fc2"} <= means.keys():
         checks["both_layers_beat_each"] = means["vtloss"] > max(means["vtloss_fc1"], means["vtloss_fc2"])
-    if adabn and "noda" in means:
-        adapted = {r["variant"]: r["tactile_adabn_mean"] for r in rows}
-        checks["noda_adabn_minus_noda"] = adapted["noda"] - means["noda"]
-        if "vtloss" in adapted:
-            checks["vtloss_adabn_minus_noda"] = adapted["vtloss"] - means["noda"]
+    if adabn and "noda" in means:  # against plain no-DA, and like for like against no-DA after AdaBN
+        noda_ada = next(r["tactile_adabn_mean"] for r in rows if r["variant"] == "noda")
+        checks["noda_adabn_minus_noda"] = noda_ada - means["noda"]
+        for r in rows:
+            if r["variant"] != "noda":
+                checks[f"{r['variant']}_adabn_minus_noda"] = r["tactile_adabn_mean"] - means["noda"]
+                checks[f"{r['variant']}_adabn_minus_noda_adabn"] = r["tactile_adabn_mean"] - noda_ada
+            if "tactile_teacher_adabn_mean" in r:
+                checks[f"{r['variant']}_teacher_adabn_minus_noda_adabn"] = (
+                    r["tactile_teacher_adabn_mean"] - noda_ada)
     if balanced and "noda" in means:  # like for like: both rows' balanced assignments
         noda_bal = next(r["tactile_balanced_mean"] for r in rows if r["variant"] == "noda")
         checks["noda_balanced_minus_noda"] = noda_bal - means["noda"]
@@ -999,7 +1010,8 @@ def register_bench(sub) -> None:
                         "(e.g. closed-loop episodes from `vtlearn gen-episodes`); default: --data's own")
     p.add_argument("--adabn", action="store_true",
                    help="also score every row after re-estimating its target batch-norm statistics on the "
-                        "unlabelled target stream (AdaBN, XAVTNet.adapt_bn_statistics): tactile_acc_adabn")
+                        "unlabelled target stream (AdaBN, XAVTNet.adapt_bn_statistics): tactile_acc_adabn, "
+                        "and tactile_acc_teacher_adabn on teacher rows")
     p.add_argument("--balanced", action="store_true",
                    help="also score every row's class-balanced assignment of the whole tactile test set "
                         "(Sinkhorn-Knopp to the source class frequencies; transductive, label-free): "
