@@ -178,3 +178,115 @@ def test_adapt_bn_statistics_averages_the_target_batches_exactly(tmp_path):
         model.adapt_bn_statistics(batches, passes=0)
     with pytest.raises(ValueError, match="domain"):
         model.adapt_bn_statistics(batches, domain="tactile")
+
+
+def test_mean_teacher_with_domain_bn_normalises_its_target_copy_alone():
+    """consistency_weight with domain_bn: a teacher equal to the network gives the target logits of the
+    network's own target forward (``_split_forward``, the copy's batch statistics alone), whatever the source
+    batch, and leaves both domains' running statistics alone; teacher_norm="running" is the eval-mode
+    network with the target statistics."""
+    from tests.test_xavtnet import TinyCrossModalDM
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    src, tgt = batch["source"], batch["target"]
+    model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True)
+    assert all(isinstance(m, DomainBatchNorm) for m in model.teacher.modules()
+               if isinstance(m, nn.BatchNorm1d | DomainBatchNorm))
+    with torch.no_grad():  # the two domains' statistics differ
+        for m in model.modules():
+            if isinstance(m, DomainBatchNorm):
+                m.running_mean_target.add_(0.5)
+    model._update_teacher(0.0)  # the teacher equals the network
+    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
+    torch.manual_seed(3)
+    teacher = model.train()._teacher_logits(src, tgt)
+    torch.manual_seed(3)
+    copy = model._perturb(tgt)
+    with torch.no_grad():
+        expected = model._split_forward(src, copy)[1].logits
+    assert torch.allclose(teacher, expected, atol=1e-5)
+    for k, v in model.teacher.state_dict().items():
+        if k in running:
+            assert torch.equal(v, running[k]), k
+    other = {**src, "points": src["points"] + 0.5}  # other source clouds: the same target logits
+    torch.manual_seed(3)
+    assert torch.allclose(model._teacher_logits(other, tgt), teacher, atol=1e-6)
+
+    model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True, teacher_norm="running")
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, DomainBatchNorm):
+                m.running_mean_target.add_(0.5)
+    model._update_teacher(0.0)
+    torch.manual_seed(3)
+    teacher = model.train()._teacher_logits(src, tgt)
+    torch.manual_seed(3)
+    copy = model._perturb(tgt)
+    with torch.no_grad():
+        expected = model.eval()(copy["points"], copy["lengths"]).logits  # target statistics by default
+        with model.bn_domain("source"):
+            assert not torch.allclose(model(copy["points"], copy["lengths"]).logits, expected, atol=1e-3)
+    assert torch.allclose(teacher, expected, atol=1e-5)
+
+
+def test_reestimated_bn_statistics_with_domain_bn_average_each_domain_over_its_own_stream():
+    """With domain_bn, reestimate_bn_statistics sets each domain's running means to the exact mean of the
+    batch means over that domain's batches of the two-stream loader, and no weight changes."""
+    from tests.test_xavtnet import TinyCrossModalDM
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True)
+    loader = TinyCrossModalDM().train_dataloader()
+    batches = [b for b, _, _ in loader]
+    reference = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True)
+    reference.load_state_dict(model.state_dict())
+    fc1 = reference.head.fc1[0]  # the Linear whose output fc1's batch norm normalises
+    expected = {}
+    for domain in ("source", "target"):
+        seen = []
+        hook = fc1.register_forward_hook(lambda m, inp, out, seen=seen: seen.append(out.detach().mean(0)))
+        with torch.no_grad(), reference.bn_domain(domain):
+            for b in batches:
+                reference.train()(b[domain]["points"], b[domain]["lengths"])  # batch statistics, no dropout
+        hook.remove()
+        expected[domain] = torch.stack(seen).mean(0)
+    weights = {k: v.clone() for k, v in model.state_dict().items() if "running" not in k}
+    assert model.reestimate_bn_statistics(loader) == 24  # 3 batches of 4 source and 4 target clouds
+    bn = model.head.fc1[1]
+    assert torch.allclose(bn.running_mean_source, expected["source"], atol=1e-5)
+    assert torch.allclose(bn.running_mean_target, expected["target"], atol=1e-5)
+    assert not torch.allclose(bn.running_mean_source, bn.running_mean_target, atol=1e-3)
+    assert bn.momentum == 0.1  # restored
+    for k, v in model.state_dict().items():
+        if k in weights:
+            assert torch.equal(v, weights[k]), k
+
+
+def test_mean_teacher_with_domain_bn_trains_adopts_its_teacher_and_round_trips(tmp_path):
+    """A short training of the teacher row with domain_bn logs the consistency, keeps the teacher's
+    per-domain statistics in a weights_only checkpoint, and adopt_teacher gives the network the teacher's
+    weights with both domains' statistics re-estimated."""
+    from tests.test_xavtnet import TinyCrossModalDM
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=2.0, consistency_rampup=0.0, ema_decay=0.5, domain_bn=True)
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    assert "train/consistency" in trainer.logged_metrics
+    t_bn = model.teacher["head"].fc1[1]
+    assert not torch.equal(t_bn.running_mean_source, t_bn.running_mean_target)
+    path = tmp_path / "mt_dbn.ckpt"
+    trainer.save_checkpoint(path)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True).eval()
+    for (k, v), (_, w) in zip(again.teacher.state_dict().items(), model.teacher.state_dict().items(),
+                              strict=True):
+        assert torch.equal(v, w), k
+    teacher_fc1 = model.teacher["head"].fc1[0].weight.clone()
+    assert model.adopt_teacher(TinyCrossModalDM().train_dataloader()) == 24
+    assert torch.equal(model.head.fc1[0].weight, teacher_fc1)
+    x = torch.randn(2, 12, 3)
+    model.eval()
+    with model.bn_domain("source"):
+        source = model(x).logits
+    assert not torch.allclose(model(x).logits, source, atol=1e-4)

@@ -688,8 +688,8 @@ def _bn_batch_means(model, batches):
 
 def test_reestimated_bn_statistics_average_the_joint_batches():
     """The running means become the exact mean of the batch means over the loader's joint source + target
-    batches, with no weight changed and the model's mode kept; one-stream loaders and domain_bn models are
-    refused with a ValueError."""
+    batches, with no weight changed and the model's mode kept; one-stream loaders are refused with a
+    ValueError (domain_bn models: tests/test_domain_bn.py)."""
     from vtlearn.models.xavtnet import _concat_streams
 
     torch.manual_seed(0)
@@ -723,8 +723,6 @@ def test_reestimated_bn_statistics_average_the_joint_batches():
         model.reestimate_bn_statistics(one_stream)
     with pytest.raises(ValueError, match="passes"):
         model.reestimate_bn_statistics(loader, passes=0)
-    with pytest.raises(ValueError, match="domain_bn"):
-        XAVTNet(**TINY, domain_bn=True).reestimate_bn_statistics(loader)
 
 
 def test_adopt_teacher_puts_the_averaged_weights_in_the_network(tmp_path):
@@ -844,7 +842,6 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(consistency_jitter=-0.1), "consistency_jitter"),
                           (dict(consistency_threshold=1.0), "consistency_threshold"),
                           (dict(teacher_norm="eval"), "teacher_norm"),
-                          (dict(consistency_align=True), "consistency_align"),
-                          (dict(consistency_weight=1.0, domain_bn=True), "domain_bn")]:
+                          (dict(consistency_align=True), "consistency_align")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)

@@ -54,8 +54,10 @@ al. 2019, GAST). The step adds ``rotation_weight·CE`` of that head.
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
 ``model.bn_domain("source")``. With ``da_method="none"`` the target batches only update the target
-statistics (no loss, no gradient): AdaBN as a baseline. Without ``domain_bn`` the two streams share one
-forward and pooled statistics, as in DAN and Deep CORAL.
+statistics (no loss, no gradient): AdaBN as a baseline. A mean teacher then keeps both domains'
+statistics as well, and normalises its copy of the target batch with the target ones (that copy's batch
+statistics with ``teacher_norm="batch"``). Without ``domain_bn`` the two streams share one forward and
+pooled statistics, as in DAN and Deep CORAL.
 
 Shapes:
     forward: points (B, N, 3) zero-padded, lengths (B,) int64 -> :class:`XAVTNetOutput`
@@ -121,9 +123,9 @@ def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, i
 
 
 def _batch_norms(*modules: torch.nn.Module) -> list:
-    """Every batch norm inside ``modules``, in module order."""
+    """Every batch norm inside ``modules`` (plain or :class:`DomainBatchNorm`), in module order."""
     return [m for mod in modules for m in mod.modules()
-            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm | DomainBatchNorm)]
 
 
 @contextlib.contextmanager
@@ -257,8 +259,10 @@ class XAVTNet(L.LightningModule):
             softmax peaks at this value or above count, in [0, 1); 0 (default): every cloud.
         teacher_norm: how the teacher's batch norms normalise its target copy. ``"batch"`` (default): by the
             statistics of the source batch and that copy together, as the network normalises its own
-            training forward (``_joint_forward``), leaving the teacher's running statistics as they are.
-            ``"running"``: eval mode, on the running statistics averaged from the network's. With
+            training forward (``_joint_forward``), leaving the teacher's running statistics as they are;
+            with ``domain_bn``, by the statistics of that copy alone, as the network normalises its target
+            batch (``_split_forward``). ``"running"``: eval mode, on the running statistics averaged from
+            the network's (the target ones with ``domain_bn``). With
             ``"running"`` the bench row's teacher scored 8-25 % on the tactile stream while the network
             scored 37-49 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
         consistency_align: ReMixMatch's distribution alignment of the teacher's target probabilities before
@@ -280,7 +284,8 @@ class XAVTNet(L.LightningModule):
         max_points: if set, clouds with more points are subsampled to this many (random in training,
             strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
         normalize_clouds: centre each cloud and scale it into the unit ball before the network.
-        domain_bn: batch-norm statistics per domain (module docstring); needs two-stream batches.
+        domain_bn: batch-norm statistics per domain (module docstring); needs two-stream batches. With a
+            teacher (``consistency_weight > 0``) the teacher keeps both domains' statistics too.
         class_names: the name of each class index, kept in the checkpoint's hyper-parameters so that
             inference (``vtlearn recognize``) needs no dataset. ``None`` is filled from the datamodule's
             ``class_names`` when training starts (:meth:`setup`).
@@ -384,9 +389,6 @@ class XAVTNet(L.LightningModule):
         if rotation_weight > 0 and domain_bn:
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
-        if consistency_weight > 0 and domain_bn:
-            raise ValueError("consistency_weight: not with domain_bn=True (the teacher keeps one set of "
-                             "batch-norm statistics)")
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
@@ -539,7 +541,9 @@ class XAVTNet(L.LightningModule):
         (:meth:`_joint_forward`); no weight changes. This is SWA's batch-norm update (Izmailov et al., UAI
         2018) on the two-stream batches: the running statistics of a training are an exponential average
         of statistics that belonged to earlier weights, these belong to the current ones. Dropout stays
-        off, and the clouds are subsampled as in evaluation.
+        off, and the clouds are subsampled as in evaluation. With ``domain_bn`` each domain's statistics
+        are averaged over its own stream's batches instead, the batches :meth:`_split_forward` normalised
+        with.
 
         Args:
             loader: two-stream batches ``{"source": {...}, "target": {...} or None}`` (labels are not
@@ -554,33 +558,53 @@ class XAVTNet(L.LightningModule):
         Shapes:
             loader batches: source/target points (B, N, 3), lengths (B,)
         """
-        if self.hparams.get("domain_bn", False):
-            raise ValueError("reestimate_bn_statistics: the model has domain_bn=True; re-estimate one "
-                             "domain's statistics with adapt_bn_statistics instead")
         if int(passes) < 1:
             raise ValueError(f"passes: need >= 1, got {passes}")
         bns = _batch_norms(self.encoder, self.head)
         momenta = [m.momentum for m in bns]
 
-        def joint(batch):
+        def streams(batch):
             if isinstance(batch, tuple):  # a CombinedLoader's (batch, batch_idx, dataloader_idx)
                 batch = batch[0]
             if not isinstance(batch, dict) or "source" not in batch:
                 raise ValueError("loader: need two-stream batches {'source': ..., 'target': ...}, got one "
                                  "labelled stream")
             src, tgt = batch["source"], batch.get("target")
-            if tgt is None or tgt["points"].shape[0] < 2:  # training skips such a target batch too
+            if tgt is not None and tgt["points"].shape[0] < 2:  # training skips such a target batch too
+                tgt = None
+            return src, tgt
+
+        def joint(batch):
+            src, tgt = streams(batch)
+            if tgt is None:
                 return src["points"], src.get("lengths")
             points, lengths, _ = _concat_streams(src, tgt)
             return points, lengths
 
+        def one(batch, domain):
+            part = streams(batch)[DOMAINS.index(domain)]
+            empty = (torch.zeros(0, 1, 3), torch.zeros(0, dtype=torch.long))  # skipped, as < 2 clouds
+            return empty if part is None else (part["points"], part.get("lengths"))
+
         was_training = self.training
         self.eval()
         for m in bns:
-            m.reset_running_stats()
             m.train()
         try:
-            return _average_bn_statistics(bns, (joint(b) for _ in range(int(passes)) for b in loader), self)
+            if not self.hparams.get("domain_bn", False):
+                for m in bns:
+                    m.reset_running_stats()
+                return _average_bn_statistics(bns, (joint(b) for _ in range(int(passes)) for b in loader),
+                                              self)
+            n = 0
+            for domain in DOMAINS:
+                for m in bns:
+                    getattr(m, f"running_mean_{domain}").zero_()
+                    getattr(m, f"running_var_{domain}").fill_(1.0)
+                with self.bn_domain(domain):
+                    n += _average_bn_statistics(
+                        bns, (one(b, domain) for _ in range(int(passes)) for b in loader), self)
+            return n
         finally:
             for m, momentum in zip(bns, momenta, strict=True):
                 m.momentum = momentum
@@ -760,17 +784,21 @@ class XAVTNet(L.LightningModule):
     def _teacher_logits(self, src: dict, tgt: dict) -> torch.Tensor:
         """The teacher's logits of a perturbed copy of the target batch ``tgt``, without dropout. Its batch
         norms use the statistics of ``src`` and that copy together (``teacher_norm="batch"``; the running
-        statistics are left as they are) or the running statistics (``"running"``)."""
+        statistics are left as they are) or the running statistics (``"running"``). With ``domain_bn``
+        they are the target statistics: of that copy alone (``"batch"``), as the network's own target
+        forward is normalised, or the target running statistics (``"running"``)."""
         tgt = self._perturb(tgt)
         self.teacher.eval()  # Lightning's model.train() reaches the teacher too
         bns = []  # the batch norms normalised by batch statistics: none for "running"
-        if self.hparams.get("teacher_norm", "running") == "running":
+        split = self.hparams.get("domain_bn", False)
+        if self.hparams.get("teacher_norm", "running") == "running" or split:
             points, lengths, b = tgt["points"], tgt["lengths"], 0
         else:
             points, lengths, b = _concat_streams(src, tgt)
+        if self.hparams.get("teacher_norm", "running") == "batch":
             bns = _batch_norms(self.teacher)
         points, lengths = self._prepare(points, lengths)
-        with _batch_statistics_only(bns):
+        with self.bn_domain("target"), _batch_statistics_only(bns):
             g, _, _ = self.teacher["encoder"](points, lengths)
             return self.teacher["head"](g)[0][b:]
 
