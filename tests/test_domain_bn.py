@@ -185,48 +185,40 @@ def test_mean_teacher_with_domain_bn_normalises_its_target_copy_alone():
     network's own target forward (``_split_forward``, the copy's batch statistics alone), whatever the source
     batch, and leaves both domains' running statistics alone; teacher_norm="running" is the eval-mode
     network with the target statistics."""
-    from tests.test_xavtnet import TinyCrossModalDM
+    from tests.test_xavtnet import TinyCrossModalDM, teacher_against
 
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
     src, tgt = batch["source"], batch["target"]
-    model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True)
+
+    def teacher_row(**kwargs):
+        """A teacher row whose teacher equals the network, with target statistics unlike the source's."""
+        model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True, **kwargs)
+        with torch.no_grad():
+            for m in model.modules():
+                if isinstance(m, DomainBatchNorm):
+                    m.running_mean_target.add_(0.5)
+        model._update_teacher(0.0)
+        return model
+
+    model = teacher_row()
     assert all(isinstance(m, DomainBatchNorm) for m in model.teacher.modules()
                if isinstance(m, nn.BatchNorm1d | DomainBatchNorm))
-    with torch.no_grad():  # the two domains' statistics differ
-        for m in model.modules():
-            if isinstance(m, DomainBatchNorm):
-                m.running_mean_target.add_(0.5)
-    model._update_teacher(0.0)  # the teacher equals the network
-    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
-    torch.manual_seed(3)
-    teacher = model.train()._teacher_logits(src, tgt)
-    torch.manual_seed(3)
-    copy = model._perturb(tgt)
-    with torch.no_grad():
-        expected = model._split_forward(src, copy)[1].logits
+    teacher, expected = teacher_against(model, src, tgt, lambda c: model._split_forward(src, c)[1].logits)
     assert torch.allclose(teacher, expected, atol=1e-5)
-    for k, v in model.teacher.state_dict().items():
-        if k in running:
-            assert torch.equal(v, running[k]), k
     other = {**src, "points": src["points"] + 0.5}  # other source clouds: the same target logits
-    torch.manual_seed(3)
-    assert torch.allclose(model._teacher_logits(other, tgt), teacher, atol=1e-6)
+    assert torch.allclose(teacher_against(model, other, tgt, lambda c: None)[0], teacher, atol=1e-6)
 
-    model = XAVTNet(**TINY, consistency_weight=1.0, domain_bn=True, teacher_norm="running")
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, DomainBatchNorm):
-                m.running_mean_target.add_(0.5)
-    model._update_teacher(0.0)
-    torch.manual_seed(3)
-    teacher = model.train()._teacher_logits(src, tgt)
-    torch.manual_seed(3)
-    copy = model._perturb(tgt)
-    with torch.no_grad():
-        expected = model.eval()(copy["points"], copy["lengths"]).logits  # target statistics by default
-        with model.bn_domain("source"):
-            assert not torch.allclose(model(copy["points"], copy["lengths"]).logits, expected, atol=1e-3)
-    assert torch.allclose(teacher, expected, atol=1e-5)
+    model = teacher_row(teacher_norm="running")
+    teacher, (target, source) = teacher_against(model, src, tgt, lambda c: (
+        model.eval()(c["points"], c["lengths"]).logits,  # the target statistics, by default
+        _source_logits(model, c)))
+    assert torch.allclose(teacher, target, atol=1e-5)
+    assert not torch.allclose(source, target, atol=1e-3)
+
+
+def _source_logits(model, batch):
+    with model.bn_domain("source"):
+        return model(batch["points"], batch["lengths"]).logits
 
 
 def test_reestimated_bn_statistics_with_domain_bn_average_each_domain_over_its_own_stream():

@@ -636,6 +636,22 @@ def test_distribution_alignment_targets_the_aligned_teacher_and_tracks_both_prio
     assert not hasattr(XAVTNet(**TINY, consistency_weight=1.0), "align_target_mean")
 
 
+def teacher_against(model, src, tgt, forward):
+    """The teacher's logits of a perturbed copy of ``tgt`` (training mode), and ``forward(copy)`` of the
+    same copy without gradient: the two draws start from one seed. The teacher's running statistics must
+    come out as they went in."""
+    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
+    torch.manual_seed(3)
+    teacher = model.train()._teacher_logits(src, tgt)
+    for k, v in model.teacher.state_dict().items():
+        if k in running:
+            assert torch.equal(v, running[k]), k
+    torch.manual_seed(3)
+    copy = model._perturb(tgt)
+    with torch.no_grad():
+        return teacher, forward(copy)
+
+
 def test_mean_teacher_normalises_as_the_network_trains_and_keeps_its_running_statistics():
     """teacher_norm="batch": a teacher equal to the network gives the target logits of the network's
     training forward on the joint batch (dropout off), depends on the source batch, and leaves its running
@@ -644,29 +660,16 @@ def test_mean_teacher_normalises_as_the_network_trains_and_keeps_its_running_sta
     src, tgt = batch["source"], batch["target"]
     model = XAVTNet(**TINY, consistency_weight=1.0, dropout=0.0)
     model._update_teacher(0.0)  # the teacher equals the network
-    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
-    torch.manual_seed(3)
-    teacher = model.train()._teacher_logits(src, tgt)
-    torch.manual_seed(3)
-    copy = model._perturb(tgt)
-    with torch.no_grad():
-        expected = model._joint_forward(src, copy)[1].logits
+    teacher, expected = teacher_against(model, src, tgt, lambda c: model._joint_forward(src, c)[1].logits)
     assert torch.allclose(teacher, expected, atol=1e-5)
-    for k, v in model.teacher.state_dict().items():
-        if k in running:
-            assert torch.equal(v, running[k]), k
     other = {**src, "points": src["points"] + 0.5}  # other source clouds, other batch statistics
     torch.manual_seed(3)
     assert not torch.allclose(model._teacher_logits(other, tgt), teacher, atol=1e-3)
 
     model = XAVTNet(**TINY, consistency_weight=1.0, teacher_norm="running")
     model._update_teacher(0.0)
-    torch.manual_seed(3)
-    teacher = model.train()._teacher_logits(src, tgt)
-    torch.manual_seed(3)
-    copy = model._perturb(tgt)
-    with torch.no_grad():
-        expected = model.eval()(copy["points"], copy["lengths"]).logits
+    teacher, expected = teacher_against(model, src, tgt,
+                                        lambda c: model.eval()(c["points"], c["lengths"]).logits)
     assert torch.allclose(teacher, expected, atol=1e-5)
 
 
