@@ -86,8 +86,8 @@ OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
 # Per-run tactile accuracies beyond the row's own, each summarised as "<key> mean ± std" where runs have it:
-# after AdaBN (--adabn), a teacher row's network with re-estimated statistics and its teacher, and the
-# class-balanced assignments of the network and the teacher (--balanced).
+# after AdaBN (--adabn), a teacher row's network with re-estimated statistics and its teacher (after AdaBN
+# too, with --adabn), and the class-balanced assignments of the network and the teacher (--balanced).
 EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher", "tactile_acc_teacher_adabn",
                 "tactile_acc_balanced", "tactile_acc_teacher_balanced")
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
