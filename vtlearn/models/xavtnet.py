@@ -581,10 +581,9 @@ class XAVTNet(L.LightningModule):
             points, lengths, _ = _concat_streams(src, tgt)
             return points, lengths
 
-        def one(batch, domain):
-            part = streams(batch)[DOMAINS.index(domain)]
-            empty = (torch.zeros(0, 1, 3), torch.zeros(0, dtype=torch.long))  # skipped, as < 2 clouds
-            return empty if part is None else (part["points"], part.get("lengths"))
+        def one(domain):  # that domain's (points, lengths) of each batch that has the domain
+            parts = (streams(b)[DOMAINS.index(domain)] for _ in range(int(passes)) for b in loader)
+            return ((part["points"], part.get("lengths")) for part in parts if part is not None)
 
         was_training = self.training
         self.eval()
@@ -602,8 +601,7 @@ class XAVTNet(L.LightningModule):
                     getattr(m, f"running_mean_{domain}").zero_()
                     getattr(m, f"running_var_{domain}").fill_(1.0)
                 with self.bn_domain(domain):
-                    n += _average_bn_statistics(
-                        bns, (one(b, domain) for _ in range(int(passes)) for b in loader), self)
+                    n += _average_bn_statistics(bns, one(domain), self)
             return n
         finally:
             for m, momentum in zip(bns, momenta, strict=True):
@@ -789,14 +787,12 @@ class XAVTNet(L.LightningModule):
         forward is normalised, or the target running statistics (``"running"``)."""
         tgt = self._perturb(tgt)
         self.teacher.eval()  # Lightning's model.train() reaches the teacher too
-        bns = []  # the batch norms normalised by batch statistics: none for "running"
-        split = self.hparams.get("domain_bn", False)
-        if self.hparams.get("teacher_norm", "running") == "running" or split:
-            points, lengths, b = tgt["points"], tgt["lengths"], 0
-        else:
+        norm = self.hparams.get("teacher_norm", "running")
+        if norm == "batch" and not self.hparams.get("domain_bn", False):
             points, lengths, b = _concat_streams(src, tgt)
-        if self.hparams.get("teacher_norm", "running") == "batch":
-            bns = _batch_norms(self.teacher)
+        else:
+            points, lengths, b = tgt["points"], tgt["lengths"], 0
+        bns = _batch_norms(self.teacher) if norm == "batch" else []  # normalised by batch statistics
         points, lengths = self._prepare(points, lengths)
         with self.bn_domain("target"), _batch_statistics_only(bns):
             g, _, _ = self.teacher["encoder"](points, lengths)
