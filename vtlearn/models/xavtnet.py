@@ -44,6 +44,15 @@ trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weig
 (ReMixMatch's distribution alignment, :mod:`~vtlearn.models.components.class_balance`), so that the classes
 the teacher over-predicts on the target stream weigh less in its targets and the neglected ones more.
 
+``neighbour_weight > 0`` (beyond the thesis) adds AaD's neighbourhood clustering of the target stream
+(:mod:`vtlearn.losses.neighbourhood`): from the same start as the pseudo-labels (``neighbour_start``),
+a bank holds the ``neighbour_layer`` feature and the softmax of every target cloud, filled by one
+eval-mode pass and then overwritten by each training batch's own rows; each step adds
+``neighbour_weight·L_AaD`` of the target batch's softmax against its ``neighbour_k`` nearest bank
+neighbours (itself left out), with the batch dispersion weighted ``neighbour_dispersion``. The bank is
+not saved in checkpoints: a resumed run refills it at its next epoch. The target items must carry their
+``"index"``.
+
 ``rotation_weight > 0`` (beyond the thesis) adds a self-supervised task shared by both domains: every step
 the source and target clouds, each turned by a random number of quarter turns about the canonical x axis,
 go through the encoder in one more forward (batch statistics, running ones untouched), and a rotation
@@ -79,6 +88,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 from vtlearn.losses.consistency import probability_consistency
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
+from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.class_balance import align_distribution
@@ -272,6 +282,15 @@ class XAVTNet(L.LightningModule):
             frequencies and ``ρ_t`` one of the teacher's target probabilities (momentum ``ALIGN_MOMENTUM``
             per step, both starting uniform and kept in checkpoints). It assumes the target classes occur
             as often as the source's. Needs ``consistency_weight > 0``.
+        neighbour_weight: weight of AaD's attract-and-disperse loss on the target stream (module docstring;
+            Yang et al. 2022, beyond the thesis), added to the loss of ``da_method``. 0 (default): off.
+        neighbour_k: the nearest bank neighbours each target cloud is attracted to (AaD's K; 3 on
+            Office-Home).
+        neighbour_dispersion: AaD's λ, the weight of the batch's mutual dispersion (1 on Office-Home).
+        neighbour_start: the share of ``max_epochs`` trained before the bank is filled and the loss
+            starts, in [0, 1) (of the optimiser steps when the run is bounded by ``max_steps`` alone).
+        neighbour_layer: the feature layer the bank compares (``"global"``, ``"fc1"`` or ``"fc2"``; AaD
+            uses the bottleneck before the classifier, fc2 here).
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
@@ -329,6 +348,11 @@ class XAVTNet(L.LightningModule):
         consistency_threshold: float = 0.0,
         teacher_norm: str = "batch",
         consistency_align: bool = False,
+        neighbour_weight: float = 0.0,
+        neighbour_k: int = 3,
+        neighbour_dispersion: float = 1.0,
+        neighbour_start: float = 1 / 3,
+        neighbour_layer: str = "fc2",
         rotation_weight: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
@@ -384,6 +408,16 @@ class XAVTNet(L.LightningModule):
         if consistency_align and consistency_weight <= 0:
             raise ValueError("consistency_align: needs consistency_weight > 0 (it aligns the teacher's "
                              "targets)")
+        if not (math.isfinite(neighbour_weight) and neighbour_weight >= 0):
+            raise ValueError(f"neighbour_weight: need a finite weight >= 0, got {neighbour_weight}")
+        if int(neighbour_k) != neighbour_k or neighbour_k < 1:
+            raise ValueError(f"neighbour_k: need an integer >= 1 (neighbours per cloud), got {neighbour_k!r}")
+        if not (math.isfinite(neighbour_dispersion) and neighbour_dispersion >= 0):
+            raise ValueError(f"neighbour_dispersion: need a finite weight >= 0, got {neighbour_dispersion}")
+        if not 0 <= neighbour_start < 1:
+            raise ValueError(f"neighbour_start: need a share of the epochs in [0, 1), got {neighbour_start}")
+        if neighbour_layer not in FEATURE_LAYERS:
+            raise ValueError(f"neighbour_layer: need one of {list(FEATURE_LAYERS)}, got {neighbour_layer!r}")
         if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
             raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
         if rotation_weight > 0 and domain_bn:
@@ -421,6 +455,8 @@ class XAVTNet(L.LightningModule):
             {d: FeatureQueue(int(da_memory)) for d in DOMAINS} if da_memory and self.vtloss.adapts else None
         )
         self._pseudo_labels: torch.Tensor | None = None  # per target-dataset index, -1 where not kept
+        # AaD's bank (neighbour_weight): features, softmax and filled rows per target-dataset index
+        self._neighbour_bank: dict[str, torch.Tensor] | None = None
         # The mean teacher: saved in checkpoints (a resumed run keeps its average), never optimised.
         self.teacher = (
             torch.nn.ModuleDict({"encoder": copy.deepcopy(self.encoder), "head": copy.deepcopy(self.head)})
@@ -671,8 +707,9 @@ class XAVTNet(L.LightningModule):
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
         im_weight = self.hparams.get("im_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
+        nb_weight = self.hparams.get("neighbour_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
-                  or self.teacher is not None or self.rotation_head is not None)
+                  or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = None
         if use_target and self.teacher is not None:
@@ -725,6 +762,10 @@ class XAVTNet(L.LightningModule):
             pce = F.cross_entropy(out_t.logits[keep], pseudo[keep]) if keep.any() else out_t.logits.sum() * 0
             loss = loss + pl_weight * pce
             parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
+        if use_target and self._neighbour_bank is not None:
+            aad = self._neighbour_loss(out_t, tgt)
+            loss = loss + nb_weight * aad
+            parts = {**parts, "aad": aad.detach()}
         if teacher_logits is not None:
             hp = self.hparams
             teacher_probs = teacher_logits.softmax(-1)
@@ -743,6 +784,51 @@ class XAVTNet(L.LightningModule):
         return loss
 
     @torch.no_grad()
+    def _neighbour_loss(self, out_t: XAVTNetOutput, tgt: dict) -> torch.Tensor:
+        """AaD's loss of the target batch against its bank neighbours, after the batch's rows have
+        replaced its own in the bank (``neighbour_weight``)."""
+        if "index" not in tgt:
+            raise ValueError("batch: neighbour_weight needs the target items' 'index' in the target dataset "
+                             "(CrossModalDataModule's target stream has it)")
+        hp, bank = self.hparams, self._neighbour_bank
+        index = tgt["index"].to(bank["features"].device)
+        if int(index.max()) >= bank["features"].shape[0]:
+            raise ValueError(f"batch: target index {int(index.max())} is beyond the bank's "
+                             f"{bank['features'].shape[0]} target clouds")
+        probs = out_t.logits.softmax(-1)
+        feats = out_t.features[hp.neighbour_layer].detach()
+        bank["features"][index] = F.normalize(feats, dim=1).to(bank["features"])
+        bank["probs"][index] = probs.detach().to(bank["probs"])
+        bank["valid"][index] = True
+        near = neighbour_probs(feats, bank["features"], bank["probs"], int(hp.neighbour_k), index,
+                               bank["valid"])
+        return attract_disperse(probs, near.to(probs), hp.neighbour_dispersion)
+
+    @torch.no_grad()
+    def fill_neighbour_bank(self, loader) -> dict[str, torch.Tensor]:
+        """AaD's bank of the target clouds in ``loader`` (items with ``"index"``), in eval mode: the
+        unit-length ``neighbour_layer`` feature and the softmax of each, and which rows hold a cloud.
+
+        Shapes:
+            -> {"features": (N, d), "probs": (N, k), "valid": (N,) bool}, N = max index + 1
+        """
+        feats, probs, index = [], [], []
+        for batch in loader:
+            if "index" not in batch:
+                raise ValueError("loader: the neighbour bank needs each target item's 'index'")
+            out = self.extract_features(batch["points"].to(self.device), batch["lengths"].to(self.device))
+            feats.append(F.normalize(out[self.hparams.neighbour_layer], dim=1))
+            probs.append(out["logits"].softmax(-1))
+            index.append(batch["index"].to(self.device))
+        if not index:
+            raise ValueError("loader: no target clouds for the neighbour bank")
+        index, feats, probs = torch.cat(index), torch.cat(feats), torch.cat(probs)
+        n = int(index.max()) + 1
+        bank = {"features": feats.new_zeros(n, feats.shape[1]), "probs": probs.new_zeros(n, probs.shape[1]),
+                "valid": torch.zeros(n, dtype=torch.bool, device=self.device)}
+        bank["features"][index], bank["probs"][index], bank["valid"][index] = feats, probs, True
+        return bank
+
     def _align_teacher(self, teacher_probs: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Update the running ρ_s (source labels ``y``) and ρ_t (``teacher_probs``) and return the aligned
         probabilities (``consistency_align``).
@@ -813,18 +899,26 @@ class XAVTNet(L.LightningModule):
         ema_update(self.teacher["head"], self.head, decay)
 
     def on_train_epoch_start(self) -> None:
-        """Relabel the target stream (``pseudo_label_weight > 0``, from ``pseudo_label_start`` on)."""
+        """Relabel the target stream (``pseudo_label_weight > 0``, from ``pseudo_label_start`` on), and fill
+        the neighbour bank once (``neighbour_weight > 0``, from ``neighbour_start`` on)."""
         self._pseudo_labels = None
         hp = self.hparams
-        if hp.get("pseudo_label_weight", 0.0) <= 0:
-            return
+        if hp.get("pseudo_label_weight", 0.0) > 0 and self._started(hp.pseudo_label_start):
+            self._pseudo_labels = self.label_target(self._target_loader())
+        if hp.get("neighbour_weight", 0.0) > 0 and self._neighbour_bank is None \
+                and self._started(hp.neighbour_start):
+            self._neighbour_bank = self.fill_neighbour_bank(self._target_loader())
+
+    def on_fit_end(self) -> None:
+        self._neighbour_bank = None  # the next fit fills its own
+
+    def _started(self, share: float) -> bool:
+        """Whether this epoch is past ``share`` of ``max_epochs`` (of the optimiser steps when the run is
+        bounded by ``max_steps`` alone)."""
         max_epochs = self.trainer.max_epochs
-        if max_epochs is None or max_epochs < 0:  # a run bounded by max_steps: its share of the steps
-            if self._progress() < hp.pseudo_label_start:
-                return
-        elif self.current_epoch < math.ceil(hp.pseudo_label_start * max_epochs):
-            return
-        self._pseudo_labels = self.label_target(self._target_loader())
+        if max_epochs is None or max_epochs < 0:
+            return self._progress() >= share
+        return self.current_epoch >= math.ceil(share * max_epochs)
 
     def _target_loader(self):
         """The training target stream's dataset, in order, with the training loader's collate function."""
@@ -834,8 +928,9 @@ class XAVTNet(L.LightningModule):
         loaders = getattr(loaders, "iterables", loaders)
         target = loaders.get("target") if isinstance(loaders, dict) else None
         if target is None:
-            raise ValueError("pseudo_label_weight: needs two-stream training ({'source': ..., 'target': ...} "
-                             "loaders, e.g. CrossModalDataModule.train_dataloader())")
+            raise ValueError("pseudo_label_weight, neighbour_weight: need two-stream training "
+                             "({'source': ..., 'target': ...} loaders, e.g. "
+                             "CrossModalDataModule.train_dataloader())")
         return DataLoader(target.dataset, batch_size=target.batch_size or 64, shuffle=False,
                           collate_fn=target.collate_fn)
 

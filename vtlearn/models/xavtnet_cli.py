@@ -80,8 +80,13 @@ VARIANTS["vtloss_g12_mt_align"] = {**VARIANTS["vtloss_g12_mt"], "consistency_ali
 # points): the network and the teacher normalise each target batch by its own statistics, and evaluation
 # on touch uses the target ones.
 VARIANTS["vtloss_g12_mt_dbn"] = {**VARIANTS["vtloss_g12_mt"], "domain_bn": True}
+# Beyond the thesis: AaD's neighbourhood clustering of the target stream (losses/neighbourhood.py; Yang et
+# al. 2022 with their Office-Home K = 3 and λ = 1) from a third of the epochs on, weighted as the source
+# cross-entropy (α = 10), on the pooled-feature row and on the teacher row.
+VARIANTS["vtloss_g12_aad"] = {**VARIANTS["vtloss_g12"], "neighbour_weight": 10.0}
+VARIANTS["vtloss_g12_mt_aad"] = {**VARIANTS["vtloss_g12_mt"], "neighbour_weight": 10.0}
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
