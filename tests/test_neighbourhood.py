@@ -152,7 +152,9 @@ def test_xavtnet_neighbour_settings_and_streams_are_checked(tmp_path):
                           (dict(neighbour_k=0), "neighbour_k"), (dict(neighbour_k=1.5), "neighbour_k"),
                           (dict(neighbour_dispersion=float("inf")), "neighbour_dispersion"),
                           (dict(neighbour_start=1.0), "neighbour_start"),
-                          (dict(neighbour_layer="fc3"), "neighbour_layer")]:
+                          (dict(neighbour_layer="fc3"), "neighbour_layer"),
+                          (dict(neighbour_bank="queue"), "neighbour_bank"),
+                          (dict(neighbour_bank="teacher"), "needs consistency_weight")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)
     with pytest.raises(ValueError, match="index"):  # TinyCrossModalDM's target items have no index
@@ -160,3 +162,40 @@ def test_xavtnet_neighbour_settings_and_streams_are_checked(tmp_path):
                   enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
                   default_root_dir=tmp_path).fit(
             XAVTNet(**TINY, neighbour_weight=1.0, neighbour_start=0.0), datamodule=TinyCrossModalDM())
+
+
+def test_a_teacher_bank_takes_the_teachers_rows_and_neighbours_of_its_own_copy():
+    """neighbour_bank="teacher": a step writes the teacher's unit fc2 feature and softmax of its perturbed
+    copy into the batch's rows, finds the neighbours from that feature, and pulls the network's softmax."""
+    from tests.test_xavtnet import TINY, TinyCrossModalDM, _Clouds, _Indexed, _indexed_collate
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=1.0, consistency_rampup=0.0, neighbour_weight=2.0,
+                    neighbour_k=2, neighbour_bank="teacher")
+    model.train()
+    with torch.no_grad():  # a teacher unlike the network, so that whose rows they are shows
+        for p in model.teacher.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    clouds = _Indexed([p for p, _ in _Clouds(8, 5, 12, 1, scale=2.0).items])
+    batch = _indexed_collate([clouds[i] for i in (5, 1, 6, 2)])
+    bank = model.fill_neighbour_bank([_indexed_collate([clouds[i] for i in range(8)])])
+    src = next(iter(TinyCrossModalDM().train_dataloader()))[0]["source"]
+    model._log_train = lambda *a, **k: None
+    model._progress = lambda: 1.0
+    model._neighbour_bank = {k: v.clone() for k, v in bank.items()}
+    torch.manual_seed(1)
+    loss = model.training_step({"source": src, "target": batch}, 0)
+    updated, model._neighbour_bank = model._neighbour_bank, None
+    torch.manual_seed(1)
+    plain = model.training_step({"source": src, "target": batch}, 0)
+    torch.manual_seed(1)
+    logits_t, feats_t = model._teacher_forward(src, batch)
+    out_t = model._joint_forward(src, model._perturb(batch))[1]
+    rows = batch["index"]
+    unit = F.normalize(feats_t["fc2"], dim=1)
+    assert torch.allclose(updated["features"][rows], unit, atol=1e-6)
+    assert torch.allclose(updated["probs"][rows], logits_t.softmax(-1), atol=1e-6)
+    assert not torch.allclose(unit, F.normalize(out_t.features["fc2"], dim=1), atol=1e-2)
+    near = neighbour_probs(feats_t["fc2"], updated["features"], updated["probs"], 2, rows)
+    aad = attract_disperse(out_t.logits.softmax(-1), near, 1.0).item()
+    assert loss.item() == pytest.approx(plain.item() + 2.0 * aad, rel=1e-5)

@@ -112,6 +112,7 @@ LR_SCHEDULES = ("constant", "cosine")
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
 FEATURE_LAYERS = ("global", "fc1", "fc2")
 TEACHER_NORMS = ("batch", "running")
+NEIGHBOUR_BANKS = ("network", "teacher")
 # The running class frequencies of consistency_align: ReMixMatch averages the last 128 batches' predictions
 ALIGN_MOMENTUM = 0.99
 
@@ -291,6 +292,11 @@ class XAVTNet(L.LightningModule):
             starts, in [0, 1) (of the optimiser steps when the run is bounded by ``max_steps`` alone).
         neighbour_layer: the feature layer the bank compares (``"global"``, ``"fc1"`` or ``"fc2"``; AaD
             uses the bottleneck before the classifier, fc2 here).
+        neighbour_bank: whose outputs fill the bank rows of each training batch and find its neighbours:
+            ``"network"`` (default; AaD), or ``"teacher"``, the mean teacher's on its own copy of the batch
+            (AdaContrast's momentum bank, Chen et al. 2022; needs ``consistency_weight > 0``). The
+            network's softmax is the one pulled and dispersed either way, and the first fill is the
+            network's.
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
@@ -353,6 +359,7 @@ class XAVTNet(L.LightningModule):
         neighbour_dispersion: float = 1.0,
         neighbour_start: float = 1 / 3,
         neighbour_layer: str = "fc2",
+        neighbour_bank: str = "network",
         rotation_weight: float = 0.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
@@ -418,6 +425,10 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"neighbour_start: need a share of the epochs in [0, 1), got {neighbour_start}")
         if neighbour_layer not in FEATURE_LAYERS:
             raise ValueError(f"neighbour_layer: need one of {list(FEATURE_LAYERS)}, got {neighbour_layer!r}")
+        if neighbour_bank not in NEIGHBOUR_BANKS:
+            raise ValueError(f"neighbour_bank: expected one of {NEIGHBOUR_BANKS}, got {neighbour_bank!r}")
+        if neighbour_bank == "teacher" and consistency_weight <= 0:
+            raise ValueError("neighbour_bank: 'teacher' needs consistency_weight > 0 (a mean teacher)")
         if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
             raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
         if rotation_weight > 0 and domain_bn:
@@ -711,9 +722,9 @@ class XAVTNet(L.LightningModule):
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
                   or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
-        teacher_logits = None
+        teacher_logits = teacher_feats = None
         if use_target and self.teacher is not None:
-            teacher_logits = self._teacher_logits(src, tgt)
+            teacher_logits, teacher_feats = self._teacher_forward(src, tgt)
             tgt = self._perturb(tgt)
         if use_target:
             out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
@@ -763,7 +774,8 @@ class XAVTNet(L.LightningModule):
             loss = loss + pl_weight * pce
             parts = {**parts, "pseudo_ce": pce.detach(), "pseudo_kept": keep.float().mean()}
         if use_target and self._neighbour_bank is not None:
-            aad = self._neighbour_loss(out_t, tgt)
+            by_teacher = self.hparams.get("neighbour_bank") == "teacher"
+            aad = self._neighbour_loss(out_t, tgt, (teacher_logits, teacher_feats) if by_teacher else None)
             loss = loss + nb_weight * aad
             parts = {**parts, "aad": aad.detach()}
         if teacher_logits is not None:
@@ -784,9 +796,11 @@ class XAVTNet(L.LightningModule):
         return loss
 
     @torch.no_grad()
-    def _neighbour_loss(self, out_t: XAVTNetOutput, tgt: dict) -> torch.Tensor:
+    def _neighbour_loss(self, out_t: XAVTNetOutput, tgt: dict, teacher: tuple | None = None) -> torch.Tensor:
         """AaD's loss of the target batch against its bank neighbours, after the batch's rows have
-        replaced its own in the bank (``neighbour_weight``)."""
+        replaced its own in the bank (``neighbour_weight``). ``teacher``: the teacher's (logits, features)
+        of its copy of the batch, which then give the batch's bank rows and find its neighbours
+        (``neighbour_bank="teacher"``)."""
         if "index" not in tgt:
             raise ValueError("batch: neighbour_weight needs the target items' 'index' in the target dataset "
                              "(CrossModalDataModule's target stream has it)")
@@ -796,9 +810,10 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"batch: target index {int(index.max())} is beyond the bank's "
                              f"{bank['features'].shape[0]} target clouds")
         probs = out_t.logits.softmax(-1)
-        feats = out_t.features[hp.neighbour_layer].detach()
+        logits, feats = (out_t.logits, out_t.features) if teacher is None else teacher
+        feats = feats[hp.neighbour_layer].detach()
         bank["features"][index] = F.normalize(feats, dim=1).to(bank["features"])
-        bank["probs"][index] = probs.detach().to(bank["probs"])
+        bank["probs"][index] = logits.detach().softmax(-1).to(bank["probs"])
         bank["valid"][index] = True
         near = neighbour_probs(feats, bank["features"], bank["probs"], int(hp.neighbour_k), index,
                                bank["valid"])
@@ -864,13 +879,23 @@ class XAVTNet(L.LightningModule):
         logits = self.rotation_head(g)
         return F.cross_entropy(logits, turns), (logits.detach().argmax(-1) == turns).float().mean()
 
-    @torch.no_grad()
     def _teacher_logits(self, src: dict, tgt: dict) -> torch.Tensor:
-        """The teacher's logits of a perturbed copy of the target batch ``tgt``, without dropout. Its batch
-        norms use the statistics of ``src`` and that copy together (``teacher_norm="batch"``; the running
-        statistics are left as they are) or the running statistics (``"running"``). With ``domain_bn``
-        they are the target statistics: of that copy alone (``"batch"``), as the network's own target
-        forward is normalised, or the target running statistics (``"running"``)."""
+        """The teacher's logits of :meth:`_teacher_forward`."""
+        return self._teacher_forward(src, tgt)[0]
+
+    @torch.no_grad()
+    def _teacher_forward(self, src: dict, tgt: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The teacher's logits and features of a perturbed copy of the target batch ``tgt``, without
+        dropout. Its batch norms use the statistics of ``src`` and that copy together
+        (``teacher_norm="batch"``; the running statistics are left as they are) or the running statistics
+        (``"running"``). With ``domain_bn`` they are the target statistics: of that copy alone
+        (``"batch"``), as the network's own target forward is normalised, or the target running
+        statistics (``"running"``).
+
+        Shapes:
+            -> logits (n, k), {"global": (n, global_dim), "fc1": (n, 512), "fc2": (n, 256)} of the n target
+            clouds
+        """
         tgt = self._perturb(tgt)
         self.teacher.eval()  # Lightning's model.train() reaches the teacher too
         norm = self.hparams.get("teacher_norm", "running")
@@ -882,7 +907,8 @@ class XAVTNet(L.LightningModule):
         points, lengths = self._prepare(points, lengths)
         with self.bn_domain("target"), _batch_statistics_only(bns):
             g, _, _ = self.teacher["encoder"](points, lengths)
-            return self.teacher["head"](g)[0][b:]
+            logits, feats = self.teacher["head"](g)
+        return logits[b:], {k: v[b:] for k, v in {"global": g, **feats}.items()}
 
     def on_fit_start(self) -> None:
         """A run from step 0 starts the teacher at the network's weights (which may have been loaded since

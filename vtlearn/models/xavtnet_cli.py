@@ -85,8 +85,10 @@ VARIANTS["vtloss_g12_mt_dbn"] = {**VARIANTS["vtloss_g12_mt"], "domain_bn": True}
 # cross-entropy (α = 10), on the pooled-feature row and on the teacher row.
 VARIANTS["vtloss_g12_aad"] = {**VARIANTS["vtloss_g12"], "neighbour_weight": 10.0}
 VARIANTS["vtloss_g12_mt_aad"] = {**VARIANTS["vtloss_g12_mt"], "neighbour_weight": 10.0}
+# ... with the bank rows and the neighbours taken from the teacher's outputs (AdaContrast's momentum bank)
+VARIANTS["vtloss_g12_mt_aadt"] = {**VARIANTS["vtloss_g12_mt_aad"], "neighbour_bank": "teacher"}
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
