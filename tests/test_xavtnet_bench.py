@@ -120,6 +120,15 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in res3["rows"]] == ["noda", "vtloss_im"]
     assert res3["checks"]["vtloss_im_minus_noda"] == pytest.approx(
         res3["rows"][1]["tactile_mean"] - res3["rows"][0]["tactile_mean"])
+    # AaD with the teacher's bank starts after a third of the epochs: two epochs reach it on the datamodule's
+    # indexed target stream
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_g12_mt_aadt",
+                 "--seeds", "1", "--max-epochs", "2", "--no-figures", "--json", str(out2)]) == 0
+    res3 = json.loads(out2.read_text())
+    noda, aad = res3["runs"]
+    assert 0 <= aad["tactile_acc_teacher"] <= 100
+    assert res3["checks"]["vtloss_g12_mt_aadt_minus_noda"] == pytest.approx(aad["tactile_acc"]
+                                                                            - noda["tactile_acc"])
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "bogus",
                  "--json", str(out2)]) == 2
     # --source-points reaches the datamodule and is recorded; a bad range is refused by name
