@@ -795,7 +795,6 @@ class XAVTNet(L.LightningModule):
         self._log_train(loss, out_s.logits, y, parts)
         return loss
 
-    @torch.no_grad()
     def _neighbour_loss(self, out_t: XAVTNetOutput, tgt: dict, teacher: tuple | None = None) -> torch.Tensor:
         """AaD's loss of the target batch against its bank neighbours, after the batch's rows have
         replaced its own in the bank (``neighbour_weight``). ``teacher``: the teacher's (logits, features)
@@ -844,6 +843,7 @@ class XAVTNet(L.LightningModule):
         bank["features"][index], bank["probs"][index], bank["valid"][index] = feats, probs, True
         return bank
 
+    @torch.no_grad()
     def _align_teacher(self, teacher_probs: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Update the running ρ_s (source labels ``y``) and ρ_t (``teacher_probs``) and return the aligned
         probabilities (``consistency_align``).
