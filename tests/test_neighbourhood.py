@@ -141,8 +141,16 @@ def test_xavtnet_fills_the_bank_at_the_start_epoch_and_adds_the_aad_loss_of_its_
         sims = updated["features"] @ F.normalize(out_t.features["fc2"][i], dim=0)
         sims[row] = -2.0
         near.append(updated["probs"][sims.topk(2).indices])
-    aad = attract_disperse(p, torch.stack(near), 0.5).item()
-    assert aad != 0 and loss.item() == pytest.approx(plain.item() + 2.0 * aad, rel=1e-5)
+    aad = attract_disperse(p, torch.stack(near), 0.5)
+    assert aad.item() != 0 and loss.item() == pytest.approx(plain.item() + 2.0 * aad.item(), rel=1e-5)
+    # and it trains: the step's gradient is the plain step's plus that of 2·L_AaD of the same forward
+    params = list(model.head.parameters())
+    grad_step = torch.autograd.grad(loss, params)
+    grad_plain = torch.autograd.grad(plain, params)
+    grad_aad = torch.autograd.grad(2.0 * aad, params)
+    assert sum(float(g.abs().sum()) for g in grad_aad) > 0
+    for gs, gp, ga in zip(grad_step, grad_plain, grad_aad, strict=True):
+        assert torch.allclose(gs - gp, ga, atol=1e-5)
 
 
 def test_xavtnet_neighbour_settings_and_streams_are_checked(tmp_path):
