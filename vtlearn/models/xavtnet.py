@@ -45,9 +45,10 @@ trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weig
 the teacher over-predicts on the target stream weigh less in its targets and the neglected ones more.
 
 ``neighbour_weight > 0`` (beyond the thesis) adds AaD's neighbourhood clustering of the target stream
-(:mod:`vtlearn.losses.neighbourhood`): from the same start as the pseudo-labels (``neighbour_start``),
-a bank holds the ``neighbour_layer`` feature and the softmax of every target cloud, filled by one
-eval-mode pass and then overwritten by each training batch's own rows; each step adds
+(:mod:`vtlearn.losses.neighbourhood`): from epoch ``⌈neighbour_start·max_epochs⌉`` on (by default a
+third, as for the pseudo-labels), a bank holds the ``neighbour_layer`` feature and the softmax of every
+target cloud, filled by one eval-mode pass and then overwritten by each training batch's own rows; each
+step adds
 ``neighbour_weight·L_AaD`` of the target batch's softmax against its ``neighbour_k`` nearest bank
 neighbours (itself left out), with the batch dispersion weighted ``neighbour_dispersion``. The bank is
 not saved in checkpoints: a resumed run refills it at its next epoch. The target items must carry their
