@@ -48,11 +48,10 @@ the teacher over-predicts on the target stream weigh less in its targets and the
 (:mod:`vtlearn.losses.neighbourhood`): from epoch ``⌈neighbour_start·max_epochs⌉`` on (by default a
 third, as for the pseudo-labels), a bank holds the ``neighbour_layer`` feature and the softmax of every
 target cloud, filled by one eval-mode pass and then overwritten by each training batch's own rows; each
-step adds
-``neighbour_weight·L_AaD`` of the target batch's softmax against its ``neighbour_k`` nearest bank
-neighbours (itself left out), with the batch dispersion weighted ``neighbour_dispersion``. The bank is
-not saved in checkpoints: a resumed run refills it at its next epoch. The target items must carry their
-``"index"``.
+step adds ``neighbour_weight·L_AaD`` of the target batch's softmax against its ``neighbour_k`` nearest
+bank neighbours (itself left out), with the batch dispersion weighted ``neighbour_dispersion``. The bank
+is not saved in checkpoints: a resumed run refills it at its next epoch. The target items must carry
+their ``"index"``.
 
 ``rotation_weight > 0`` (beyond the thesis) adds a self-supervised task shared by both domains: every step
 the source and target clouds, each turned by a random number of quarter turns about the canonical x axis,
