@@ -826,17 +826,9 @@ class XAVTNet(L.LightningModule):
         Shapes:
             -> {"features": (N, d), "probs": (N, k), "valid": (N,) bool}, N = max index + 1
         """
-        feats, probs, index = [], [], []
-        for batch in loader:
-            if "index" not in batch:
-                raise ValueError("loader: the neighbour bank needs each target item's 'index'")
-            out = self.extract_features(batch["points"].to(self.device), batch["lengths"].to(self.device))
-            feats.append(F.normalize(out[self.hparams.neighbour_layer], dim=1))
-            probs.append(out["logits"].softmax(-1))
-            index.append(batch["index"].to(self.device))
-        if not index:
-            raise ValueError("loader: no target clouds for the neighbour bank")
-        index, feats, probs = torch.cat(index), torch.cat(feats), torch.cat(probs)
+        index, feats, probs = self._indexed_outputs(loader, self.hparams.neighbour_layer,
+                                                    "the neighbour bank needs", "for the neighbour bank")
+        feats = F.normalize(feats, dim=1)
         n = int(index.max()) + 1
         bank = {"features": feats.new_zeros(n, feats.shape[1]), "probs": probs.new_zeros(n, probs.shape[1]),
                 "valid": torch.zeros(n, dtype=torch.bool, device=self.device)}
@@ -967,21 +959,32 @@ class XAVTNet(L.LightningModule):
         Shapes:
             -> (max index + 1,) int64, -1 for indices not labelled or not kept
         """
+        index, feats, probs = self._indexed_outputs(loader, self.hparams.pseudo_label_layer,
+                                                    "pseudo-labels need", "to label")
+        labels = torch.full((int(index.max()) + 1,), -1, dtype=torch.long, device=self.device)
+        labels[index] = centroid_pseudo_labels(feats, probs, self.hparams.pseudo_label_fraction)
+        return labels
+
+    @torch.no_grad()
+    def _indexed_outputs(self, loader, layer: str, needs: str, purpose: str):
+        """One eval-mode pass over the target clouds of ``loader`` (items with ``"index"``): their indices,
+        ``layer`` features and softmax, in loader order. ``needs`` and ``purpose`` word the errors
+        ("loader: {needs} each target item's 'index'", "loader: no target clouds {purpose}").
+
+        Shapes:
+            -> index (n,) int64, features (n, d), probs (n, k)
+        """
         feats, probs, index = [], [], []
         for batch in loader:
             if "index" not in batch:
-                raise ValueError("loader: pseudo-labels need each target item's 'index'")
+                raise ValueError(f"loader: {needs} each target item's 'index'")
             out = self.extract_features(batch["points"].to(self.device), batch["lengths"].to(self.device))
-            feats.append(out[self.hparams.pseudo_label_layer])
+            feats.append(out[layer])
             probs.append(out["logits"].softmax(-1))
             index.append(batch["index"].to(self.device))
         if not index:
-            raise ValueError("loader: no target clouds to label")
-        index = torch.cat(index)
-        labels = torch.full((int(index.max()) + 1,), -1, dtype=torch.long, device=self.device)
-        labels[index] = centroid_pseudo_labels(torch.cat(feats), torch.cat(probs),
-                                               self.hparams.pseudo_label_fraction)
-        return labels
+            raise ValueError(f"loader: no target clouds {purpose}")
+        return torch.cat(index), torch.cat(feats), torch.cat(probs)
 
     def _with_memory(self, feats_s: dict, feats_t: dict) -> tuple[dict, dict]:
         """The adapted layers' features of each domain followed by its queued ones (``da_memory``), the
