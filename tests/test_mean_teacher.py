@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-from vtlearn.losses.consistency import probability_consistency, softmax_consistency
+from vtlearn.losses.consistency import confident_cross_entropy, probability_consistency, softmax_consistency
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 
 
@@ -57,6 +57,44 @@ def test_softmax_consistency_gradient_reaches_the_student_only():
     softmax_consistency(zs, zt).backward()
     assert zs.grad is not None and zs.grad.abs().sum() > 0
     assert zt.grad is None
+
+
+def test_confident_cross_entropy_matches_a_naive_loop_and_a_hand_case():
+    """FixMatch's term: −log softmax(z_i)[argmax p'_i] on the clouds whose teacher peak reaches τ, summed and
+    divided by the whole batch; the gradient reaches the student only."""
+    g = torch.Generator().manual_seed(0)
+    zs, pt = torch.randn(9, 4, generator=g), (3 * torch.randn(9, 4, generator=g)).softmax(-1)
+    for threshold in (0.0, 0.85, 0.99):
+        total = 0.0
+        for i in range(9):
+            if pt[i].max() >= threshold:
+                es = [math.exp(v) for v in zs[i].tolist()]
+                total -= math.log(es[int(pt[i].argmax())] / sum(es))
+        naive = total / 9
+        assert confident_cross_entropy(zs, pt, threshold).item() == pytest.approx(naive, rel=1e-6)
+        if threshold > 0:  # some clouds, not all, count
+            assert 0 < (pt.amax(-1) >= threshold).sum() < 9
+    # hand case: student (log 3, 0) against a teacher sure of class 1 -> −log(1/4) over a batch of one
+    student = torch.tensor([[math.log(3.0), 0.0]])
+    assert confident_cross_entropy(student, torch.tensor([[0.1, 0.9]]), 0.8).item() == \
+        pytest.approx(math.log(4.0), rel=1e-6)
+    # a hard target: a confident wrong student costs far more than the bounded squared difference (≤ 2)
+    assert confident_cross_entropy(torch.tensor([[20.0, 0.0]]), torch.tensor([[0.0, 1.0]])).item() > 19
+    # no confident cloud: 0, and no gradient to follow
+    zs_g = zs.clone().requires_grad_(True)
+    none = confident_cross_entropy(zs_g, torch.full((9, 4), 0.25), 0.5)
+    none.backward()
+    assert none.item() == 0 and torch.all(zs_g.grad == 0)
+    zs_g.grad = None
+    pt_g = pt.clone().requires_grad_(True)
+    confident_cross_entropy(zs_g, pt_g).backward()
+    assert zs_g.grad.abs().sum() > 0 and pt_g.grad is None
+    with pytest.raises(ValueError, match="threshold"):
+        confident_cross_entropy(zs, pt, 1.0)
+    with pytest.raises(ValueError, match="same shape"):
+        confident_cross_entropy(zs, pt[:3])
+    with pytest.raises(ValueError, match="teacher_probs contains NaN"):
+        confident_cross_entropy(zs, torch.full((9, 4), float("nan")))
 
 
 @pytest.mark.parametrize("zs,zt,match", [
@@ -131,12 +169,39 @@ def test_perturb_padded_keeps_a_random_subset_of_each_cloud():
     assert moved.std().item() == pytest.approx(0.01, rel=0.05)
 
 
+def test_perturb_padded_stretches_each_axis_within_the_bound():
+    """scale > 1: every cloud is multiplied by one factor per axis in [1/scale, scale], the factors differ
+    between clouds and axes, and padding stays zero; scale 1 draws nothing, so the copy is the plain one."""
+    g = torch.Generator().manual_seed(0)
+    lengths = torch.tensor([6, 4, 6, 5])
+    points = torch.zeros(4, 6, 3)
+    for b, n in enumerate(lengths.tolist()):
+        points[b, :n] = torch.rand(n, 3, generator=g) + 0.5  # away from 0, so ratios are defined
+    out, new = perturb_padded(points, lengths, 1.0, 0.0, generator=torch.Generator().manual_seed(1),
+                              scale=1.5)
+    plain, _ = perturb_padded(points, lengths, 1.0, 0.0, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(new, lengths)
+    factors = []
+    for b, n in enumerate(lengths.tolist()):
+        ratio = out[b, :n] / plain[b, :n]  # the same subset order: the stretch draws come after it
+        assert torch.allclose(ratio, ratio[0].expand_as(ratio), atol=1e-6)
+        assert torch.all(ratio[0] >= 1 / 1.5 - 1e-6) and torch.all(ratio[0] <= 1.5 + 1e-6)
+        assert torch.all(out[b, n:] == 0)
+        factors.append(ratio[0])
+    assert torch.stack(factors).std() > 0.05
+    again, _ = perturb_padded(points, lengths, 1.0, 0.0, generator=torch.Generator().manual_seed(1),
+                              scale=1.0)
+    assert torch.equal(again, plain)
+
+
 @pytest.mark.parametrize("kwargs,match", [
     (dict(points=torch.zeros(2, 5)), "points"),
     (dict(lengths=torch.tensor([5])), "lengths"),
     (dict(keep_min=0.0), "keep_min"),
     (dict(jitter=-0.1), "jitter"),
     (dict(jitter=float("nan")), "jitter"),
+    (dict(scale=0.5), "scale"),
+    (dict(scale=float("inf")), "scale"),
 ])
 def test_perturb_padded_rejects_bad_input(kwargs, match):
     args = dict(points=torch.zeros(2, 5, 3), lengths=torch.tensor([5, 3]), keep_min=0.5, jitter=0.0)

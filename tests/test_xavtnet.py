@@ -594,6 +594,47 @@ def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
 
 
+def test_fixmatch_consistency_labels_a_weak_copy_and_trains_on_a_strong_one():
+    """consistency_loss="cross_entropy" with student_*: the step adds w·L_hard between the network's
+    logits of its strong copy (fewer points, its own jitter and stretch) and the teacher's argmax of a weak
+    copy (consistency_keep, consistency_jitter); the other target terms see the strong copy."""
+    from vtlearn.losses.consistency import confident_cross_entropy
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    src, tgt = batch["source"], batch["target"]
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_keep=1.0,
+                    consistency_jitter=0.0, consistency_loss="cross_entropy", student_keep=0.3,
+                    student_jitter=0.05, student_scale=1.5).train()
+    model._log_train = lambda *a, **k: None
+    with torch.no_grad():
+        for p in model.teacher.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    torch.manual_seed(1)
+    loss = model.training_step(batch, 0)
+    torch.manual_seed(1)
+    teacher_logits = model._teacher_logits(src, tgt)
+    strong = model._perturb(tgt, student=True)
+    out_s, out_t = model._joint_forward(src, strong)
+    vt = model.vtloss(out_s.logits, src["label"], out_s.features, out_t.features)[0]
+    hard = confident_cross_entropy(out_t.logits, teacher_logits.softmax(-1))
+    assert hard.item() > 1e-3
+    assert loss.item() == pytest.approx((vt + 3.0 * hard + model._regulariser(out_s)).item(), rel=1e-5)
+    assert strong["lengths"].sum() < tgt["lengths"].sum()
+    # the weak copy keeps every point unmoved; the strong copy stretches each axis within [2/3, 3/2]
+    weak = model._perturb(tgt)
+    assert torch.equal(weak["lengths"], tgt["lengths"])
+    stretch = XAVTNet(**TINY, consistency_weight=1.0, student_keep=1.0, student_jitter=0.0, student_scale=1.5)
+    copy = stretch._perturb(tgt, student=True)
+    for b, n in enumerate(tgt["lengths"].tolist()):
+        def extent(p):
+            return p.amax(0) - p.amin(0)
+        assert torch.allclose(extent(weak["points"][b, :n]), extent(tgt["points"][b, :n]))
+        ratio = extent(copy["points"][b, :n]) / extent(tgt["points"][b, :n])
+        assert torch.all(ratio >= 1 / 1.5 - 1e-5) and torch.all(ratio <= 1.5 + 1e-5)
+        assert not torch.allclose(ratio, torch.ones(3), atol=1e-3)
+
+
 def test_distribution_alignment_targets_the_aligned_teacher_and_tracks_both_priors(tmp_path):
     """consistency_align: each step moves ρ_s towards the source batch's label frequencies and ρ_t towards
     the teacher's mean target probabilities (momentum ALIGN_MOMENTUM), and the consistency compares the
@@ -845,6 +886,13 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(consistency_jitter=-0.1), "consistency_jitter"),
                           (dict(consistency_threshold=1.0), "consistency_threshold"),
                           (dict(teacher_norm="eval"), "teacher_norm"),
-                          (dict(consistency_align=True), "consistency_align")]:
+                          (dict(consistency_align=True), "consistency_align"),
+                          (dict(consistency_weight=1.0, consistency_loss="kl"), "consistency_loss"),
+                          (dict(consistency_loss="cross_entropy"), "consistency_loss.*consistency_weight"),
+                          (dict(consistency_weight=1.0, student_keep=0.0), "student_keep"),
+                          (dict(consistency_weight=1.0, student_jitter=float("nan")), "student_jitter"),
+                          (dict(consistency_weight=1.0, student_scale=0.5), "student_scale"),
+                          (dict(student_jitter=0.1), "student_jitter.*consistency_weight"),
+                          (dict(student_scale=1.5), "student_scale.*consistency_weight")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)

@@ -11,15 +11,23 @@ noise. Thesis eq. 7.8 has no such term. The squared difference is bounded (0 ≤
 teacher cannot pull the student as hard as a cross-entropy against its argmax would. French et al. count
 only the clouds on which the teacher is confident (``threshold`` τ; 0 counts every cloud), averaging over
 the whole batch.
+
+FixMatch (Sohn et al., NeurIPS 2020) and AdaMatch (Berthelot et al., ICLR 2022, its domain-adaptation
+form) use a cross-entropy against the teacher's argmax instead, on a strongly perturbed student copy:
+
+    L_hard = (1/n)·Σ_i m_i·CE(z_i, argmax_c p'_ic)
+
+(:func:`confident_cross_entropy`). It is unbounded: a confident wrong teacher pulls as hard as a label.
 """
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from vtlearn.validation import check_class_scores
 
-__all__ = ["softmax_consistency", "probability_consistency"]
+__all__ = ["softmax_consistency", "probability_consistency", "confident_cross_entropy"]
 
 
 def softmax_consistency(student_logits: torch.Tensor, teacher_logits: torch.Tensor,
@@ -45,6 +53,28 @@ def probability_consistency(student_logits: torch.Tensor, teacher_probs: torch.T
     Shapes:
         student_logits (n, k), teacher_probs (n, k) rows of probabilities -> scalar in [0, 2]
     """
+    p_teacher, confident = _confident(student_logits, teacher_probs, threshold, name)
+    per_cloud = (student_logits.softmax(-1) - p_teacher).pow(2).sum(-1)
+    return (per_cloud * confident).mean()
+
+
+def confident_cross_entropy(student_logits: torch.Tensor, teacher_probs: torch.Tensor,
+                            threshold: float = 0.0, name: str = "teacher_probs") -> torch.Tensor:
+    """L_hard: FixMatch's cross-entropy of the student's logits against the teacher's argmax, on the clouds
+    whose teacher peak is at least ``threshold``, averaged over the whole batch (a batch with no confident
+    cloud gives 0); the gradient flows into ``student_logits`` only.
+
+    Shapes:
+        student_logits (n, k), teacher_probs (n, k) rows of probabilities -> scalar >= 0
+    """
+    p_teacher, confident = _confident(student_logits, teacher_probs, threshold, name)
+    per_cloud = F.cross_entropy(student_logits, p_teacher.argmax(-1), reduction="none")
+    return (per_cloud * confident).mean()
+
+
+def _confident(student_logits: torch.Tensor, teacher_probs: torch.Tensor, threshold: float,
+               name: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """The checked, detached teacher probabilities and the mask ``m`` of the clouds they are confident on."""
     check_class_scores(student_logits, "student_logits")
     check_class_scores(teacher_probs, name)
     if student_logits.shape != teacher_probs.shape:
@@ -53,5 +83,4 @@ def probability_consistency(student_logits: torch.Tensor, teacher_probs: torch.T
     if not 0 <= threshold < 1:
         raise ValueError(f"threshold: need a confidence in [0, 1), got {threshold}")
     p_teacher = teacher_probs.detach()
-    per_cloud = (student_logits.softmax(-1) - p_teacher).pow(2).sum(-1)
-    return (per_cloud * (p_teacher.amax(-1) >= threshold)).mean()
+    return p_teacher, (p_teacher.amax(-1) >= threshold).to(student_logits.dtype)

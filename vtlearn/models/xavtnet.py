@@ -43,6 +43,10 @@ trained network, unless :meth:`XAVTNet.adopt_teacher` has put the teacher's weig
 ``consistency_align=True`` first aligns the teacher's probabilities with the source class frequencies
 (ReMixMatch's distribution alignment, :mod:`~vtlearn.models.components.class_balance`), so that the classes
 the teacher over-predicts on the target stream weigh less in its targets and the neglected ones more.
+``consistency_loss="cross_entropy"`` takes FixMatch's cross-entropy against the teacher's argmax in place
+of the squared difference, and ``student_keep``, ``student_jitter`` and ``student_scale`` give the
+network's copy a stronger perturbation than the teacher's (FixMatch's weak and strong views; AdaMatch,
+Berthelot et al. 2022, for domain adaptation).
 
 ``neighbour_weight > 0`` (beyond the thesis) adds AaD's neighbourhood clustering of the target stream
 (:mod:`vtlearn.losses.neighbourhood`): from epoch ``⌈neighbour_start·max_epochs⌉`` on (by default a
@@ -85,7 +89,7 @@ import torch.nn.functional as F
 from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
-from vtlearn.losses.consistency import probability_consistency
+from vtlearn.losses.consistency import confident_cross_entropy, probability_consistency
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
@@ -112,6 +116,7 @@ LR_SCHEDULES = ("constant", "cosine")
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
 FEATURE_LAYERS = ("global", "fc1", "fc2")
 TEACHER_NORMS = ("batch", "running")
+CONSISTENCY_LOSSES = ("squared", "cross_entropy")
 NEIGHBOUR_BANKS = ("network", "teacher")
 # The running class frequencies of consistency_align: ReMixMatch averages the last 128 batches' predictions
 ALIGN_MOMENTUM = 0.99
@@ -283,6 +288,16 @@ class XAVTNet(L.LightningModule):
             frequencies and ``ρ_t`` one of the teacher's target probabilities (momentum ``ALIGN_MOMENTUM``
             per step, both starting uniform and kept in checkpoints). It assumes the target classes occur
             as often as the source's. Needs ``consistency_weight > 0``.
+        consistency_loss: ``"squared"`` (default): the squared softmax difference of Mean Teacher and
+            French et al. (:func:`~vtlearn.losses.consistency.probability_consistency`); ``"cross_entropy"``:
+            FixMatch's and AdaMatch's cross-entropy against the teacher's argmax on the confident clouds
+            (:func:`~vtlearn.losses.consistency.confident_cross_entropy`).
+        student_keep, student_jitter, student_scale: the network's own perturbed copy of the target batch
+            when it should differ from the teacher's (FixMatch's strong view against the teacher's weak
+            one): the least share of the points kept, the jitter, and the per-axis stretch bound of
+            :func:`~vtlearn.models.components.mean_teacher.perturb_padded`. ``None`` (default) takes
+            ``consistency_keep`` and ``consistency_jitter``; ``student_scale`` 1 (default) stretches
+            nothing. Every target term of the step sees this copy.
         neighbour_weight: weight of AaD's attract-and-disperse loss on the target stream (module docstring;
             Yang et al. 2022, beyond the thesis), added to the loss of ``da_method``. 0 (default): off.
         neighbour_k: the nearest bank neighbours each target cloud is attracted to (AaD's K; 3 on
@@ -354,6 +369,10 @@ class XAVTNet(L.LightningModule):
         consistency_threshold: float = 0.0,
         teacher_norm: str = "batch",
         consistency_align: bool = False,
+        consistency_loss: str = "squared",
+        student_keep: float | None = None,
+        student_jitter: float | None = None,
+        student_scale: float = 1.0,
         neighbour_weight: float = 0.0,
         neighbour_k: int = 3,
         neighbour_dispersion: float = 1.0,
@@ -412,6 +431,24 @@ class XAVTNet(L.LightningModule):
                              f"{consistency_threshold}")
         if teacher_norm not in TEACHER_NORMS:
             raise ValueError(f"teacher_norm: expected one of {TEACHER_NORMS}, got {teacher_norm!r}")
+        if consistency_loss not in CONSISTENCY_LOSSES:
+            raise ValueError(f"consistency_loss: expected one of {CONSISTENCY_LOSSES}, got "
+                             f"{consistency_loss!r}")
+        if student_keep is not None and not 0 < student_keep <= 1:
+            raise ValueError(f"student_keep: need a share of the points in (0, 1] or None, got "
+                             f"{student_keep}")
+        if student_jitter is not None and not (math.isfinite(student_jitter) and student_jitter >= 0):
+            raise ValueError(f"student_jitter: need a finite standard deviation >= 0 or None, got "
+                             f"{student_jitter}")
+        if not (math.isfinite(student_scale) and student_scale >= 1):
+            raise ValueError(f"student_scale: need a finite stretch factor >= 1, got {student_scale}")
+        if consistency_weight <= 0:  # without a teacher no target copy is made and no consistency taken
+            unused = [name for name, on in (("consistency_loss", consistency_loss != "squared"),
+                                            ("student_keep", student_keep is not None),
+                                            ("student_jitter", student_jitter is not None),
+                                            ("student_scale", student_scale != 1.0)) if on]
+            if unused:
+                raise ValueError(f"{unused[0]}: needs consistency_weight > 0 (a mean teacher)")
         if consistency_align and consistency_weight <= 0:
             raise ValueError("consistency_align: needs consistency_weight > 0 (it aligns the teacher's "
                              "targets)")
@@ -725,7 +762,7 @@ class XAVTNet(L.LightningModule):
         teacher_logits = teacher_feats = None
         if use_target and self.teacher is not None:
             teacher_logits, teacher_feats = self._teacher_forward(src, tgt)
-            tgt = self._perturb(tgt)
+            tgt = self._perturb(tgt, student=True)
         if use_target:
             out_s, out_t = self._split_forward(src, tgt) if domain_bn else self._joint_forward(src, tgt)
         else:
@@ -783,7 +820,9 @@ class XAVTNet(L.LightningModule):
             teacher_probs = teacher_logits.softmax(-1)
             if hp.get("consistency_align", False):
                 teacher_probs = self._align_teacher(teacher_probs, y)
-            cons = probability_consistency(out_t.logits, teacher_probs, hp.get("consistency_threshold", 0.0))
+            hard = hp.get("consistency_loss", "squared") == "cross_entropy"
+            cons = (confident_cross_entropy if hard else probability_consistency)(
+                out_t.logits, teacher_probs, hp.get("consistency_threshold", 0.0))
             w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
             loss = loss + w * cons
             parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
@@ -851,11 +890,17 @@ class XAVTNet(L.LightningModule):
         return align_distribution(teacher_probs, self.align_source_prior / self.align_source_prior.sum(),
                                   self.align_target_mean / self.align_target_mean.sum())
 
-    def _perturb(self, batch: dict) -> dict:
-        """A perturbed copy of a target batch (``consistency_keep``, ``consistency_jitter``)."""
+    def _perturb(self, batch: dict, student: bool = False) -> dict:
+        """A perturbed copy of a target batch (``consistency_keep``, ``consistency_jitter``); the network's
+        own copy (``student``) takes ``student_keep``, ``student_jitter`` and ``student_scale`` where set."""
         points, lengths = check_cloud_batch(batch["points"], batch.get("lengths"))
-        points, lengths = perturb_padded(points, lengths, self.hparams.consistency_keep,
-                                         self.hparams.consistency_jitter)
+        hp = self.hparams
+        keep, jitter, scale = hp.consistency_keep, hp.consistency_jitter, 1.0
+        if student:
+            keep = hp.get("student_keep") if hp.get("student_keep") is not None else keep
+            jitter = hp.get("student_jitter") if hp.get("student_jitter") is not None else jitter
+            scale = hp.get("student_scale", 1.0)
+        points, lengths = perturb_padded(points, lengths, keep, jitter, scale=scale)
         return {**batch, "points": points, "lengths": lengths}
 
     def _rotation_loss(self, src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor]:

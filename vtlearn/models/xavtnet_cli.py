@@ -87,8 +87,18 @@ VARIANTS["vtloss_g12_aad"] = {**VARIANTS["vtloss_g12"], "neighbour_weight": 10.0
 VARIANTS["vtloss_g12_mt_aad"] = {**VARIANTS["vtloss_g12_mt"], "neighbour_weight": 10.0}
 # ... with the bank rows and the neighbours taken from the teacher's outputs (AdaContrast's momentum bank)
 VARIANTS["vtloss_g12_mt_aadt"] = {**VARIANTS["vtloss_g12_mt_aad"], "neighbour_bank": "teacher"}
+# Beyond the thesis: the teacher row with FixMatch's consistency (Sohn et al. 2020; AdaMatch, Berthelot et
+# al. 2022, for UDA): the cross-entropy against the teacher's argmax where it gives 0.95 or more (FixMatch's
+# threshold), weighted as the source cross-entropy (λ_u = 1 of FixMatch: α = 10); the teacher sees a weak
+# copy (every contact, jitter 0.01) and the network a strong one (30 % or more of the contacts, jitter 0.02,
+# DGCNN's anisotropic stretch in [2/3, 3/2]).
+VARIANTS["vtloss_g12_mt_fm"] = {**VARIANTS["vtloss_g12_mt"], "consistency_weight": 10.0,
+                                "consistency_threshold": 0.95, "consistency_loss": "cross_entropy",
+                                "consistency_keep": 1.0, "consistency_jitter": 0.01, "student_keep": 0.3,
+                                "student_jitter": 0.02, "student_scale": 1.5}
 # Rows beyond the thesis that the bench runs only when --variants names them.
-OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt")
+OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
+                   "_fm")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"

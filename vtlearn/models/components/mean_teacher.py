@@ -53,10 +53,14 @@ def sigmoid_rampup(progress: float, length: float) -> float:
 
 
 def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float, jitter: float,
-                   generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                   generator: torch.Generator | None = None,
+                   scale: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """A random perturbation of each cloud: it keeps a share drawn uniformly from ``[keep_min, 1]`` of its
     valid points (at least one, a random subset, packed to the front) and each kept point moves by
-    isotropic Gaussian noise of standard deviation ``jitter`` (in the clouds' units). Padding stays zero.
+    isotropic Gaussian noise of standard deviation ``jitter`` (in the clouds' units). With ``scale > 1``
+    each cloud is then stretched about the origin by a factor per axis drawn uniformly from
+    ``[1/scale, scale]`` (DGCNN's anisotropic scaling, ``[2/3, 3/2]`` at ``scale = 1.5``; the clouds are
+    centred first by the datamodule). Padding stays zero.
 
     Shapes:
         points (B, N, 3) zero-padded, lengths (B,) int64 -> (B, N, 3), (B,)
@@ -69,6 +73,8 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
         raise ValueError(f"keep_min: need a share in (0, 1], got {keep_min}")
     if not (math.isfinite(jitter) and jitter >= 0):
         raise ValueError(f"jitter: need a finite standard deviation >= 0, got {jitter}")
+    if not (math.isfinite(scale) and scale >= 1):
+        raise ValueError(f"scale: need a finite stretch factor >= 1, got {scale}")
     b, n, _ = points.shape
     dev = points.device
     share = keep_min + (1 - keep_min) * torch.rand(b, generator=generator, device=dev)
@@ -78,4 +84,7 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
     out = torch.gather(points, 1, order[..., None].expand(-1, -1, 3))
     if jitter > 0:
         out = out + jitter * torch.randn(out.shape, generator=generator, device=dev, dtype=out.dtype)
+    if scale > 1:  # no draw at scale 1, so the unscaled copies keep their random streams
+        u = torch.rand(b, 1, 3, generator=generator, device=dev, dtype=out.dtype)
+        out = out * (1 / scale + (scale - 1 / scale) * u)
     return out.masked_fill(~lengths_to_mask(new_lengths, n)[..., None], 0.0), new_lengths
