@@ -59,8 +59,9 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
     valid points (at least one, a random subset, packed to the front) and each kept point moves by
     isotropic Gaussian noise of standard deviation ``jitter`` (in the clouds' units). With ``scale > 1``
     each cloud is then stretched about the origin by a factor per axis drawn uniformly from
-    ``[1/scale, scale]`` (DGCNN's anisotropic scaling, ``[2/3, 3/2]`` at ``scale = 1.5``; the clouds are
-    centred first by the datamodule). Padding stays zero.
+    ``[1/scale, scale]`` (DGCNN's anisotropic scaling, ``[2/3, 3/2]`` at ``scale = 1.5``). The origin is
+    the clouds' own frame's: their centroid when the datamodule centres them (CrossModalDataModule's
+    ``normalize="center"``, the bench configs'). Padding stays zero.
 
     Shapes:
         points (B, N, 3) zero-padded, lengths (B,) int64 -> (B, N, 3), (B,)
