@@ -566,6 +566,17 @@ def test_mean_teacher_averages_the_trained_weights_and_is_not_optimised(tmp_path
     assert XAVTNet(**TINY).teacher is None  # no teacher, no extra weights, without the consistency term
 
 
+def _step_with_a_nudged_teacher(model, batch):
+    """One training step of ``model`` (no trainer attached, so logging is skipped) after its teacher has been
+    moved away from the network, with torch's random state seeded 1 just before the step."""
+    model._log_train = lambda *a, **k: None
+    with torch.no_grad():  # a teacher that differs from the network
+        for p in model.teacher.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    torch.manual_seed(1)
+    return model.training_step(batch, 0)
+
+
 def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     """The step's loss is VTLoss on the perturbed target copy plus w·r(p)·L_cons between the network's
     logits of that copy and the teacher's logits of another one."""
@@ -575,12 +586,7 @@ def test_mean_teacher_adds_the_ramped_consistency_of_two_perturbed_copies():
     torch.manual_seed(0)
     model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_keep=0.5,
                     consistency_jitter=0.05).train()
-    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
-    with torch.no_grad():  # a teacher that differs from the network
-        for p in model.teacher.parameters():
-            p.add_(0.1 * torch.randn_like(p))
-    torch.manual_seed(1)
-    loss = model.training_step(batch, 0)
+    loss = _step_with_a_nudged_teacher(model, batch)
     torch.manual_seed(1)  # the same draws, in the step's order
     teacher_logits = model._teacher_logits(batch["source"], batch["target"])
     target = model._perturb(batch["target"])
@@ -606,13 +612,8 @@ def test_fixmatch_consistency_labels_a_weak_copy_and_trains_on_a_strong_one():
     model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_keep=1.0,
                     consistency_jitter=0.0, consistency_loss="cross_entropy", student_keep=0.3,
                     student_jitter=0.05, student_scale=1.5).train()
-    model._log_train = lambda *a, **k: None
-    with torch.no_grad():
-        for p in model.teacher.parameters():
-            p.add_(0.1 * torch.randn_like(p))
-    torch.manual_seed(1)
-    loss = model.training_step(batch, 0)
-    torch.manual_seed(1)
+    loss = _step_with_a_nudged_teacher(model, batch)
+    torch.manual_seed(1)  # the same draws, in the step's order
     teacher_logits = model._teacher_logits(src, tgt)
     strong = model._perturb(tgt, student=True)
     out_s, out_t = model._joint_forward(src, strong)
@@ -646,14 +647,9 @@ def test_distribution_alignment_targets_the_aligned_teacher_and_tracks_both_prio
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
     torch.manual_seed(0)
     model = XAVTNet(**TINY, consistency_weight=3.0, consistency_rampup=0.0, consistency_align=True).train()
-    model._log_train = lambda *a, **k: None
     assert torch.equal(model.align_source_prior, torch.full((3,), 1 / 3))
-    with torch.no_grad():
-        for p in model.teacher.parameters():
-            p.add_(0.1 * torch.randn_like(p))
-    torch.manual_seed(1)
-    loss = model.training_step(batch, 0)
-    torch.manual_seed(1)
+    loss = _step_with_a_nudged_teacher(model, batch)
+    torch.manual_seed(1)  # the same draws, in the step's order
     teacher_probs = model._teacher_logits(batch["source"], batch["target"]).softmax(-1)
     target = model._perturb(batch["target"])
     out_s, out_t = model._joint_forward(batch["source"], target)
