@@ -627,9 +627,11 @@ def test_fixmatch_consistency_labels_a_weak_copy_and_trains_on_a_strong_one():
     assert torch.equal(weak["lengths"], tgt["lengths"])
     stretch = XAVTNet(**TINY, consistency_weight=1.0, student_keep=1.0, student_jitter=0.0, student_scale=1.5)
     copy = stretch._perturb(tgt, student=True)
+
+    def extent(p):
+        return p.amax(0) - p.amin(0)
+
     for b, n in enumerate(tgt["lengths"].tolist()):
-        def extent(p):
-            return p.amax(0) - p.amin(0)
         assert torch.allclose(extent(weak["points"][b, :n]), extent(tgt["points"][b, :n]))
         ratio = extent(copy["points"][b, :n]) / extent(tgt["points"][b, :n])
         assert torch.all(ratio >= 1 / 1.5 - 1e-5) and torch.all(ratio <= 1.5 + 1e-5)
