@@ -158,6 +158,22 @@ def test_crossmodal_target_split(cross_dir):
         CrossModalDataModule(str(cross_dir), target_split="val")
 
 
+def test_crossmodal_target_split_train_plus_test_is_one_indexed_stream_of_both(cross_dir):
+    """``target_split="train+test"``: the target stream holds every tactile cloud of both splits, the
+    training ones first, each with its own index (pseudo-labels and neighbour banks key on it); the
+    labelled test loader is unchanged."""
+    both = CrossModalDataModule(str(cross_dir), batch_size=2, target_split="train+test")
+    ds = both.target_dataset()
+    train = [len(c) for c in both.dataset("train", "tactile").clouds]
+    test = [len(c) for c in both.dataset("test", "tactile").clouds]
+    assert [len(c) for c in ds.clouds] == train + test
+    assert not ds.with_label and ds.train
+    assert sorted(int(ds[i]["index"]) for i in range(len(ds))) == list(range(len(train) + len(test)))
+    assert len(both.test_dataloader().dataset) == len(test)
+    with pytest.raises(ValueError, match="target_split"):
+        CrossModalDataModule(str(cross_dir), target_split="test+val")
+
+
 def test_crossmodal_source_splits_add_the_test_objects_to_the_labelled_source(cross_dir):
     """``source_splits=["train", "test"]`` (the thesis's known-objects protocol) puts every visual cloud of
     both splits, with its label and instance, into the source; the tactile test clouds stay the same."""

@@ -164,6 +164,9 @@ def instance_scales(d: dict, instances) -> np.ndarray:
     return np.array([lookup[int(k)] for k in instances], dtype=np.float64)
 
 
+TARGET_SPLITS = ("train", "test", "train+test")
+
+
 class CrossModalDataModule(ShardedDataModule):
     """Visual (labelled source) and tactile (unlabelled target) clouds from `vtlearn gen-data crossmodal`.
 
@@ -181,6 +184,9 @@ class CrossModalDataModule(ShardedDataModule):
             ``"test"`` (transductive, the usual UDA protocol of DAN / Deep CORAL / DANN and the
             thesis's 900 + 300 tactile clouds of the same 12 objects): the unlabelled tactile clouds of
             the test instances adapt the model that is then scored on them with their labels.
+            ``"train+test"`` (transductive): the unlabelled tactile clouds of both splits in one stream,
+            each cloud with its own index, so that the target stream spans the training instances' shapes
+            as well as the test instances' (the thesis adapted on 900 tactile clouds and tested on 300).
         target_data_dir: another dataset with the same class names (e.g. from ``vtlearn gen-episodes``)
             whose ``target_split`` tactile clouds form the target stream instead of ``data_dir``'s.
         source_points: ``[n_min, n_max]`` or None (default). When set, every visual training cloud is
@@ -242,8 +248,8 @@ class CrossModalDataModule(ShardedDataModule):
         verify: bool = True,
     ):
         super().__init__()
-        if target_split not in ("train", "test"):
-            raise ValueError(f"target_split: expected 'train' or 'test', got {target_split!r}")
+        if target_split not in TARGET_SPLITS:
+            raise ValueError(f"target_split: expected one of {list(TARGET_SPLITS)}, got {target_split!r}")
         if batch_size < 1:
             raise ValueError(f"batch_size: need >= 1, got {batch_size}")
         if target_batch_size is not None and target_batch_size < 1:
@@ -291,9 +297,10 @@ class CrossModalDataModule(ShardedDataModule):
             if train_on == "tactile" and "train" not in other["splits"]:
                 raise ValueError(f"target_data_dir: train_on='tactile' needs its 'train' split, "
                                  f"{target_data_dir} has {sorted(other['splits'])}")
-            if target_split not in other["splits"]:
+            missing = [x for x in target_split.split("+") if x not in other["splits"]]
+            if missing:
                 raise ValueError(
-                    f"target_data_dir: no {target_split!r} split in {target_data_dir} "
+                    f"target_data_dir: no {missing[0]!r} split in {target_data_dir} "
                     f"(it has {sorted(other['splits'])}); set target_split to one of them"
                 )
 
@@ -335,6 +342,9 @@ class CrossModalDataModule(ShardedDataModule):
         if self.target_holdout > 0:
             return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask(),
                                 with_index=True)
+        if "+" in self.target_split:  # one stream over both splits, indexed 0..n-1 across them
+            return self._tactile_dataset([self._split(x) for x in self.target_split.split("+")],
+                                         with_label=False, with_index=True)
         return self.dataset(self.target_split, "tactile", with_label=False, train=True, with_index=True)
 
     def holdout_mask(self) -> np.ndarray:
@@ -362,9 +372,17 @@ class CrossModalDataModule(ShardedDataModule):
         return self._loader(self.target_dataset(), shuffle=shuffle, batch_size=self.target_batch_size)
 
     def _target_data_dataset(self, split: str, with_label: bool, with_index: bool = False) -> CloudDataset:
-        """Yaw-augmented tactile clouds of ``target_data_dir``'s ``split``."""
-        clouds, labels, scales = modality_clouds(self._target_data_split(split), "tactile",
-                                                 self.units == "metres")
+        """Yaw-augmented tactile clouds of ``target_data_dir``'s ``split`` (``"a+b"``: both, one stream)."""
+        return self._tactile_dataset([self._target_data_split(x) for x in split.split("+")],
+                                     with_label=with_label, with_index=with_index)
+
+    def _tactile_dataset(self, splits: list[dict], with_label: bool, with_index: bool) -> CloudDataset:
+        """Yaw-augmented tactile clouds of the loaded ``splits`` in one dataset, in that order."""
+        metres = self.units == "metres"
+        parts = [modality_clouds(d, "tactile", metres) for d in splits]
+        clouds = [c for part in parts for c in part[0]]
+        labels = np.concatenate([part[1] for part in parts])
+        scales = np.concatenate([part[2] for part in parts]) if metres else None
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, with_label=with_label, with_index=with_index)
 

@@ -1004,9 +1004,10 @@ def register_bench(sub) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the CPU is shared)")
     p.add_argument("--workers", type=int, default=1,
                    help="(variant, seed) trainings run in parallel, each with --threads threads")
-    p.add_argument("--target-split", choices=["train", "test"], default=None,
-                   help="unlabelled tactile clouds for adaptation: train instances (inductive) or the "
-                        "test instances themselves (transductive UDA protocol); default from the config")
+    p.add_argument("--target-split", choices=["train", "test", "train+test"], default=None,
+                   help="unlabelled tactile clouds for adaptation: train instances (inductive), the "
+                        "test instances themselves (transductive UDA protocol) or both in one stream "
+                        "(train+test); default from the config")
     p.add_argument("--source-points", nargs=2, type=int, default=None, metavar=("N_MIN", "N_MAX"),
                    help="thin every visual training cloud to N_MIN..N_MAX points (the tactile density; "
                         "CrossModalDataModule source_points); default from the config: dense")
