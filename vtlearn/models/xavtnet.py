@@ -96,6 +96,7 @@ from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.class_balance import align_distribution
+from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
@@ -315,6 +316,14 @@ class XAVTNet(L.LightningModule):
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
+        mix_weight: weight of the cross-domain mixup loss (beyond the thesis;
+            :mod:`~vtlearn.models.components.cloud_mixup`): each target cloud of the step, as the target
+            terms see it, is mixed with a source cloud of the batch into a cloud of its own size, and the
+            network learns the mixed label, the source's one-hot label and the target cloud's probability
+            (the mean teacher's when there is one, else the network's, without gradient) in the share of
+            points each gave. Ramped up as the consistency (``consistency_rampup``). 0 (default): off.
+        mix_alpha: the source share λ of each mix is drawn from Beta(``mix_alpha``, ``mix_alpha``)
+            (default 1: uniform in [0, 1]).
         lr, weight_decay: Adam (thesis: lr 1e-3).
         lr_schedule: "constant" (thesis) or "cosine": the learning rate decays from ``lr`` to 0 over the
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
@@ -380,6 +389,8 @@ class XAVTNet(L.LightningModule):
         neighbour_layer: str = "fc2",
         neighbour_bank: str = "network",
         rotation_weight: float = 0.0,
+        mix_weight: float = 0.0,
+        mix_alpha: float = 1.0,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_schedule: str = "constant",
@@ -468,6 +479,12 @@ class XAVTNet(L.LightningModule):
             raise ValueError("neighbour_bank: 'teacher' needs consistency_weight > 0 (a mean teacher)")
         if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
             raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
+        if not (math.isfinite(mix_weight) and mix_weight >= 0):
+            raise ValueError(f"mix_weight: need a finite weight >= 0, got {mix_weight}")
+        if not (math.isfinite(mix_alpha) and mix_alpha > 0):
+            raise ValueError(f"mix_alpha: need a finite Beta parameter > 0, got {mix_alpha}")
+        if mix_weight > 0 and domain_bn:
+            raise ValueError("mix_weight: not with domain_bn=True (a mixed cloud belongs to neither domain)")
         if rotation_weight > 0 and domain_bn:
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
@@ -756,8 +773,10 @@ class XAVTNet(L.LightningModule):
         im_weight = self.hparams.get("im_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
         nb_weight = self.hparams.get("neighbour_weight", 0.0)
+        mix_weight = self.hparams.get("mix_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
-                  or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None)
+                  or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None
+                  or mix_weight > 0)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
         if use_target and self.teacher is not None:
@@ -826,6 +845,12 @@ class XAVTNet(L.LightningModule):
             w = hp.consistency_weight * sigmoid_rampup(self._progress(), hp.consistency_rampup)
             loss = loss + w * cons
             parts = {**parts, "consistency": cons.detach(), "consistency_w": torch.tensor(w)}
+        if use_target and mix_weight > 0:
+            probs_t = (teacher_logits if teacher_logits is not None else out_t.logits).detach().softmax(-1)
+            mix = self._mixup_loss(src, tgt, probs_t)
+            w = mix_weight * sigmoid_rampup(self._progress(), self.hparams.consistency_rampup)
+            loss = loss + w * mix
+            parts = {**parts, "mixup": mix.detach(), "mixup_w": torch.tensor(w)}
         if use_target and self.rotation_head is not None:
             rot, rot_acc = self._rotation_loss(src, tgt)
             loss = loss + self.hparams.rotation_weight * rot
@@ -902,6 +927,33 @@ class XAVTNet(L.LightningModule):
             scale = hp.get("student_scale", 1.0)
         points, lengths = perturb_padded(points, lengths, keep, jitter, scale=scale)
         return {**batch, "points": points, "lengths": lengths}
+
+    def _mixup_loss(self, src: dict, tgt: dict, probs_t: torch.Tensor) -> torch.Tensor:
+        """The soft cross-entropy of the network on the target clouds ``tgt`` mixed with source clouds
+        (``mix_weight``; :func:`~vtlearn.models.components.cloud_mixup.mix_clouds`): target cloud i with
+        source cloud i of a random permutation of the source batch (cycled when the target batch is the
+        larger), its label the mix of that source label and ``probs_t[i]``. The mixed clouds are
+        normalised by their own batch statistics; the running statistics are left to the clouds that
+        evaluation sees.
+
+        Shapes:
+            probs_t (Bt, k) -> ()
+        """
+        ps, pt = src["points"], tgt["points"]
+        ls = src.get("lengths")
+        ls = torch.full((ps.shape[0],), ps.shape[1], device=ps.device) if ls is None else ls
+        lt = tgt.get("lengths")
+        lt = torch.full((pt.shape[0],), pt.shape[1], device=pt.device) if lt is None else lt
+        pick = torch.randperm(ps.shape[0], device=ps.device).repeat(-(-pt.shape[0] // ps.shape[0]))
+        pick = pick[: pt.shape[0]]
+        a = self.hparams.get("mix_alpha", 1.0)
+        lam = torch.distributions.Beta(a, a).sample((pt.shape[0],)).to(pt)
+        mixed, lengths, share = mix_clouds(ps[pick], ls[pick], pt, lt, lam)
+        onehot = F.one_hot(src["label"][pick], probs_t.shape[1]).to(probs_t)
+        target = share[:, None] * onehot + (1 - share[:, None]) * probs_t
+        with _batch_statistics_only(_batch_norms(self.encoder, self.head)):
+            logits = self(mixed, lengths).logits
+        return soft_cross_entropy(logits, target)
 
     def _rotation_loss(self, src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """The cross-entropy of the rotation head on the source and target clouds, each turned by a random

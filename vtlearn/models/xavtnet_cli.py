@@ -96,9 +96,14 @@ VARIANTS["vtloss_g12_mt_fm"] = {**VARIANTS["vtloss_g12_mt"], "consistency_weight
                                 "consistency_threshold": 0.95, "consistency_loss": "cross_entropy",
                                 "consistency_keep": 1.0, "consistency_jitter": 0.01, "student_keep": 0.3,
                                 "student_jitter": 0.02, "student_scale": 1.5}
+# Beyond the thesis: the teacher row with cross-domain mixup (models/components/cloud_mixup.py; Xu et al.
+# 2020, and Point Cloud Mixup's union of point subsets): each target cloud mixed with a source cloud at a
+# uniform share, its label the source label and the teacher's probability in the share of points each
+# gave, weighted as the source cross-entropy (α = 10) and ramped up as the consistency.
+VARIANTS["vtloss_g12_mt_mix"] = {**VARIANTS["vtloss_g12_mt"], "mix_weight": 10.0}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
-                   "_fm")
+                   "_fm", "_mix")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
