@@ -125,8 +125,8 @@ def test_mixup_loss_is_the_soft_cross_entropy_of_the_mixed_clouds_and_keeps_runn
 def test_mix_weight_adds_the_ramped_mixup_to_the_step_and_rejects_bad_settings():
     batch = _two_stream_batch()
     logged = {}
-    for kwargs in (dict(mix_weight=10.0, consistency_rampup=0.0), dict(mix_weight=10.0, consistency_weight=1.0,
-                   consistency_rampup=0.0), {}):
+    for kwargs in (dict(mix_weight=10.0, consistency_rampup=0.0),
+                   dict(mix_weight=10.0, consistency_weight=1.0, consistency_rampup=0.0), {}):
         model = XAVTNet(**TINY, **kwargs).train()
         model._log_train = lambda loss, logits, y, parts: logged.update(parts)
         logged.clear()
@@ -136,8 +136,9 @@ def test_mix_weight_adds_the_ramped_mixup_to_the_step_and_rejects_bad_settings()
             assert logged["mixup"] > 0 and float(logged["mixup_w"]) == pytest.approx(10.0)
         else:
             assert "mixup" not in logged
-    for kwargs, match in [(dict(mix_weight=-1.0), "mix_weight"), (dict(mix_weight=float("nan")), "mix_weight"),
-                          (dict(mix_alpha=0.0), "mix_alpha"), (dict(mix_alpha=float("inf")), "mix_alpha"),
+    for kwargs, match in [(dict(mix_weight=-1.0), "mix_weight"),
+                          (dict(mix_weight=float("nan")), "mix_weight"), (dict(mix_alpha=0.0), "mix_alpha"),
+                          (dict(mix_alpha=float("inf")), "mix_alpha"),
                           (dict(mix_weight=1.0, domain_bn=True), "domain_bn")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)
