@@ -63,6 +63,12 @@ go through the encoder in one more forward (batch statistics, running ones untou
 head on the pooled feature must name the turn (:mod:`~vtlearn.models.components.rotation_task`; Sun et
 al. 2019, GAST). The step adds ``rotation_weight·CE`` of that head.
 
+``mix_weight > 0`` (beyond the thesis) adds cross-domain mixup
+(:mod:`~vtlearn.models.components.cloud_mixup`): every target cloud of the step is mixed with a source
+cloud of the batch into a cloud of the target's size, labelled by the source label and the teacher's (or
+the network's) probability in the share of points each gave, and the step adds
+``mix_weight·r(p)·CE_soft`` of the network on the mixed clouds (batch statistics, running ones untouched).
+
 ``domain_bn=True`` (beyond the thesis) gives every batch norm one set of running statistics per domain
 (:mod:`vtlearn.models.components.domain_bn`, AdaBN / DSBN): source and target batches are then normalised
 separately in training, and evaluation uses the target (tactile) statistics unless a block runs under
@@ -123,6 +129,18 @@ NEIGHBOUR_BANKS = ("network", "teacher")
 ALIGN_MOMENTUM = 0.99
 
 
+def _stream_lengths(batch: dict) -> torch.Tensor:
+    """The batch's ``"lengths"``, or every cloud's full width when it has none.
+
+    Shapes:
+        batch["points"] (B, N, 3) -> (B,)
+    """
+    points, lengths = batch["points"], batch.get("lengths")
+    if lengths is not None:
+        return lengths
+    return torch.full((points.shape[0],), points.shape[1], device=points.device)
+
+
 def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, int]:
     """The source and target batches as one zero-padded batch, source first, and the source batch size.
 
@@ -131,9 +149,7 @@ def _concat_streams(src: dict, tgt: dict) -> tuple[torch.Tensor, torch.Tensor, i
         (Bs + Bt,), Bs
     """
     ps, pt = src["points"], tgt["points"]
-    ls, lt = src.get("lengths"), tgt.get("lengths")
-    ls = torch.full((ps.shape[0],), ps.shape[1], device=ps.device) if ls is None else ls
-    lt = torch.full((pt.shape[0],), pt.shape[1], device=pt.device) if lt is None else lt
+    ls, lt = _stream_lengths(src), _stream_lengths(tgt)
     n = max(ps.shape[1], pt.shape[1])
     points = torch.cat([F.pad(ps, (0, 0, 0, n - ps.shape[1])), F.pad(pt, (0, 0, 0, n - pt.shape[1]))])
     return points, torch.cat([ls, lt]), ps.shape[0]
@@ -940,10 +956,7 @@ class XAVTNet(L.LightningModule):
             probs_t (Bt, k) -> ()
         """
         ps, pt = src["points"], tgt["points"]
-        ls = src.get("lengths")
-        ls = torch.full((ps.shape[0],), ps.shape[1], device=ps.device) if ls is None else ls
-        lt = tgt.get("lengths")
-        lt = torch.full((pt.shape[0],), pt.shape[1], device=pt.device) if lt is None else lt
+        ls, lt = _stream_lengths(src), _stream_lengths(tgt)
         pick = torch.randperm(ps.shape[0], device=ps.device).repeat(-(-pt.shape[0] // ps.shape[0]))
         pick = pick[: pt.shape[0]]
         a = self.hparams.get("mix_alpha", 1.0)
