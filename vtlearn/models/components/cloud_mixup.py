@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 
 from vtlearn.models.components.pointnet_tnet import lengths_to_mask
+from vtlearn.models.components.xavtnet_backbone import check_cloud_batch
 
 __all__ = ["mix_clouds", "soft_cross_entropy"]
 
@@ -40,14 +41,8 @@ def mix_clouds(points_a: torch.Tensor, lengths_a: torch.Tensor, points_b: torch.
         points_a (B, Na, 3), lengths_a (B,), points_b (B, Nb, 3), lengths_b (B,), lam (B,) in [0, 1]
         -> (B, Nb, 3), (B,) int64, (B,) float
     """
-    for name, p, ln in (("points_a", points_a, lengths_a), ("points_b", points_b, lengths_b)):
-        if p.dim() != 3 or p.shape[-1] != 3:
-            raise ValueError(f"{name}: need shape (B, N, 3), got {tuple(p.shape)}")
-        if ln.shape != p.shape[:1]:
-            raise ValueError(f"lengths of {name}: need shape ({p.shape[0]},), got {tuple(ln.shape)}")
-        if bool((ln < 1).any()) or bool((ln > p.shape[1]).any()):
-            raise ValueError(f"lengths of {name}: need 1..{p.shape[1]} valid points per cloud, got "
-                             f"{ln.tolist()}")
+    check_cloud_batch(points_a, lengths_a, "points_a")
+    check_cloud_batch(points_b, lengths_b, "points_b")
     if points_a.shape[0] != points_b.shape[0]:
         raise ValueError(f"points_a, points_b: need the same number of clouds, got {points_a.shape[0]} and "
                          f"{points_b.shape[0]}")

@@ -34,9 +34,10 @@ def check_cloud_batch(points: torch.Tensor, lengths: torch.Tensor | None, name: 
     if lengths is None:
         lengths = torch.full((points.shape[0],), points.shape[1], dtype=torch.long, device=points.device)
     if lengths.shape != points.shape[:1]:
-        raise ValueError(f"lengths must have shape ({points.shape[0]},), got {tuple(lengths.shape)}")
+        raise ValueError(f"lengths of {name} must have shape ({points.shape[0]},), got "
+                         f"{tuple(lengths.shape)}")
     if (lengths < 1).any() or (lengths > points.shape[1]).any():
-        raise ValueError(f"lengths must lie in [1, {points.shape[1]}], got {lengths.tolist()}")
+        raise ValueError(f"lengths of {name} must lie in [1, {points.shape[1]}], got {lengths.tolist()}")
     mask = lengths_to_mask(lengths, points.shape[1])
     if not torch.isfinite(points[mask]).all():
         raise ValueError(f"{name} contains NaN or inf in its valid points")
