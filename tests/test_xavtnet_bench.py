@@ -200,6 +200,26 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
         mt["tactile_acc_teacher_balanced"] - noda["tactile_acc_balanced"])
     printed = capsys.readouterr().out
     assert "tactile_acc_teacher" in printed and "tactile_acc_balanced" in printed
+    # --centroid and --probe add the network's and the teacher's feature scores, compared with no-DA's
+    # like for like, and leave every other score of the run as it was without them
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_g12_mt_align",
+                 "--seeds", "1", "--balanced", "--centroid", "--probe", "--no-figures", "--json",
+                 str(out2)]) == 0
+    res5 = json.loads(out2.read_text())
+    for before, after in zip(res4["runs"], res5["runs"], strict=True):
+        assert {k: v for k, v in after.items() if not k.endswith(("_centroid", "_probe"))} == {
+            k: v for k, v in before.items() if k != "fit_s"} | {"fit_s": after["fit_s"]}
+    noda, mt = res5["runs"]
+    assert "tactile_acc_teacher_probe" not in noda
+    assert all(0 <= r[k] <= 100 for r in (noda, mt) for k in ("tactile_acc_centroid", "tactile_acc_probe"))
+    checks = res5["checks"]
+    assert checks["noda_probe_minus_acc"] == pytest.approx(noda["tactile_acc_probe"] - noda["tactile_acc"])
+    assert checks["vtloss_g12_mt_align_teacher_probe_minus_noda_probe"] == pytest.approx(
+        mt["tactile_acc_teacher_probe"] - noda["tactile_acc_probe"])
+    assert checks["vtloss_g12_mt_align_centroid_minus_noda_centroid"] == pytest.approx(
+        mt["tactile_acc_centroid"] - noda["tactile_acc_centroid"])
+    assert "noda_probe_minus_noda_probe" not in checks
+    assert "tactile_acc_teacher_probe" in capsys.readouterr().out
 
 
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):
@@ -411,3 +431,45 @@ def test_balanced_accuracy_scores_the_balanced_assignment_and_keeps_the_random_s
     expected = (sinkhorn_balance(probs).argmax(-1) == labels).double().mean() * 100
     assert acc == pytest.approx(float(expected))
 
+
+
+def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random_state():
+    """--probe fits a linear probe on the labelled tactile training clouds' global features and scores the
+    test clouds: on three classes of clouds that differ in scale, an untrained network's features separate
+    them perfectly while its classifier does not. --centroid is SHOT's centroid labelling of the test
+    features. Neither moves torch's random state, so the scores after them are unchanged."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import torch
+
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+    from vtlearn.models.xavtnet_cli import _feature_scores
+
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8]).train()
+
+    def loader(n, seed):
+        g = torch.Generator().manual_seed(seed)
+        labels = torch.arange(n) % 3
+        clouds = torch.randn(n, 20, 3, generator=g) * (0.1 * 10.0 ** labels)[:, None, None]
+        items = [{"points": p, "lengths": torch.tensor(20), "label": y}
+                 for p, y in zip(clouds, labels, strict=True)]
+        return lambda: torch.utils.data.DataLoader(items, batch_size=7)
+
+    dm = SimpleNamespace(test_dataloader=loader(30, 1), labelled_target_train_dataloader=loader(60, 2))
+    state = torch.random.get_rng_state()
+    scores = _feature_scores(model, dm, probe=True, centroid=True)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert model.training  # extract_features restores the training flag
+    assert set(scores) == {"tactile_acc_probe", "tactile_acc_centroid"}
+    assert scores["tactile_acc_probe"] == 100.0
+    with torch.no_grad():
+        batch = next(iter(torch.utils.data.DataLoader(list(dm.test_dataloader().dataset), batch_size=30)))
+        out = model.extract_features(batch["points"], batch["lengths"])
+    classifier = 100 * float((out["logits"].argmax(-1) == batch["label"]).double().mean())
+    assert classifier < 100.0  # the untrained classifier does not separate what its features do
+    pseudo = centroid_pseudo_labels(out["global"].double(), out["logits"].double().softmax(-1))
+    assert scores["tactile_acc_centroid"] == pytest.approx(100 * float(np.mean(pseudo.numpy()
+                                                                            == batch["label"].numpy())))
+    assert _feature_scores(model, dm, probe=False, centroid=False) == {}

@@ -109,9 +109,13 @@ OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot
 ORACLE = "tactile_oracle"
 # Per-run tactile accuracies beyond the row's own, each summarised as "<key> mean ± std" where runs have it:
 # after AdaBN (--adabn), a teacher row's network with re-estimated statistics and its teacher (after AdaBN
-# too, with --adabn), and the class-balanced assignments of the network and the teacher (--balanced).
+# too, with --adabn), the class-balanced assignments of the network and the teacher (--balanced), their
+# centroid labels (--centroid) and the linear probe of their features (--probe, a diagnostic with labels).
 EXTRA_SCORES = ("tactile_acc_adabn", "tactile_acc_bn", "tactile_acc_teacher", "tactile_acc_teacher_adabn",
-                "tactile_acc_balanced", "tactile_acc_teacher_balanced")
+                "tactile_acc_balanced", "tactile_acc_teacher_balanced", "tactile_acc_centroid",
+                "tactile_acc_teacher_centroid", "tactile_acc_probe", "tactile_acc_teacher_probe")
+# The layer that --centroid and --probe read: the max-pooled global feature, the backbone's representation.
+FEATURE_SCORE_LAYER = "global"
 AL_DEFAULTS = {"strategies": "entropy,random", "n0": 24, "kappa": 24, "rounds": 6, "mc_passes": 20,
                "warm_start": False, "min_steps": 0, "power_beta": 1.0, "equal_steps": False}
 THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 70.42, "vtloss_fc2": 62.19,
@@ -233,7 +237,8 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
 
 
 def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_epochs: int, threads: int,
-                    features: bool, accelerator: str = "cpu", adabn: bool = False, balanced: bool = False):
+                    features: bool, accelerator: str = "cpu", adabn: bool = False, balanced: bool = False,
+                    centroid: bool = False, probe: bool = False):
     """Train one (variant, seed) of the Table 7.2/7.4 analogue and score it on tactile and visual test clouds.
 
     ``adabn``: afterwards, re-estimate the target batch-norm statistics on the unlabelled target stream
@@ -251,6 +256,11 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     ``balanced``: also score the class-balanced assignment of the whole tactile test set
     (:func:`_balanced_acc`, ``tactile_acc_balanced``; on a teacher row its teacher's as well,
     ``tactile_acc_teacher_balanced``), before AdaBN.
+
+    ``centroid`` and ``probe``: also score the network and, on a teacher row, its teacher, before AdaBN,
+    by :func:`_feature_scores` (``tactile_acc_centroid``, ``tactile_acc_probe``,
+    ``tactile_acc_teacher_centroid``, ``tactile_acc_teacher_probe``). These, like ``balanced``, leave
+    torch's random state as they found it, so the scores after them are those of a run without them.
 
     ``accelerator`` is Lightning's (``cpu``, ``gpu``, ``auto``); Lightning hands the model back on the CPU
     after each fit and test, so the feature extraction below runs there.
@@ -287,7 +297,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     if balanced:
         row["tactile_acc_balanced"] = _balanced_acc(model, dm.test_dataloader(), prior)
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
-    probe = copy.deepcopy(model) if model.teacher is not None else None
+    twin = copy.deepcopy(model) if model.teacher is not None else None
+    if probe or centroid:  # the network as scored for tactile_acc, before AdaBN
+        row.update(_feature_scores(model, dm, probe, centroid))
     if adabn:
         model.adapt_bn_statistics(dm.target_dataloader())
         adapted = _test_acc(trainer, model, dm.test_dataloader())
@@ -298,18 +310,21 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
             with model.bn_domain("source"):
                 source = _collect_features(model, dm.source_test_dataloader())
             feats = (*source, *_collect_features(model, dm.test_dataloader()))
-    if probe is not None:
-        probe.reestimate_bn_statistics(dm.train_dataloader())
-        row["tactile_acc_bn"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
-        probe.adopt_teacher(dm.train_dataloader())
-        row["tactile_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
-        with probe.bn_domain("source"):
-            row["visual_acc_teacher"] = 100 * _test_acc(trainer, probe, dm.source_test_dataloader())
+    if twin is not None:
+        twin.reestimate_bn_statistics(dm.train_dataloader())
+        row["tactile_acc_bn"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
+        twin.adopt_teacher(dm.train_dataloader())
+        row["tactile_acc_teacher"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
+        with twin.bn_domain("source"):
+            row["visual_acc_teacher"] = 100 * _test_acc(trainer, twin, dm.source_test_dataloader())
         if balanced:
-            row["tactile_acc_teacher_balanced"] = _balanced_acc(probe, dm.test_dataloader(), prior)
+            row["tactile_acc_teacher_balanced"] = _balanced_acc(twin, dm.test_dataloader(), prior)
+        if probe or centroid:  # the teacher as scored for tactile_acc_teacher, before AdaBN
+            row.update({k.replace("tactile_acc", "tactile_acc_teacher"): v
+                        for k, v in _feature_scores(twin, dm, probe, centroid).items()})
         if adabn:  # the teacher's weights with AdaBN's target statistics, as the network above
-            probe.adapt_bn_statistics(dm.target_dataloader())
-            row["tactile_acc_teacher_adabn"] = 100 * _test_acc(trainer, probe, dm.test_dataloader())
+            twin.adapt_bn_statistics(dm.target_dataloader())
+            row["tactile_acc_teacher_adabn"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
     return row, feats, dm.class_names
 
 
@@ -332,6 +347,69 @@ def _balanced_acc(model, loader, prior: np.ndarray) -> float:
         logits, labels = _collect_features(model, loader, "logits")
     q = sinkhorn_balance(torch.from_numpy(logits).softmax(-1), torch.as_tensor(prior))
     return 100 * float((q.argmax(-1).numpy() == labels).mean())
+
+
+def _feature_score_checks(rows: list[dict], what: str, checks: dict) -> None:
+    """``checks`` for the ``what`` (``"centroid"`` or ``"probe"``) scores of :func:`_feature_scores`, where
+    the rows have them: every row's (and teacher's) score less its own tactile accuracy, and less no-DA's
+    score of the same kind (like for like)."""
+    key = f"tactile_{what}_mean"
+    noda = next((r[key] for r in rows if r["variant"] == "noda" and key in r), None)
+    for r in rows:
+        for who, k in (("", key), ("_teacher", f"tactile_teacher_{what}_mean")):
+            if k not in r:
+                continue
+            own = r["tactile_mean"] if not who else r["tactile_teacher_mean"]
+            checks[f"{r['variant']}{who}_{what}_minus_acc"] = r[k] - own
+            if noda is not None and (r["variant"] != "noda" or who):
+                checks[f"{r['variant']}{who}_{what}_minus_noda_{what}"] = r[k] - noda
+
+
+def _feature_scores(model, dm, probe: bool, centroid: bool, layer: str = FEATURE_SCORE_LAYER) -> dict:
+    """Two readings of a trained model's ``layer`` features of the tactile test clouds, in eval mode.
+
+    * ``centroid`` -> ``tactile_acc_centroid``: the accuracy (%) of SHOT's centroid labels of the whole
+      tactile test set at once (:func:`~vtlearn.losses.pseudo_labels.centroid_pseudo_labels`, every label
+      kept: each class centroid is the softmax-weighted, then the hard-label mean of the unit-length
+      features, and each cloud takes the nearest by cosine). Transductive and label-free, like
+      ``--balanced``: the labels only score it. It lets the clusters of tactile features, not the
+      classifier's boundaries, decide.
+    * ``probe`` -> ``tactile_acc_probe``: the accuracy (%) on the tactile test clouds of a linear probe, a
+      multinomial logistic regression (scikit-learn, L2 with C = 1, standardised features) fitted on the
+      same layer's features of the labelled tactile training clouds
+      (:meth:`~vtlearn.datamodules.CrossModalDataModule.labelled_target_train_dataloader`, those the
+      ``tactile_oracle`` row trains on). A diagnostic that uses tactile labels, which no UDA row trains
+      with: it measures how separable the row's representation leaves the tactile classes, whatever its
+      classifier does, so ``tactile_acc_probe - tactile_acc`` is what the row's own classifier leaves.
+
+    The model is on the CPU (Lightning hands it back there); torch's random state is restored afterwards
+    (the loaders draw from it), as :func:`_balanced_acc` does.
+
+    Shapes:
+        ``layer`` features (n_clouds, d) per loader -> {score name: float in [0, 100]}
+    """
+    import torch
+
+    from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+
+    out = {}
+    with torch.random.fork_rng():
+        feats, labels = _collect_features(model, dm.test_dataloader(), layer)
+        if centroid:
+            logits, _ = _collect_features(model, dm.test_dataloader(), "logits")
+            probs = torch.from_numpy(logits).double().softmax(-1)
+            pseudo = centroid_pseudo_labels(torch.from_numpy(feats), probs)
+            out["tactile_acc_centroid"] = 100 * float((pseudo.numpy() == labels).mean())
+        if probe:
+            from sklearn.linear_model import LogisticRegression
+            from sklearn.pipeline import make_pipeline
+            from sklearn.preprocessing import StandardScaler
+
+            train_feats, train_labels = _collect_features(model, dm.labelled_target_train_dataloader(), layer)
+            clf = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=5000))
+            clf.fit(train_feats, train_labels)
+            out["tactile_acc_probe"] = 100 * float(clf.score(feats, labels))
+    return out
 
 
 def _map_jobs(fn, job_args: list[tuple], workers: int):
@@ -389,8 +467,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
     adabn = bool(getattr(args, "adabn", False))
     balanced = bool(getattr(args, "balanced", False))
+    centroid, probe = bool(getattr(args, "centroid", False)), bool(getattr(args, "probe", False))
     job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs,
-                 args.accelerator, adabn, balanced) for variant, seed in jobs]
+                 args.accelerator, adabn, balanced, centroid, probe) for variant, seed in jobs]
     results = _map_jobs(_crossmodal_job, job_args, args.workers)
     per_run: list[dict] = []
     keep: dict = {}
@@ -412,6 +491,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             extra += f"  balanced {row['tactile_acc_balanced']:.1f}%"
             if "tactile_acc_teacher_balanced" in row:
                 extra += f"  teacher balanced {row['tactile_acc_teacher_balanced']:.1f}%"
+        for who, prefix in (("", "tactile_acc"), ("teacher ", "tactile_acc_teacher")):
+            for what in ("centroid", "probe"):
+                if f"{prefix}_{what}" in row:
+                    extra += f"  {who}{what} {row[f'{prefix}_{what}']:.1f}%"
         tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
                    f"visual {row['visual_acc']:.1f}%{extra}  ({row['fit_s']:.0f} s)")
     bar.close()
@@ -477,6 +560,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             if "tactile_teacher_balanced_mean" in r:
                 checks[f"{r['variant']}_teacher_balanced_minus_noda_balanced"] = (
                     r["tactile_teacher_balanced_mean"] - noda_bal)
+    for what in ("centroid", "probe"):
+        _feature_score_checks(rows, what, checks)
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
 
@@ -1044,6 +1129,14 @@ def register_bench(sub) -> None:
                    help="also score every row's class-balanced assignment of the whole tactile test set "
                         "(Sinkhorn-Knopp to the source class frequencies; transductive, label-free): "
                         "tactile_acc_balanced, and tactile_acc_teacher_balanced on teacher rows")
+    p.add_argument("--centroid", action="store_true",
+                   help="also score SHOT's centroid labels of the whole tactile test set from every row's "
+                        "global features (transductive, label-free): tactile_acc_centroid, and "
+                        "tactile_acc_teacher_centroid on teacher rows")
+    p.add_argument("--probe", action="store_true",
+                   help="diagnostic: also score a linear probe of every row's global features, fitted on the "
+                        "labelled tactile training clouds (labels no row trains with): tactile_acc_probe, "
+                        "and tactile_acc_teacher_probe on teacher rows")
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
