@@ -432,7 +432,6 @@ def test_balanced_accuracy_scores_the_balanced_assignment_and_keeps_the_random_s
     assert acc == pytest.approx(float(expected))
 
 
-
 def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random_state():
     """--probe fits a linear probe on the labelled tactile training clouds' global features and scores the
     test clouds: on three classes of clouds that differ in scale, an untrained network's features separate

@@ -378,9 +378,10 @@ def _feature_scores(model, dm, probe: bool, centroid: bool, layer: str = FEATURE
       multinomial logistic regression (scikit-learn, L2 with C = 1, standardised features) fitted on the
       same layer's features of the labelled tactile training clouds
       (:meth:`~vtlearn.datamodules.CrossModalDataModule.labelled_target_train_dataloader`, those the
-      ``tactile_oracle`` row trains on). A diagnostic that uses tactile labels, which no UDA row trains
-      with: it measures how separable the row's representation leaves the tactile classes, whatever its
-      classifier does, so ``tactile_acc_probe - tactile_acc`` is what the row's own classifier leaves.
+      ``tactile_oracle`` row trains on, yaw-augmented as it sees them). A diagnostic that uses tactile
+      labels, which no UDA row trains with: it measures how separable the row's representation leaves the
+      tactile classes, whatever its classifier does, so ``tactile_acc_probe - tactile_acc`` is what the
+      row's own classifier leaves.
 
     The model is on the CPU (Lightning hands it back there); torch's random state is restored afterwards
     (the loaders draw from it), as :func:`_balanced_acc` does.
@@ -393,6 +394,8 @@ def _feature_scores(model, dm, probe: bool, centroid: bool, layer: str = FEATURE
     from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
 
     out = {}
+    if not (probe or centroid):
+        return out
     with torch.random.fork_rng():
         feats, labels = _collect_features(model, dm.test_dataloader(), layer)
         if centroid:
