@@ -142,3 +142,16 @@ def test_mix_weight_adds_the_ramped_mixup_to_the_step_and_rejects_bad_settings()
                           (dict(mix_weight=1.0, domain_bn=True), "domain_bn")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)
+
+
+def test_random_valid_order_puts_a_permutation_of_the_valid_slots_first():
+    """The shared ordering behind mix_clouds and perturb_padded: each row starts with a permutation of its
+    valid slots and ends with its padding slots, and a seeded generator repeats it."""
+    from vtlearn.models.components.pointnet_tnet import random_valid_order
+
+    lengths = torch.tensor([1, 4, 6])
+    order = random_valid_order(lengths, 6, torch.Generator().manual_seed(0))
+    for row, n in zip(order, lengths.tolist(), strict=True):
+        assert sorted(row[:n].tolist()) == list(range(n))
+        assert sorted(row[n:].tolist()) == list(range(n, 6))
+    assert torch.equal(order, random_valid_order(lengths, 6, torch.Generator().manual_seed(0)))

@@ -17,16 +17,10 @@ from __future__ import annotations
 
 import torch
 
-from vtlearn.models.components.pointnet_tnet import lengths_to_mask
+from vtlearn.models.components.pointnet_tnet import lengths_to_mask, random_valid_order
 from vtlearn.models.components.xavtnet_backbone import check_cloud_batch
 
 __all__ = ["mix_clouds", "soft_cross_entropy"]
-
-
-def _random_order(lengths: torch.Tensor, n: int, generator: torch.Generator | None) -> torch.Tensor:
-    """Per row, a random permutation of its ``lengths`` valid slots first, then the padding slots."""
-    keys = torch.rand(lengths.shape[0], n, generator=generator, device=lengths.device)
-    return keys.masked_fill(~lengths_to_mask(lengths, n), 2.0).argsort(dim=1)
 
 
 def mix_clouds(points_a: torch.Tensor, lengths_a: torch.Tensor, points_b: torch.Tensor,
@@ -52,8 +46,8 @@ def mix_clouds(points_a: torch.Tensor, lengths_a: torch.Tensor, points_b: torch.
     nb = points_b.shape[1]
     k = torch.round(lam.to(points_b.dtype) * lengths_b.to(points_b.dtype)).long()
     k = k.minimum(lengths_a).minimum(lengths_b)
-    order_a = _random_order(lengths_a, points_a.shape[1], generator)
-    order_b = _random_order(lengths_b, nb, generator)
+    order_a = random_valid_order(lengths_a, points_a.shape[1], generator)
+    order_b = random_valid_order(lengths_b, nb, generator)
     slot = torch.arange(nb, device=points_b.device)[None].expand(points_b.shape[0], nb)
     from_a = slot < k[:, None]  # slots 0..k-1 take a's first k shuffled points, the rest b's
     idx_a = order_a.gather(1, slot.clamp(max=points_a.shape[1] - 1))

@@ -14,7 +14,7 @@ import math
 import torch
 from torch import nn
 
-from vtlearn.models.components.pointnet_tnet import lengths_to_mask
+from vtlearn.models.components.pointnet_tnet import lengths_to_mask, random_valid_order
 
 __all__ = ["ema_update", "sigmoid_rampup", "perturb_padded"]
 
@@ -80,8 +80,7 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
     dev = points.device
     share = keep_min + (1 - keep_min) * torch.rand(b, generator=generator, device=dev)
     new_lengths = torch.ceil(share * lengths.to(share.dtype)).long().clamp(min=1).minimum(lengths)
-    keys = torch.rand(b, n, generator=generator, device=dev).masked_fill(~lengths_to_mask(lengths, n), 2.0)
-    order = keys.argsort(dim=1)
+    order = random_valid_order(lengths, n, generator)
     out = torch.gather(points, 1, order[..., None].expand(-1, -1, 3))
     if jitter > 0:
         out = out + jitter * torch.randn(out.shape, generator=generator, device=dev, dtype=out.dtype)

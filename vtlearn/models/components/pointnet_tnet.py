@@ -25,6 +25,7 @@ from torch import nn
 
 __all__ = [
     "lengths_to_mask",
+    "random_valid_order",
     "masked_max_pool",
     "packed_max_pool",
     "MaskedPointMLP",
@@ -40,6 +41,19 @@ def lengths_to_mask(lengths: torch.Tensor, n: int) -> torch.Tensor:
         lengths (B,) int -> (B, n) bool
     """
     return torch.arange(n, device=lengths.device)[None, :] < lengths[:, None]
+
+
+def random_valid_order(lengths: torch.Tensor, n: int,
+                       generator: torch.Generator | None = None) -> torch.Tensor:
+    """Per row of a padded batch, a random permutation of its ``lengths[b]`` valid slots first, then its
+    padding slots: one ``torch.rand(B, n)`` draw from ``generator``, the padding keys set above every valid
+    key, sorted. Gathering a row by its first ``k`` entries takes a random subset of ``k`` valid points.
+
+    Shapes:
+        lengths (B,) int -> (B, n) int64
+    """
+    keys = torch.rand(lengths.shape[0], n, generator=generator, device=lengths.device)
+    return keys.masked_fill(~lengths_to_mask(lengths, n), 2.0).argsort(dim=1)
 
 
 def masked_max_pool(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
