@@ -1,6 +1,7 @@
 """Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7); beyond it DANN gradient reversal, information
-maximisation and DSAN's class-conditional LMMD."""
+maximisation, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
 
+from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.coral import coral, covariance
 from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
@@ -21,4 +22,5 @@ __all__ = [
     "dann_lambda",
     "domain_adversarial_loss",
     "information_maximization",
+    "nt_xent",
 ]

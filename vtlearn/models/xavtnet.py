@@ -63,6 +63,13 @@ go through the encoder in one more forward (batch statistics, running ones untou
 head on the pooled feature must name the turn (:mod:`~vtlearn.models.components.rotation_task`; Sun et
 al. 2019, GAST). The step adds ``rotation_weight·CE`` of that head.
 
+``contrast_weight > 0`` (beyond the thesis) adds SimCLR's contrastive task on the target stream
+(:mod:`vtlearn.losses.contrastive`): every step the unperturbed target batch is perturbed twice as the
+teacher's copy is (``consistency_keep``, ``consistency_jitter``), both copies go through the encoder in one
+more forward (batch statistics, running ones untouched), and a projection head on the pooled feature
+(:mod:`~vtlearn.models.components.projection_head`) must pair each copy with its partner among the
+batch's others at temperature ``contrast_temperature``. The step adds ``contrast_weight·L_NT-Xent``.
+
 ``mix_weight > 0`` (beyond the thesis) adds cross-domain mixup
 (:mod:`~vtlearn.models.components.cloud_mixup`): every target cloud of the step is mixed with a source
 cloud of the batch into a cloud of the target's size, labelled by the source label and the teacher's (or
@@ -96,6 +103,7 @@ from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
 from vtlearn.losses.consistency import confident_cross_entropy, probability_consistency
+from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
@@ -107,6 +115,7 @@ from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, conver
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
+from vtlearn.models.components.projection_head import ProjectionHead
 from vtlearn.models.components.rotation_task import RotationHead, random_quarter_turns
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
@@ -332,6 +341,10 @@ class XAVTNet(L.LightningModule):
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
+        contrast_weight: weight of SimCLR's NT-Xent on two perturbed copies of the target batch (module
+            docstring; Chen et al. 2020, beyond the thesis), added to the loss of ``da_method``. 0
+            (default): off, no projection head.
+        contrast_temperature: NT-Xent's τ (SimCLR's 0.5, its best value for batches of a few hundred).
         mix_weight: weight of the cross-domain mixup loss (beyond the thesis;
             :mod:`~vtlearn.models.components.cloud_mixup`): each target cloud of the step, as the target
             terms see it, is mixed with a source cloud of the batch into a cloud of its own size, and the
@@ -405,6 +418,8 @@ class XAVTNet(L.LightningModule):
         neighbour_layer: str = "fc2",
         neighbour_bank: str = "network",
         rotation_weight: float = 0.0,
+        contrast_weight: float = 0.0,
+        contrast_temperature: float = 0.5,
         mix_weight: float = 0.0,
         mix_alpha: float = 1.0,
         lr: float = 1e-3,
@@ -495,6 +510,13 @@ class XAVTNet(L.LightningModule):
             raise ValueError("neighbour_bank: 'teacher' needs consistency_weight > 0 (a mean teacher)")
         if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
             raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
+        if not (math.isfinite(contrast_weight) and contrast_weight >= 0):
+            raise ValueError(f"contrast_weight: need a finite weight >= 0, got {contrast_weight}")
+        if not (math.isfinite(contrast_temperature) and contrast_temperature > 0):
+            raise ValueError(f"contrast_temperature: need a finite τ > 0, got {contrast_temperature}")
+        if contrast_weight > 0 and domain_bn:
+            raise ValueError("contrast_weight: not with domain_bn=True (the copies are normalised by their "
+                             "own batch, not by a domain's statistics)")
         if not (math.isfinite(mix_weight) and mix_weight >= 0):
             raise ValueError(f"mix_weight: need a finite weight >= 0, got {mix_weight}")
         if not (math.isfinite(mix_alpha) and mix_alpha > 0):
@@ -549,6 +571,7 @@ class XAVTNet(L.LightningModule):
             self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
             self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
+        self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -792,9 +815,10 @@ class XAVTNet(L.LightningModule):
         mix_weight = self.hparams.get("mix_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
                   or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None
-                  or mix_weight > 0)
+                  or mix_weight > 0 or self.projection_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
+        unperturbed = tgt
         if use_target and self.teacher is not None:
             teacher_logits, teacher_feats = self._teacher_forward(src, tgt)
             tgt = self._perturb(tgt, student=True)
@@ -871,6 +895,10 @@ class XAVTNet(L.LightningModule):
             rot, rot_acc = self._rotation_loss(src, tgt)
             loss = loss + self.hparams.rotation_weight * rot
             parts = {**parts, "rotation": rot.detach(), "rotation_acc": rot_acc}
+        if use_target and self.projection_head is not None:
+            con = self._contrast_loss(unperturbed)
+            loss = loss + self.hparams.contrast_weight * con
+            parts = {**parts, "contrast": con.detach()}
         loss = loss + self._regulariser(out_s)
         self._log_train(loss, out_s.logits, y, parts)
         return loss
@@ -980,6 +1008,20 @@ class XAVTNet(L.LightningModule):
             g, _, _ = self.encoder(*self._prepare(turned, lengths))
         logits = self.rotation_head(g)
         return F.cross_entropy(logits, turns), (logits.detach().argmax(-1) == turns).float().mean()
+
+    def _contrast_loss(self, tgt: dict) -> torch.Tensor:
+        """NT-Xent of the projection head on two perturbed copies of the target batch ``tgt``
+        (``contrast_weight``; :func:`~vtlearn.losses.contrastive.nt_xent`). The copies share one forward,
+        normalised by their own batch statistics; the running statistics are left to the clouds that
+        evaluation sees."""
+        one, two = self._perturb(tgt), self._perturb(tgt)
+        n = one["points"].shape[0]
+        points = torch.cat([one["points"], two["points"]])
+        lengths = torch.cat([_stream_lengths(one), _stream_lengths(two)])
+        with _batch_statistics_only(_batch_norms(self.encoder)):
+            g, _, _ = self.encoder(*self._prepare(points, lengths))
+        z = self.projection_head(g)
+        return nt_xent(z[:n], z[n:], self.hparams.contrast_temperature)
 
     def _teacher_logits(self, src: dict, tgt: dict) -> torch.Tensor:
         """The teacher's logits of :meth:`_teacher_forward`."""
