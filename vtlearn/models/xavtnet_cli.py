@@ -101,9 +101,16 @@ VARIANTS["vtloss_g12_mt_fm"] = {**VARIANTS["vtloss_g12_mt"], "consistency_weight
 # uniform share, its label the source label and the teacher's probability in the share of points each
 # gave, weighted as the source cross-entropy (α = 10) and ramped up as the consistency.
 VARIANTS["vtloss_g12_mt_mix"] = {**VARIANTS["vtloss_g12_mt"], "mix_weight": 10.0}
+# Beyond the thesis: the teacher row plus SimCLR's contrastive task on the tactile stream (losses/
+# contrastive.py; Chen et al. 2020's NT-Xent at their τ = 0.5 on a projection of the pooled feature), two
+# copies of each target cloud perturbed as the teacher's is, weighted as the source cross-entropy (α = 10).
+VARIANTS["vtloss_g12_mt_con"] = {**VARIANTS["vtloss_g12_mt"], "contrast_weight": 10.0}
+# ... with self-training on SHOT's centroid pseudo-labels as well (vtloss_g12_pl's settings: fc1 centroids
+# from a third of the epochs on, CBST's confident half per class, weighted as the source cross-entropy)
+VARIANTS["vtloss_g12_mt_con_pl"] = {**VARIANTS["vtloss_g12_mt_con"], "pseudo_label_weight": 10.0}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
-                   "_fm", "_mix")
+                   "_fm", "_mix", "_con")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
