@@ -344,7 +344,7 @@ class XAVTNet(L.LightningModule):
         contrast_weight: weight of SimCLR's NT-Xent on two perturbed copies of the target batch (module
             docstring; Chen et al. 2020, beyond the thesis), added to the loss of ``da_method``. 0
             (default): off, no projection head.
-        contrast_temperature: NT-Xent's τ (SimCLR's 0.5, its best value for batches of a few hundred).
+        contrast_temperature: NT-Xent's τ (0.5: SimCLR's CIFAR-10 setting, the small-data one).
         mix_weight: weight of the cross-domain mixup loss (beyond the thesis;
             :mod:`~vtlearn.models.components.cloud_mixup`): each target cloud of the step, as the target
             terms see it, is mixed with a source cloud of the batch into a cloud of its own size, and the
@@ -1013,7 +1013,11 @@ class XAVTNet(L.LightningModule):
         """NT-Xent of the projection head on two perturbed copies of the target batch ``tgt``
         (``contrast_weight``; :func:`~vtlearn.losses.contrastive.nt_xent`). The copies share one forward,
         normalised by their own batch statistics; the running statistics are left to the clouds that
-        evaluation sees."""
+        evaluation sees.
+
+        Shapes:
+            tgt["points"] (n, N, 3), tgt["lengths"] (n,) -> ()
+        """
         one, two = self._perturb(tgt), self._perturb(tgt)
         n = one["points"].shape[0]
         points = torch.cat([one["points"], two["points"]])

@@ -102,8 +102,9 @@ VARIANTS["vtloss_g12_mt_fm"] = {**VARIANTS["vtloss_g12_mt"], "consistency_weight
 # gave, weighted as the source cross-entropy (α = 10) and ramped up as the consistency.
 VARIANTS["vtloss_g12_mt_mix"] = {**VARIANTS["vtloss_g12_mt"], "mix_weight": 10.0}
 # Beyond the thesis: the teacher row plus SimCLR's contrastive task on the tactile stream (losses/
-# contrastive.py; Chen et al. 2020's NT-Xent at their τ = 0.5 on a projection of the pooled feature), two
-# copies of each target cloud perturbed as the teacher's is, weighted as the source cross-entropy (α = 10).
+# contrastive.py; Chen et al. 2020's NT-Xent at their CIFAR-10 τ = 0.5 on a projection of the pooled
+# feature), two copies of each target cloud perturbed as the teacher's is, weighted as the source
+# cross-entropy (α = 10).
 VARIANTS["vtloss_g12_mt_con"] = {**VARIANTS["vtloss_g12_mt"], "contrast_weight": 10.0}
 # ... with self-training on SHOT's centroid pseudo-labels as well (vtloss_g12_pl's settings: fc1 centroids
 # from a third of the epochs on, CBST's confident half per class, weighted as the source cross-entropy)
