@@ -1003,10 +1003,7 @@ class XAVTNet(L.LightningModule):
         statistics are left to the clouds that evaluation sees."""
         points, lengths, _ = _concat_streams(src, tgt)
         turned, turns = random_quarter_turns(points)
-        bns = _batch_norms(self.encoder)
-        with _batch_statistics_only(bns):
-            g, _, _ = self.encoder(*self._prepare(turned, lengths))
-        logits = self.rotation_head(g)
+        logits = self.rotation_head(self._pool_by_batch_statistics(turned, lengths))
         return F.cross_entropy(logits, turns), (logits.detach().argmax(-1) == turns).float().mean()
 
     def _contrast_loss(self, tgt: dict) -> torch.Tensor:
@@ -1018,14 +1015,20 @@ class XAVTNet(L.LightningModule):
         Shapes:
             tgt["points"] (n, N, 3), tgt["lengths"] (n,) -> ()
         """
-        one, two = self._perturb(tgt), self._perturb(tgt)
-        n = one["points"].shape[0]
-        points = torch.cat([one["points"], two["points"]])
-        lengths = torch.cat([_stream_lengths(one), _stream_lengths(two)])
+        points, lengths, n = _concat_streams(self._perturb(tgt), self._perturb(tgt))
+        z = self.projection_head(self._pool_by_batch_statistics(points, lengths))
+        return nt_xent(z[:n], z[n:], self.hparams.contrast_temperature)
+
+    def _pool_by_batch_statistics(self, points: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+        """The encoder's pooled feature of an extra batch (the self-supervised tasks' transformed clouds),
+        normalised by that batch's own statistics, the running ones left as they are.
+
+        Shapes:
+            points (B, N, 3), lengths (B,) -> (B, global_dim)
+        """
         with _batch_statistics_only(_batch_norms(self.encoder)):
             g, _, _ = self.encoder(*self._prepare(points, lengths))
-        z = self.projection_head(g)
-        return nt_xent(z[:n], z[n:], self.hparams.contrast_temperature)
+        return g
 
     def _teacher_logits(self, src: dict, tgt: dict) -> torch.Tensor:
         """The teacher's logits of :meth:`_teacher_forward`."""
