@@ -196,3 +196,133 @@ def test_recognize_command_on_files_and_on_stored_clouds(tmp_path, tiny_crossmod
     bad.write_text("{}")
     assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", str(bad)]) == 2
     assert "has no 'class_names' list" in capsys.readouterr().err
+
+
+def _object_frame_cloud(seed=0, n=40):
+    """Touches near the top rim of a unit box, in the object frame: far from centred on themselves."""
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(n, 3)) * [0.05, 0.05, 0.02] + [0.3, 0.0, 0.45]
+
+
+def test_the_checkpoint_records_the_datamodule_normalisation(tmp_path, tiny_crossmodal):
+    import lightning as L
+
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet_inference import checkpoint_normalize
+
+    with pytest.raises(ValueError, match="input_normalize: expected one of"):
+        XAVTNet(num_classes=3, input_normalize="centroid")
+    assert checkpoint_normalize({}) == "center"  # checkpoints from before the record
+    dm = CrossModalDataModule(str(tiny_crossmodal), batch_size=4, normalize="none")
+
+    def fit(model):
+        L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
+                  enable_model_summary=False, default_root_dir=tmp_path).fit(model, datamodule=dm)
+        return model
+
+    model = fit(XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8], max_points=64))
+    path = tmp_path / "m.ckpt"
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, path)
+    assert torch.load(path, weights_only=True)["hyper_parameters"]["input_normalize"] == "none"
+    assert checkpoint_normalize(dict(load_xavtnet(path).hparams)) == "none"
+    with pytest.raises(ValueError, match="input_normalize: the model's 'center' differs from the datamodule"):
+        fit(XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8], input_normalize="center"))
+
+
+def test_an_object_frame_checkpoint_reads_clouds_in_the_object_frame():
+    model = _model(input_normalize="none")
+    canon = _object_frame_cloud()
+    res = recognize_clouds(model, [canon], units="canonical")
+    x = torch.as_tensor(canon, dtype=torch.float32)[None]
+    with torch.no_grad():
+        p = torch.softmax(model(x).logits, -1).numpy()[0]
+        p_centred = torch.softmax(model(x - x.mean(1, keepdim=True)).logits, -1).numpy()[0]
+    np.testing.assert_allclose(res.probs[0], p, atol=1e-5)  # not centred on itself
+    assert np.abs(p - p_centred).max() > 1e-4  # centring would change it (50 times the tolerance above)
+    # in metres: the object's box, a table 0.7 m up and 0.4 m off, 0.25 m tall
+    scale, offset = 0.25, np.array([0.4, 0.1, 0.7])
+    box = np.array([[-0.3, -0.3, -0.5], [0.3, 0.3, 0.5]]) * scale / 1.0 + offset
+    metres = canon * scale + offset
+    b = recognize_clouds(model, [metres, metres], units="metres", box_m=box).probs
+    np.testing.assert_allclose(b, [p, p], atol=1e-5)
+    b = recognize_clouds(model, [metres], units="metres", box_m=[box]).probs
+    np.testing.assert_allclose(b[0], p, atol=1e-5)
+    with pytest.raises(ValueError, match="box_m: this checkpoint was trained in the object frame"):
+        recognize_clouds(model, [metres])
+    # a centred checkpoint takes the box too: the same answer as with its largest extent
+    centred = _model()
+    np.testing.assert_allclose(recognize_clouds(centred, [metres], box_m=box).probs,
+                               recognize_clouds(centred, [metres], extent_m=scale).probs, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"box_m": np.zeros((3, 2))}, r"box_m: expected a \(2, 3\) box \[lo, hi\] in metres, got shape \(3,"),
+        ({"box_m": [[0, 0, 0], [1, 1, float("nan")]]}, "box_m: the box has NaN"),
+        ({"box_m": [[0, 0, 1], [1, 1, 0]]}, "box_m: need lo <= hi"),
+        ({"box_m": [[0, 0, 0], [0, 0, 0]]}, "box_m: need lo <= hi on every axis and a positive extent"),
+        ({"box_m": "abc"}, "box_m: expected a"),
+        ({"box_m": [[0, 0, 0], [1, 1, 1]], "extent_m": 1.0}, "extent_m: give extent_m or box_m, not both"),
+        ({"box_m": [[0, 0, 0], [1, 1, 1]], "units": "canonical"}, "box_m: only for units='metres'"),
+    ],
+)
+def test_canonical_cloud_rejects_bad_boxes_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        canonical_cloud(_cloud(), **kwargs)
+
+
+def test_recognize_rejects_a_box_count_that_does_not_match():
+    box = [[0, 0, 0], [1, 1, 1]]
+    with pytest.raises(ValueError, match="box_m: 3 boxes for 2 clouds"):
+        recognize_clouds(_model(), [_cloud(), _cloud(1)], box_m=[box, box, box])
+
+
+def test_the_closed_loop_classifies_in_the_checkpoint_frame():
+    from vtlearn.active.closed_loop import classify_clouds, make_object
+
+    obj = make_object("can", 0)
+    lo, hi = obj.bounds
+    world = obj.from_canonical(_object_frame_cloud(1, n=30))
+    for mode in ("none", "center"):
+        model = _model(input_normalize=mode)
+        p = classify_clouds(model, obj, [world], max_points=256)[0]
+        x = obj.to_canonical(world)
+        x = x if mode == "none" else x - x.mean(0)
+        with torch.no_grad():
+            q = torch.softmax(model(torch.as_tensor(x, dtype=torch.float32)[None]).logits, -1).numpy()[0]
+        np.testing.assert_allclose(p, q, atol=1e-5)
+        np.testing.assert_allclose(recognize_clouds(model, [world], box_m=[lo, hi]).probs[0], q, atol=1e-5)
+
+
+def test_recognize_command_takes_the_object_box(tmp_path, tiny_crossmodal, capsys):
+    from vtlearn.cli import main
+    from vtlearn.datamodules.crossmodal import modality_clouds
+    from vtlearn.datamodules.shards import load_manifest, load_split
+    from vtlearn.io import write_cloud
+
+    names = load_manifest(tiny_crossmodal)["class_names"]
+    model = _model(num_classes=len(names), input_normalize="none")
+    ckpt = tmp_path / "x.ckpt"
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, ckpt)
+    clouds, _, _ = modality_clouds(load_split(tiny_crossmodal, "test"), "tactile", False)
+    out = tmp_path / "stored.json"
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--mc-samples", "0",
+                 "--json", str(out)]) == 0
+    stored = json.loads(out.read_text())["results"][0]
+    f = tmp_path / "c.npy"
+    write_cloud(f, clouds[0] * 0.25 + [0.4, 0.1, 0.7])
+    box = ["0.275", "-0.025", "0.575", "0.525", "0.225", "0.825"]  # the unit box about 0, in metres
+    out2 = tmp_path / "file.json"
+    assert main(["recognize", "--ckpt", str(ckpt), str(f), "--box-m", *box, "--mc-samples", "0",
+                 "--class-names", ",".join(names), "--json", str(out2)]) == 0
+    got = json.loads(out2.read_text())
+    assert got["box_m"] == [[0.275, -0.025, 0.575], [0.525, 0.225, 0.825]]
+    for k, v in stored["class_probabilities"].items():
+        assert got["results"][0]["class_probabilities"][k] == pytest.approx(v, abs=1e-5)
+    capsys.readouterr()
+    assert main(["recognize", "--ckpt", str(ckpt), str(f), "--mc-samples", "0"]) == 2
+    assert "box_m: this checkpoint was trained in the object frame" in capsys.readouterr().err
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--box-m", *box]) == 2
+    assert "--box-m: only for cloud files" in capsys.readouterr().err

@@ -603,15 +603,21 @@ def reconstruct_prefixes(
 def classify_clouds(
     model, obj: SimObject, clouds_world, max_points: int = 256, seed: int = 0, seeds=None
 ) -> np.ndarray:
-    """xAVTNet class probabilities ``(len(clouds_world), C)`` of world-frame tactile clouds: canonical
-    frame and centred (the ``normalize="center"`` of the crossmodal datamodule), at most ``max_points``
-    points each, subsampled with ``seeds[i]`` (default ``seed + i``). Rows of clouds with fewer than 3
-    points are NaN. One batched forward pass."""
+    """xAVTNet class probabilities ``(len(clouds_world), C)`` of world-frame tactile clouds: the object's
+    canonical frame, then the per-cloud normalisation the checkpoint was trained with (the crossmodal
+    datamodule's ``normalize``, :func:`~vtlearn.models.xavtnet_inference.checkpoint_normalize`: centred by
+    default, left in the object frame for ``"none"``), at most ``max_points`` points each, subsampled with
+    ``seeds[i]`` (default ``seed + i``). Rows of clouds with fewer than 3 points are NaN. One batched
+    forward pass."""
     import torch
 
+    from vtlearn.datamodules.shards import normalize_cloud
+    from vtlearn.models.xavtnet_inference import checkpoint_normalize
+
+    mode = checkpoint_normalize(dict(model.hparams))
     seeds = [seed + i for i in range(len(clouds_world))] if seeds is None else list(seeds)
     clouds = [network_input(obj, c, max_points, seed=s) for c, s in zip(clouds_world, seeds, strict=True)]
-    clouds = [c - c.mean(0) if len(c) else c for c in clouds]
+    clouds = [normalize_cloud(c, mode) if len(c) else c for c in clouds]
     probs = np.full((len(clouds), int(model.hparams.num_classes)), np.nan)
     ok = [i for i, c in enumerate(clouds) if len(c) >= 3]
     if ok:

@@ -129,6 +129,7 @@ __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 
 DA_METHODS = ("none", "vtloss", "dann")
 LR_SCHEDULES = ("constant", "cosine")
+INPUT_NORMALIZE = ("center", "none", "unit_sphere")  # CrossModalDataModule(normalize=...)
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
 FEATURE_LAYERS = ("global", "fc1", "fc2")
 TEACHER_NORMS = ("batch", "running")
@@ -367,6 +368,13 @@ class XAVTNet(L.LightningModule):
         class_names: the name of each class index, kept in the checkpoint's hyper-parameters so that
             inference (``vtlearn recognize``) needs no dataset. ``None`` is filled from the datamodule's
             ``class_names`` when training starts (:meth:`setup`).
+        input_normalize: the per-cloud normalisation of the training clouds
+            (:class:`~vtlearn.datamodules.CrossModalDataModule`'s ``normalize``), kept in the checkpoint so
+            that inference applies the same one (:func:`~vtlearn.models.xavtnet_inference.recognize_clouds`):
+            ``"center"`` (each cloud on its centroid), ``"none"`` (the object's bounding-box frame, which
+            inference rebuilds from the object's box) or ``"unit_sphere"``. ``None`` is filled from the
+            datamodule when training starts (:meth:`setup`); checkpoints without it were trained with
+            ``"center"``.
     """
 
     def __init__(
@@ -429,6 +437,7 @@ class XAVTNet(L.LightningModule):
         normalize_clouds: bool = False,
         domain_bn: bool = False,
         class_names: list[str] | None = None,
+        input_normalize: str | None = None,
     ) -> None:
         super().__init__()
         if num_classes < 2:
@@ -540,6 +549,10 @@ class XAVTNet(L.LightningModule):
                 raise ValueError(
                     f"class_names: {len(class_names)} names for num_classes={num_classes}"
                 )
+        if input_normalize is not None and input_normalize not in INPUT_NORMALIZE:
+            raise ValueError(
+                f"input_normalize: expected one of {INPUT_NORMALIZE} or None, got {input_normalize!r}"
+            )
         fc_dims, da_layers = list(fc_dims), list(da_layers)
         self.save_hyperparameters()
         self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform)
@@ -581,9 +594,19 @@ class XAVTNet(L.LightningModule):
         self.last_test_confusion: torch.Tensor | None = None
 
     def setup(self, stage: str) -> None:
-        """Record the datamodule's class names in the hyper-parameters (and so in every checkpoint); a
-        ValueError if they contradict the names the model already has."""
-        names = getattr(getattr(self._trainer, "datamodule", None), "class_names", None)
+        """Record the datamodule's class names and cloud normalisation in the hyper-parameters (and so in
+        every checkpoint); a ValueError if they contradict what the model already has."""
+        dm = getattr(self._trainer, "datamodule", None)
+        mode = getattr(dm, "normalize", None)
+        if mode is not None:
+            if self.hparams.input_normalize is None:
+                self.hparams.input_normalize = str(mode)
+            elif self.hparams.input_normalize != mode:
+                raise ValueError(
+                    f"input_normalize: the model's {self.hparams.input_normalize!r} differs from the "
+                    f"datamodule's normalize={mode!r}; set them alike (or leave input_normalize unset)"
+                )
+        names = getattr(dm, "class_names", None)
         if names is None:
             return
         names = [str(n) for n in names]

@@ -289,7 +289,11 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     L.seed_everything(seed, verbose=False)
     dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
     oracle = variant == ORACLE
-    model = XAVTNet(num_classes=dm.num_classes, **{**base, **VARIANTS["noda" if oracle else variant]})
+    kwargs = {**base, **VARIANTS["noda" if oracle else variant]}
+    if kwargs.get("input_normalize") not in (None, dm.normalize):
+        raise ValueError(f"model.input_normalize: {kwargs['input_normalize']!r} in the config, but the "
+                         f"data's normalize is {dm.normalize!r}; leave it unset (the bench records that)")
+    model = XAVTNet(num_classes=dm.num_classes, **{**kwargs, "input_normalize": dm.normalize})
     t0 = time.perf_counter()
     trainer = _trainer(max_epochs, accelerator)
     loader = dm.labelled_target_train_dataloader() if oracle else dm.train_dataloader()
@@ -1017,9 +1021,12 @@ def run_recognize(args: argparse.Namespace) -> int:
         clouds = [read_cloud(p) for p in args.inputs]
         titles = [Path(p).name for p in args.inputs]
         units, extent = args.units, args.extent_m
+    box = None if args.box_m is None else [args.box_m[:3], args.box_m[3:]]
+    if box is not None and args.data is not None:
+        raise ValueError("--box-m: only for cloud files in metres; stored clouds are in their object's frame")
     names = checkpoint_class_names(dict(model.hparams), override)
     result = recognize_clouds(model, clouds, class_names=names, extent_m=extent, units=units,
-                              mc_samples=args.mc_samples, domain=args.domain, seed=args.seed)
+                              mc_samples=args.mc_samples, domain=args.domain, seed=args.seed, box_m=box)
     rows = []
     for i, title in enumerate(titles):
         row = {"input": title, "points": len(clouds[i]), **result.to_dict(i, args.zeta)}
@@ -1037,8 +1044,8 @@ def run_recognize(args: argparse.Namespace) -> int:
         print(f"{right}/{len(rows)} right")
     if args.json:
         write_json(args.json, {"ckpt": str(ckpt_path), "class_names": names, "units": units,
-                               "extent_m": extent, "mc_samples": args.mc_samples, "domain": args.domain,
-                               "results": rows})
+                               "extent_m": extent, "box_m": box, "mc_samples": args.mc_samples,
+                               "domain": args.domain, "results": rows})
         print(f"wrote {args.json}")
     if args.figure:
         print(f"wrote {recognition_figure(clouds, titles, result, args.figure, top=args.top)}")
@@ -1062,6 +1069,10 @@ def register(sub) -> None:
     p.add_argument("--extent-m", type=float, default=None,
                    help="the object's largest bounding-box extent in metres (default: each cloud's own, an "
                         "underestimate for a few touches)")
+    p.add_argument("--box-m", type=float, nargs=6, default=None,
+                   metavar=("LO_X", "LO_Y", "LO_Z", "HI_X", "HI_Y", "HI_Z"),
+                   help="the object's axis-aligned bounding box in metres, instead of --extent-m; needed by "
+                        "a checkpoint trained in the object frame (input_normalize none)")
     p.add_argument("--mc-samples", type=int, default=20,
                    help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
     p.add_argument("--domain", choices=["target", "source"], default="target",

@@ -3,12 +3,19 @@ uncertainty of thesis ch.7, Sec. 7.2.2 (eq. 7.3-7.4) and the confidence stop of 
 
 **Input frame.** xAVTNet is trained on clouds in the canonical frame of each object's bounding box
 (:class:`~vtlearn.datamodules.CrossModalDataModule`, ``units="canonical"``): z up (gravity), centred on the
-axis-aligned box and divided by its largest extent, then centred on the centroid (``normalize="center"``).
-Yaw is free, since training rotates every cloud about z. :func:`canonical_cloud` brings a cloud in metres
-(any gravity-aligned frame, z up) there. The scale is the object's largest bounding-box extent
-``extent_m``, e.g. from the camera's box of the object, or the gripper opening. Without it the cloud's own
-extent is used: exact for a dense view, an underestimate for a few touches, so pass ``extent_m`` when it
-is known. A model trained with ``units="metres"`` takes the cloud as it is (``units="metres"`` here).
+axis-aligned box and divided by its largest extent, then (by default) centred on the centroid
+(``normalize="center"``). Yaw is free, since training rotates every cloud about z. :func:`canonical_cloud`
+brings a cloud in metres (any gravity-aligned frame, z up) there. The scale is the object's largest
+bounding-box extent ``extent_m``, e.g. from the camera's box of the object, or the gripper opening. Without
+it the cloud's own extent is used: exact for a dense view, an underestimate for a few touches, so pass
+``extent_m`` when it is known. A model trained with ``units="metres"`` takes the cloud as it is
+(``units="metres"`` here).
+
+A checkpoint records the normalisation it was trained with (``XAVTNet(input_normalize=...)``, older ones:
+``"center"``), and :func:`recognize_clouds` applies the same one. With ``"none"`` (the object frame,
+``configs/cpu/xavtnet_object_frame.yaml``) the network reads where on the object each point lies, so a cloud
+in metres needs the object's box itself (``box_m``: its lower and upper corners, from the camera's
+segmentation or from the box the touches were planned on), not the cloud's own box.
 
 **Uncertainty.** With ``mc_samples = T > 0`` the class probability is the mean of ``T`` stochastic passes
 with dropout on and batch norm in eval mode (eq. 7.3). The uncertainty is the entropy of that mean
@@ -39,6 +46,7 @@ __all__ = [
     "Recognition",
     "canonical_cloud",
     "checkpoint_class_names",
+    "checkpoint_normalize",
     "recognize_clouds",
     "recognition_figure",
 ]
@@ -47,7 +55,9 @@ UNITS = ("metres", "canonical")
 ZETA = 0.8  # thesis 7.2.4: stop touching once the top class probability exceeds ζ
 
 
-def canonical_cloud(points, extent_m: float | None = None, units: str = "metres", name: str = "points"):
+def canonical_cloud(
+    points, extent_m: float | None = None, units: str = "metres", name: str = "points", box_m=None
+):
     """A gravity-aligned cloud (z up) in the network's input frame (module docstring).
 
     Args:
@@ -56,17 +66,50 @@ def canonical_cloud(points, extent_m: float | None = None, units: str = "metres"
         units: the units the checkpoint was trained on (``CrossModalDataModule(units=...)``). ``"metres"``
             returns the points centred on their bounding box and unscaled.
         name: the argument name for error messages.
+        box_m: the object's axis-aligned bounding box in metres, ``[[x, y, z]_lo, [x, y, z]_hi]``: the cloud
+            is centred on it and divided by its largest extent (the frame of the simulated datasets,
+            :meth:`vtlearn.active.closed_loop.SimObject.to_canonical`). Only with ``units="metres"`` and
+            without ``extent_m`` (the box has the extent).
 
     Shapes:
-        points ``(N, 3)`` -> ``(N, 3)``, centred on the bounding box.
+        points ``(N, 3)``, box_m ``(2, 3)`` -> ``(N, 3)``, centred on the bounding box (the object's with
+        ``box_m``, else the cloud's).
     """
     if units not in UNITS:
         raise ValueError(f"units: expected one of {UNITS}, got {units!r}")
     pts = as_points(points, name, min_points=3)
+    if box_m is not None:
+        if units != "metres":
+            raise ValueError("box_m: only for units='metres'; canonical clouds are in the box frame already")
+        if extent_m is not None:
+            raise ValueError("extent_m: give extent_m or box_m, not both (the box has the extent)")
+        lo, hi = _check_box(box_m, "box_m")
+        return (pts - (lo + hi) / 2) / float((hi - lo).max())
     if units == "canonical":
         return pts - (pts.min(0) + pts.max(0)) / 2
     centre, scale = canonical_box(pts, extent_m, name)
     return (pts - centre) / scale
+
+
+def _check_box(box, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` of an axis-aligned box given as ``(2, 3)``, or a ValueError naming ``name``."""
+    try:
+        b = np.asarray(box, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a (2, 3) box [lo, hi] in metres, got {box!r}") from None
+    if b.shape != (2, 3):
+        raise ValueError(f"{name}: expected a (2, 3) box [lo, hi] in metres, got shape {b.shape}")
+    if not np.isfinite(b).all():
+        raise ValueError(f"{name}: the box has NaN or infinite corners: {b.tolist()}")
+    if (b[1] < b[0]).any() or float((b[1] - b[0]).max()) <= 1e-9:
+        raise ValueError(f"{name}: need lo <= hi on every axis and a positive extent, got {b.tolist()}")
+    return b[0], b[1]
+
+
+def checkpoint_normalize(hparams: dict) -> str:
+    """The per-cloud normalisation a checkpoint was trained with (``XAVTNet(input_normalize=...)``);
+    ``"center"`` for checkpoints that predate the record (every one of them was trained so)."""
+    return str(hparams.get("input_normalize") or "center")
 
 
 def checkpoint_class_names(hparams: dict, override: Sequence[str] | None = None) -> list[str]:
@@ -133,6 +176,7 @@ def recognize_clouds(
     mc_samples: int = 0,
     domain: str = "target",
     seed: int = 0,
+    box_m=None,
 ) -> Recognition:
     """Class probabilities and uncertainty of ``clouds`` under an xAVTNet ``model`` (module docstring).
 
@@ -148,13 +192,18 @@ def recognize_clouds(
         domain: batch-norm statistics of a ``domain_bn`` model: ``"target"`` (tactile clouds) or
             ``"source"`` (visual clouds). Ignored by other models.
         seed: the dropout masks of the MC passes.
+        box_m: the objects' bounding boxes in metres, one ``(2, 3)`` ``[lo, hi]`` for all clouds or a list
+            of one per cloud (:func:`canonical_cloud`). Needed by a checkpoint trained in the object frame
+            (``input_normalize="none"``) on clouds in metres; with ``"center"`` it only fixes the scale.
 
     Shapes:
-        clouds: list of ``(N_i, 3)`` -> probs ``(B, C)``, entropy ``(B,)``, mutual information ``(B,)``.
+        clouds: list of ``(N_i, 3)``, box_m ``(2, 3)`` or ``[(2, 3)] * B`` -> probs ``(B, C)``, entropy
+        ``(B,)``, mutual information ``(B,)``.
     """
     import torch
 
     from vtlearn.active.mc_dropout import bald_score, mc_dropout_probs, predictive_entropy
+    from vtlearn.datamodules.shards import normalize_cloud
     from vtlearn.geometry.sampling import pad_clouds
 
     if isinstance(clouds, np.ndarray) and clouds.ndim == 2:
@@ -170,12 +219,26 @@ def recognize_clouds(
         extents = list(extent_m)
         if len(extents) != len(clouds):
             raise ValueError(f"extent_m: {len(extents)} extents for {len(clouds)} clouds")
+    if box_m is None or np.asarray(box_m, dtype=object).shape == (2, 3):
+        boxes = [box_m] * len(clouds)
+    else:
+        boxes = list(box_m)
+        if len(boxes) != len(clouds):
+            raise ValueError(f"box_m: {len(boxes)} boxes for {len(clouds)} clouds")
     names = checkpoint_class_names(dict(model.hparams), class_names)
+    mode = checkpoint_normalize(dict(model.hparams))
+    if mode == "none" and units == "metres" and any(b is None for b in boxes):
+        raise ValueError(
+            "box_m: this checkpoint was trained in the object frame (input_normalize='none'), so a cloud "
+            "in metres needs its object's bounding box [lo, hi], not the cloud's own"
+        )
     canon = [
-        canonical_cloud(c, e, units, name=f"clouds[{i}]")
-        for i, (c, e) in enumerate(zip(clouds, extents, strict=True))
+        canonical_cloud(c, e, units, name=f"clouds[{i}]", box_m=b)
+        if mode != "none" or units == "metres"
+        else as_points(c, f"clouds[{i}]", min_points=3)  # canonical clouds are in the object frame already
+        for i, (c, e, b) in enumerate(zip(clouds, extents, boxes, strict=True))
     ]
-    canon = [c - c.mean(0) for c in canon]  # normalize="center", as in training
+    canon = [normalize_cloud(c, mode) for c in canon]  # as in training
     x, lengths = pad_clouds(canon)
     was_training = model.training
     bn = model.bn_domain(domain) if hasattr(model, "bn_domain") else contextlib.nullcontext()
