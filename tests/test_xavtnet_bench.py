@@ -472,3 +472,34 @@ def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random
     assert scores["tactile_acc_centroid"] == pytest.approx(100 * float(np.mean(pseudo.numpy()
                                                                             == batch["label"].numpy())))
     assert _feature_scores(model, dm, probe=False, centroid=False) == {}
+
+
+def test_adapt_bn_reads_the_clouds_as_the_checkpoint_was_trained(tmp_path, tiny_crossmodal, capsys):
+    import copy
+
+    import lightning as L
+    import torch
+
+    from vtlearn.cli import main
+    from vtlearn.datamodules import CrossModalDataModule
+
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8], input_normalize="none")
+    ckpt, out = tmp_path / "in.ckpt", tmp_path / "out.ckpt"
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, ckpt)
+    assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--out", str(out),
+                 "--batch-size", "1024"]) == 0
+    got = torch.load(out, map_location="cpu", weights_only=True)["state_dict"]
+    stats = [k for k in got if k.endswith("running_mean_target")]
+    assert stats
+    for normalize in ("none", "center"):  # the same adaptation by hand, on the object frame and centred
+        L.seed_everything(0, verbose=False)
+        dm = CrossModalDataModule(str(tiny_crossmodal), batch_size=1024, target_split="train", seed=0,
+                                  normalize=normalize)
+        twin = copy.deepcopy(model)
+        # the command scores the test clouds first, which draws from torch's stream as a test pass does
+        L.Trainer(accelerator="cpu", devices=1, logger=False, enable_progress_bar=False,
+                  enable_model_summary=False).test(twin, dataloaders=dm.test_dataloader(), verbose=False)
+        twin.adapt_bn_statistics(dm.target_dataloader())
+        same = all(torch.allclose(got[k], twin.state_dict()[k], atol=1e-6) for k in stats)
+        assert same == (normalize == "none"), normalize

@@ -929,8 +929,11 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     ckpt = read_lightning_checkpoint(ckpt_path)  # weights_only=True; clear errors for other files
     model = load_xavtnet(ckpt_path, ckpt)  # ValueError for a checkpoint of another model
     L.seed_everything(args.seed, verbose=False)
+    from vtlearn.models.xavtnet_inference import checkpoint_normalize
+
     dm = CrossModalDataModule(args.data, batch_size=args.batch_size, target_split=args.split,
-                              target_data_dir=args.target_data, seed=args.seed)
+                              target_data_dir=args.target_data, seed=args.seed,
+                              normalize=checkpoint_normalize(dict(model.hparams)))  # the clouds as trained
     if dm.num_classes != model.hparams.num_classes:
         raise ValueError(f"--data: {dm.num_classes} classes, the checkpoint has {model.hparams.num_classes}")
     from vtlearn.datamodules.shards import load_manifest
