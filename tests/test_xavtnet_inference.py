@@ -242,7 +242,7 @@ def test_an_object_frame_checkpoint_reads_clouds_in_the_object_frame():
     assert np.abs(p - p_centred).max() > 1e-4  # centring would change it (50 times the tolerance above)
     # in metres: the object's box, a table 0.7 m up and 0.4 m off, 0.25 m tall
     scale, offset = 0.25, np.array([0.4, 0.1, 0.7])
-    box = np.array([[-0.3, -0.3, -0.5], [0.3, 0.3, 0.5]]) * scale / 1.0 + offset
+    box = np.array([[-0.3, -0.3, -0.5], [0.3, 0.3, 0.5]]) * scale + offset
     metres = canon * scale + offset
     b = recognize_clouds(model, [metres, metres], units="metres", box_m=box).probs
     np.testing.assert_allclose(b, [p, p], atol=1e-5)

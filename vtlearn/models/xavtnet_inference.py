@@ -106,6 +106,17 @@ def _check_box(box, name: str) -> tuple[np.ndarray, np.ndarray]:
     return b[0], b[1]
 
 
+def _one_per_cloud(value, n: int, name: str, what: str, shared: bool) -> list:
+    """``value`` for each of ``n`` clouds: repeated when it is ``shared`` by all, else its own list, which
+    must hold one entry per cloud (a ValueError naming ``name`` otherwise)."""
+    if shared:
+        return [value] * n
+    values = list(value)
+    if len(values) != n:
+        raise ValueError(f"{name}: {len(values)} {what} for {n} clouds")
+    return values
+
+
 def checkpoint_normalize(hparams: dict) -> str:
     """The per-cloud normalisation a checkpoint was trained with (``XAVTNet(input_normalize=...)``);
     ``"center"`` for checkpoints that predate the record (every one of them was trained so)."""
@@ -213,18 +224,11 @@ def recognize_clouds(
         raise ValueError("clouds: empty list; need at least one cloud")
     if int(mc_samples) < 0:
         raise ValueError(f"mc_samples: need >= 0 (0: one deterministic pass), got {mc_samples}")
-    if extent_m is None or np.isscalar(extent_m):
-        extents = [extent_m] * len(clouds)
-    else:
-        extents = list(extent_m)
-        if len(extents) != len(clouds):
-            raise ValueError(f"extent_m: {len(extents)} extents for {len(clouds)} clouds")
-    if box_m is None or np.asarray(box_m, dtype=object).shape == (2, 3):
-        boxes = [box_m] * len(clouds)
-    else:
-        boxes = list(box_m)
-        if len(boxes) != len(clouds):
-            raise ValueError(f"box_m: {len(boxes)} boxes for {len(clouds)} clouds")
+    n = len(clouds)
+    extents = _one_per_cloud(extent_m, n, "extent_m", "extents", extent_m is None or np.isscalar(extent_m))
+    boxes = _one_per_cloud(
+        box_m, n, "box_m", "boxes", box_m is None or np.asarray(box_m, dtype=object).shape == (2, 3)
+    )
     names = checkpoint_class_names(dict(model.hparams), class_names)
     mode = checkpoint_normalize(dict(model.hparams))
     if mode == "none" and units == "metres" and any(b is None for b in boxes):
