@@ -446,3 +446,56 @@ def test_centroid_pseudo_labels_reject_bad_input(features, probs, fraction, matc
 
     with pytest.raises(ValueError, match=match):
         centroid_pseudo_labels(features, probs, fraction)
+
+
+def test_group_vote_pseudo_labels_label_each_group_by_its_mean_softmax():
+    """Three groups of touches. Group 7's clouds disagree (0.9 for class 1 once, 0.2 and 0.3 after), and
+    their mean (0.467) says class 0; each cloud of a group takes the group's label, and with fraction 0.5 each
+    pseudo-class keeps its more confident group whole."""
+    from vtlearn.losses.pseudo_labels import group_vote_pseudo_labels
+
+    p1 = torch.tensor([0.9, 0.2, 0.3, 0.2, 0.3, 0.8, 0.7])  # P(class 1)
+    probs = torch.stack([1 - p1, p1], 1).double()
+    groups = torch.tensor([7, 7, 7, 3, 3, 9, 9])
+    assert torch.equal(group_vote_pseudo_labels(probs, groups), torch.tensor([0, 0, 0, 0, 0, 1, 1]))
+    # class 0: group 3 (0.75) is more confident than group 7 (0.533); class 1 has group 9 only
+    assert torch.equal(group_vote_pseudo_labels(probs, groups, 0.5), torch.tensor([-1, -1, -1, 0, 0, 1, 1]))
+    # one cloud per group is the per-cloud argmax with CBST's selection
+    single = group_vote_pseudo_labels(probs, torch.arange(7))
+    assert torch.equal(single, probs.argmax(1))
+
+
+def test_group_vote_pseudo_labels_match_a_naive_loop():
+    from vtlearn.losses.pseudo_labels import group_vote_pseudo_labels
+
+    g = torch.Generator().manual_seed(5)
+    probs = torch.softmax(torch.randn(60, 5, generator=g, dtype=torch.float64), 1)
+    groups = torch.randint(100, 115, (60,), generator=g)
+    got = group_vote_pseudo_labels(probs, groups, 0.5)
+    means = {int(k): probs[groups == k].mean(0) for k in groups.unique()}
+    label = {k: int(m.argmax()) for k, m in means.items()}
+    kept = set()
+    for c in set(label.values()):
+        members = sorted((k for k in label if label[k] == c), key=lambda k: -float(means[k].max()))
+        kept |= set(members[: math.ceil(0.5 * len(members))])
+    expected = torch.tensor([label[int(k)] if int(k) in kept else -1 for k in groups])
+    assert torch.equal(got, expected)
+
+
+@pytest.mark.parametrize(
+    "probs, groups, fraction, match",
+    [
+        (torch.zeros(0, 2), torch.zeros(0, dtype=torch.long), 1.0, "probs"),
+        (torch.full((2, 2), math.nan), torch.tensor([0, 1]), 1.0, "probs"),
+        (torch.ones(2, 1), torch.tensor([0, 1]), 1.0, "k >= 2"),
+        (torch.full((2, 2), 0.3), torch.tensor([0, 1]), 1.0, "probs"),
+        (torch.full((2, 2), 0.5), torch.tensor([0, 1, 2]), 1.0, "groups"),
+        (torch.full((2, 2), 0.5), torch.tensor([0.0, 1.0]), 1.0, "groups"),
+        (torch.full((2, 2), 0.5), torch.tensor([0, 1]), 0.0, "fraction"),
+    ],
+)
+def test_group_vote_pseudo_labels_reject_bad_input(probs, groups, fraction, match):
+    from vtlearn.losses.pseudo_labels import group_vote_pseudo_labels
+
+    with pytest.raises(ValueError, match=match):
+        group_vote_pseudo_labels(probs, groups, fraction)
