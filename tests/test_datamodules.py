@@ -174,6 +174,32 @@ def test_crossmodal_target_split_train_plus_test_is_one_indexed_stream_of_both(c
         CrossModalDataModule(str(cross_dir), target_split="test+val")
 
 
+def test_crossmodal_target_items_carry_their_object_instance(cross_dir):
+    """Every target stream's item carries ``"group"``, the instance its tactile cloud was touched on (no
+    label), for each way of drawing the stream: one split, both splits, and with clouds held out."""
+    tr, te = load_split(cross_dir, "train"), load_split(cross_dir, "test")
+    for kwargs, expected in [
+        ({"target_split": "test"}, te["tactile_instance"]),
+        ({"target_split": "train"}, tr["tactile_instance"]),
+        ({"target_split": "train+test"}, np.concatenate([tr["tactile_instance"], te["tactile_instance"]])),
+    ]:
+        ds = CrossModalDataModule(str(cross_dir), **kwargs).target_dataset()
+        assert [ds[i]["group"] for i in range(len(ds))] == expected.tolist()
+        assert "label" not in ds[0]
+    held = CrossModalDataModule(str(cross_dir), target_split="test", target_holdout=0.5)
+    ds = held.target_dataset()
+    assert [ds[i]["group"] for i in range(len(ds))] == te["tactile_instance"][~held.holdout_mask()].tolist()
+    batch = next(iter(held.target_dataloader(shuffle=False)))
+    assert batch["group"].dtype == torch.int64
+    kept = te["tactile_instance"][~held.holdout_mask()]
+    assert batch["group"].tolist() == kept[: len(batch["group"])].tolist()
+    assert "group" not in held.dataset("test", "tactile")[0]  # the labelled loaders are unchanged
+    from vtlearn.datamodules.crossmodal import CloudDataset
+
+    with pytest.raises(ValueError, match="groups: with_group"):
+        CloudDataset([np.zeros((4, 3))], None, train=False, with_label=False, with_group=True)
+
+
 def test_crossmodal_source_splits_add_the_test_objects_to_the_labelled_source(cross_dir):
     """``source_splits=["train", "test"]`` (the thesis's known-objects protocol) puts every visual cloud of
     both splits, with its label and instance, into the source; the tactile test clouds stay the same."""

@@ -44,7 +44,8 @@ def _check_points_range(value, name: str) -> tuple[int, int]:
 
 
 class CloudDataset(Dataset):
-    """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}.
+    """Clouds with optional labels; items are {"points", "label"} or {"points", "index"}, with ``"group"``
+    (the cloud's entry of ``groups``, e.g. its object instance) as well when ``with_group``.
 
     Training-time options (``train=True`` only): ``rotate_z``, a random yaw; ``subsample=(n_min, n_max)``,
     random voxel-grid thinning; ``fuse_views=k`` with ``groups`` (one instance id per cloud), the cloud
@@ -70,6 +71,7 @@ class CloudDataset(Dataset):
         fuse_views: int = 1,
         groups: np.ndarray | None = None,
         touch_pitch: np.ndarray | None = None,
+        with_group: bool = False,
     ):
         if len(clouds) == 0:
             raise ValueError("clouds: empty dataset")
@@ -86,10 +88,12 @@ class CloudDataset(Dataset):
         self._members: dict[int, np.ndarray] = {}
         if self.fuse_views < 1:
             raise ValueError(f"fuse_views: need >= 1, got {fuse_views}")
+        if (self.fuse_views > 1 or with_group) and (groups is None or len(groups) != len(clouds)):
+            raise ValueError(f"groups: {'with_group' if with_group else 'fuse_views > 1'} needs one instance "
+                             f"id per cloud")
+        self.groups = None if groups is None else np.asarray(groups)
+        self.with_group = with_group
         if self.fuse_views > 1:
-            if groups is None or len(groups) != len(clouds):
-                raise ValueError("groups: fuse_views > 1 needs one instance id per cloud")
-            self.groups = np.asarray(groups)
             for g in np.unique(self.groups):
                 self._members[int(g)] = np.flatnonzero(self.groups == g)
         self.clouds, self.labels = clouds, labels
@@ -133,6 +137,8 @@ class CloudDataset(Dataset):
             item["label"] = int(self.labels[j])
         if self.with_index:
             item["index"] = j
+        if self.with_group:
+            item["group"] = int(self.groups[j])
         return item
 
 
@@ -306,19 +312,22 @@ class CrossModalDataModule(ShardedDataModule):
 
     def dataset(
         self, split: str, modality: str, with_label: bool = True, train: bool | None = None,
-        keep: np.ndarray | None = None, with_index: bool = False,
+        keep: np.ndarray | None = None, with_index: bool = False, with_group: bool = False,
     ) -> CloudDataset:
         """Clouds of one split and modality; ``train`` (default: ``split == "train"``) turns on the
         random yaw augmentation; ``keep`` (a boolean mask over the split's clouds) selects some of them;
-        ``with_index`` adds each item's position in the dataset (``"index"``).
+        ``with_index`` adds each item's position in the dataset (``"index"``), ``with_group`` the id of the
+        object instance the cloud was taken of (``"group"``).
 
         Shapes:
             keep (n_clouds,) bool or None
         """
-        clouds, labels, scales = modality_clouds(self._split(split), modality, self.units == "metres")
+        d = self._split(split)
+        clouds, labels, scales = modality_clouds(d, modality, self.units == "metres")
+        groups = np.asarray(d[f"{modality}_instance"])
         if keep is not None:
             idx = np.flatnonzero(keep)
-            clouds, labels = [clouds[i] for i in idx], labels[idx]
+            clouds, labels, groups = [clouds[i] for i in idx], labels[idx], groups[idx]
             scales = None if scales is None else scales[idx]
         return CloudDataset(
             clouds,
@@ -330,22 +339,27 @@ class CrossModalDataModule(ShardedDataModule):
             scales=scales,
             with_label=with_label,
             with_index=with_index,
+            groups=groups,
+            with_group=with_group,
         )
 
     def target_dataset(self) -> CloudDataset:
         """The unlabelled, yaw-augmented tactile clouds of the target stream (``target_split`` of
         ``data_dir``, or of ``target_data_dir`` when set), less the ``target_holdout`` test clouds. Items
-        are ``{"points", "index"}``: the index lets a model keep per-cloud pseudo-labels
-        (:meth:`~vtlearn.models.xavtnet.XAVTNet.label_target`)."""
+        are ``{"points", "index", "group"}``: the index lets a model keep per-cloud pseudo-labels
+        (:meth:`~vtlearn.models.xavtnet.XAVTNet.label_target`), and the group, the id of the object instance
+        the cloud was touched on (no label: which touches fell on one object), lets it vote them per object
+        (``pseudo_label_groups``)."""
         if self.target_data_dir is not None:
             return self._target_data_dataset(self.target_split, with_label=False, with_index=True)
         if self.target_holdout > 0:
             return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask(),
-                                with_index=True)
+                                with_index=True, with_group=True)
         if "+" in self.target_split:  # one stream over both splits, indexed 0..n-1 across them
             return self._tactile_dataset([self._split(x) for x in self.target_split.split("+")],
                                          with_label=False, with_index=True)
-        return self.dataset(self.target_split, "tactile", with_label=False, train=True, with_index=True)
+        return self.dataset(self.target_split, "tactile", with_label=False, train=True, with_index=True,
+                            with_group=True)
 
     def holdout_mask(self) -> np.ndarray:
         """Which tactile clouds of the test split are held out of the target stream (``target_holdout``).
@@ -383,8 +397,10 @@ class CrossModalDataModule(ShardedDataModule):
         clouds = [c for part in parts for c in part[0]]
         labels = np.concatenate([part[1] for part in parts])
         scales = np.concatenate([part[2] for part in parts]) if metres else None
+        groups = np.concatenate([np.asarray(d["tactile_instance"]) for d in splits])
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
-                            seed=self.seed, scales=scales, with_label=with_label, with_index=with_index)
+                            seed=self.seed, scales=scales, with_label=with_label, with_index=with_index,
+                            groups=groups, with_group=True)
 
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
