@@ -509,6 +509,49 @@ def test_pseudo_labels_reject_bad_settings_and_streams(tmp_path):
                                         datamodule=TinyCrossModalDM())
 
 
+def _grouped_collate(items):
+    """Indexed target items, two clouds per object: the group is ``index // 2``."""
+    out = _indexed_collate(items)
+    out["group"] = out["index"] // 2
+    return out
+
+
+class GroupedCrossModalDM(TinyCrossModalDM):
+    def train_dataloader(self):
+        loaders = super().train_dataloader().iterables
+        target = _Indexed([p for p, _ in _Clouds(8, 5, 12, 1, scale=2.0).items])
+        loaders["target"] = DataLoader(target, batch_size=4, shuffle=True, collate_fn=_grouped_collate)
+        return CombinedLoader(loaders, mode="max_size_cycle")
+
+
+def test_pseudo_label_groups_vote_the_labels_over_each_object(tmp_path):
+    """``pseudo_label_groups``: the target stream is labelled by the vote of each group's eval-mode
+    softmax, so the two clouds of an object share their label, and training takes the kept labels; a
+    stream without groups, or the switch without self-training, is refused by name."""
+    from vtlearn.losses.pseudo_labels import group_vote_pseudo_labels
+
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, pseudo_label_weight=2.0, pseudo_label_start=0.5, pseudo_label_groups=True)
+    trainer = L.Trainer(max_epochs=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, enable_checkpointing=False, limit_val_batches=0,
+                        default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=GroupedCrossModalDM())
+    assert {"train/pseudo_ce", "train/pseudo_kept"} <= set(trainer.callback_metrics)
+    loader = DataLoader(_Indexed([p for p, _ in _Clouds(8, 5, 12, 1, scale=2.0).items]), batch_size=3,
+                        collate_fn=_grouped_collate)
+    batch = _grouped_collate([loader.dataset[i] for i in range(8)])
+    model.eval()
+    probs = model(batch["points"], batch["lengths"]).logits.softmax(-1)
+    labels = model.label_target(loader)
+    assert torch.equal(labels, group_vote_pseudo_labels(probs, batch["group"], 0.5))
+    assert torch.equal(labels[0::2], labels[1::2])  # one label (or none) per object
+    assert (labels >= 0).any()
+    with pytest.raises(ValueError, match="group"):
+        model.label_target(DataLoader(loader.dataset, batch_size=3, collate_fn=_indexed_collate))
+    with pytest.raises(ValueError, match="pseudo_label_groups"):
+        XAVTNet(**TINY, pseudo_label_groups=True)
+
+
 def test_pseudo_labels_start_by_the_share_of_steps_without_max_epochs(tmp_path):
     """A run bounded by max_steps alone starts self-training after that share of its optimiser steps."""
     starts = []

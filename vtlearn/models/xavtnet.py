@@ -28,6 +28,9 @@ get SHOT's centroid pseudo-labels with CBST's class-balanced selection
 (:func:`~vtlearn.losses.pseudo_labels.centroid_pseudo_labels`), and each step adds
 ``pseudo_label_weight·CE`` of the target batch's logits against the kept labels. The target items must
 carry their ``"index"`` in the target dataset, as :class:`~vtlearn.datamodules.CrossModalDataModule`'s do.
+With ``pseudo_label_groups`` the labels are voted over each object's touches instead
+(:func:`~vtlearn.losses.pseudo_labels.group_vote_pseudo_labels`; the items' ``"group"`` names the object
+instance, not its class).
 
 ``consistency_weight > 0`` (beyond the thesis) adds a mean teacher on the target stream (Tarvainen and
 Valpola 2017; French et al. 2018 for domain adaptation): a copy of the network, ``teacher``, follows the
@@ -107,7 +110,7 @@ from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
-from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss
 from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
@@ -289,6 +292,12 @@ class XAVTNet(L.LightningModule):
         pseudo_label_fraction: the share of each pseudo-class kept, the most confident first, in (0, 1].
         pseudo_label_layer: the feature layer whose class centroids label the target clouds
             (``"global"``, ``"fc1"`` or ``"fc2"``).
+        pseudo_label_groups: label the target clouds by a vote over their groups instead of by centroids
+            (:func:`~vtlearn.losses.pseudo_labels.group_vote_pseudo_labels`, beyond the thesis): the
+            clouds touched on one object take the argmax of their mean softmax, and the share
+            ``pseudo_label_fraction`` of each pseudo-class's objects is kept. The target items must carry
+            their ``"group"`` (the object instance, not its class), as CrossModalDataModule's target stream
+            does. False (default): SHOT's centroids.
         consistency_weight: weight of the mean-teacher consistency on the target stream (module
             docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no teacher.
         consistency_rampup: the share of the training progress over which the consistency weight ramps up
@@ -407,6 +416,7 @@ class XAVTNet(L.LightningModule):
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
         pseudo_label_layer: str = "fc1",
+        pseudo_label_groups: bool = False,
         consistency_weight: float = 0.0,
         consistency_rampup: float = 1 / 3,
         ema_decay: float = 0.99,
@@ -464,6 +474,9 @@ class XAVTNet(L.LightningModule):
         if pseudo_label_layer not in FEATURE_LAYERS:
             raise ValueError(f"pseudo_label_layer: need one of {list(FEATURE_LAYERS)}, got "
                              f"{pseudo_label_layer!r}")
+        if pseudo_label_groups and pseudo_label_weight <= 0:
+            raise ValueError("pseudo_label_groups: needs pseudo_label_weight > 0 (it says how the "
+                             "self-training labels are drawn)")
         if not (math.isfinite(consistency_weight) and consistency_weight >= 0):
             raise ValueError(f"consistency_weight: need a finite weight >= 0, got {consistency_weight}")
         if not 0 <= consistency_rampup <= 1:
@@ -957,7 +970,7 @@ class XAVTNet(L.LightningModule):
         Shapes:
             -> {"features": (N, d), "probs": (N, k), "valid": (N,) bool}, N = max index + 1
         """
-        index, feats, probs = self._indexed_outputs(loader, self.hparams.neighbour_layer,
+        index, feats, probs, _ = self._indexed_outputs(loader, self.hparams.neighbour_layer,
                                                     "the neighbour bank needs", "for the neighbour bank")
         feats = F.normalize(feats, dim=1)
         n = int(index.max()) + 1
@@ -1136,37 +1149,50 @@ class XAVTNet(L.LightningModule):
 
     @torch.no_grad()
     def label_target(self, loader) -> torch.Tensor:
-        """Centroid pseudo-labels of the target clouds in ``loader`` (items with ``"index"``), in eval mode.
+        """Centroid pseudo-labels of the target clouds in ``loader`` (items with ``"index"``), in eval mode;
+        with ``pseudo_label_groups`` the labels voted over each group of clouds (items with ``"group"``).
 
         Shapes:
             -> (max index + 1,) int64, -1 for indices not labelled or not kept
         """
-        index, feats, probs = self._indexed_outputs(loader, self.hparams.pseudo_label_layer,
-                                                    "pseudo-labels need", "to label")
+        hp = self.hparams
+        by_group = hp.get("pseudo_label_groups", False)
+        index, feats, probs, groups = self._indexed_outputs(loader, hp.pseudo_label_layer,
+                                                            "pseudo-labels need", "to label", by_group)
         labels = torch.full((int(index.max()) + 1,), -1, dtype=torch.long, device=self.device)
-        labels[index] = centroid_pseudo_labels(feats, probs, self.hparams.pseudo_label_fraction)
+        if by_group:
+            labels[index] = group_vote_pseudo_labels(probs, groups, hp.pseudo_label_fraction)
+        else:
+            labels[index] = centroid_pseudo_labels(feats, probs, hp.pseudo_label_fraction)
         return labels
 
     @torch.no_grad()
-    def _indexed_outputs(self, loader, layer: str, needs: str, purpose: str):
+    def _indexed_outputs(self, loader, layer: str, needs: str, purpose: str, with_group: bool = False):
         """One eval-mode pass over the target clouds of ``loader`` (items with ``"index"``): their indices,
-        ``layer`` features and softmax, in loader order. ``needs`` and ``purpose`` word the errors
-        ("loader: {needs} each target item's 'index'", "loader: no target clouds {purpose}").
+        ``layer`` features and softmax, in loader order, and with ``with_group`` their ``"group"`` ids.
+        ``needs`` and ``purpose`` word the errors ("loader: {needs} each target item's 'index'",
+        "loader: no target clouds {purpose}").
 
         Shapes:
-            -> index (n,) int64, features (n, d), probs (n, k)
+            -> index (n,) int64, features (n, d), probs (n, k), groups (n,) int64 or None
         """
-        feats, probs, index = [], [], []
+        feats, probs, index, groups = [], [], [], []
         for batch in loader:
             if "index" not in batch:
                 raise ValueError(f"loader: {needs} each target item's 'index'")
+            if with_group:
+                if "group" not in batch:
+                    raise ValueError("loader: pseudo_label_groups needs each target item's 'group' (the "
+                                     "object instance it was touched on; CrossModalDataModule's target "
+                                     "stream has it)")
+                groups.append(batch["group"].to(self.device))
             out = self.extract_features(batch["points"].to(self.device), batch["lengths"].to(self.device))
             feats.append(out[layer])
             probs.append(out["logits"].softmax(-1))
             index.append(batch["index"].to(self.device))
         if not index:
             raise ValueError(f"loader: no target clouds {purpose}")
-        return torch.cat(index), torch.cat(feats), torch.cat(probs)
+        return torch.cat(index), torch.cat(feats), torch.cat(probs), torch.cat(groups) if with_group else None
 
     def _with_memory(self, feats_s: dict, feats_t: dict) -> tuple[dict, dict]:
         """The adapted layers' features of each domain followed by its queued ones (``da_memory``), the

@@ -109,9 +109,16 @@ VARIANTS["vtloss_g12_mt_con"] = {**VARIANTS["vtloss_g12_mt"], "contrast_weight":
 # ... with self-training on SHOT's centroid pseudo-labels as well (vtloss_g12_pl's settings: fc1 centroids
 # from a third of the epochs on, CBST's confident half per class, weighted as the source cross-entropy)
 VARIANTS["vtloss_g12_mt_con_pl"] = {**VARIANTS["vtloss_g12_mt_con"], "pseudo_label_weight": 10.0}
+# Beyond the thesis: the teacher row plus self-training on labels voted over each object's touches
+# (losses/pseudo_labels.py group_vote_pseudo_labels: the robot knows which touches fell on one object, not
+# what it is), from a third of the epochs on, the confident half of each pseudo-class's objects, weighted
+# as the source cross-entropy (α = 10); "noda_vote" is the same self-training without VTLoss or a teacher.
+VARIANTS["vtloss_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt"], "pseudo_label_weight": 10.0,
+                                  "pseudo_label_groups": True}
+VARIANTS["noda_vote"] = {"da_method": "none", "pseudo_label_weight": 10.0, "pseudo_label_groups": True}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
-                   "_fm", "_mix", "_con")
+                   "_fm", "_mix", "_con", "_vote")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
