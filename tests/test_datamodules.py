@@ -118,7 +118,7 @@ def test_crossmodal_batches(cross_dir):
         and (src["lengths"] == 1024).all()
         and src["label"].dtype == torch.int64
     )
-    assert set(tgt) == {"points", "lengths", "index"}  # target labels never reach training
+    assert set(tgt) == {"points", "lengths", "index", "group"}  # target labels never reach training
     assert sorted(tgt["index"].tolist()) == sorted(set(tgt["index"].tolist()))  # positions in the stream
     assert ((tgt["lengths"] >= 30) & (tgt["lengths"] <= 120)).all()
     for loader in (dm.val_dataloader(), dm.test_dataloader(), dm.source_test_dataloader()):

@@ -100,7 +100,9 @@ def test_crossmodal_target_data_dir_streams_the_episode_clouds(cross_dir, episod
     d = load_split(out, "train")
     assert sorted(len(c) for c in target.clouds) == sorted(np.diff(d["tactile_offsets"]).tolist())
     batch = next(iter(dm.train_dataloader()))[0]
-    assert set(batch["target"]) == {"points", "lengths", "index"}  # no label; the index for pseudo-labels
+    # no label; the index for pseudo-labels, the group (the episode's object instance) for their votes
+    assert set(batch["target"]) == {"points", "lengths", "index", "group"}
+    assert target.groups.tolist() == np.asarray(d["tactile_instance"]).tolist()
     # evaluation still reads data_dir's tactile test clouds
     plain = CrossModalDataModule(str(cross_dir))
     assert len(dm.test_dataloader().dataset) == len(plain.test_dataloader().dataset)

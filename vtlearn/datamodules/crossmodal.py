@@ -351,13 +351,14 @@ class CrossModalDataModule(ShardedDataModule):
         the cloud was touched on (no label: which touches fell on one object), lets it vote them per object
         (``pseudo_label_groups``)."""
         if self.target_data_dir is not None:
-            return self._target_data_dataset(self.target_split, with_label=False, with_index=True)
+            return self._target_data_dataset(self.target_split, with_label=False, with_index=True,
+                                             with_group=True)
         if self.target_holdout > 0:
             return self.dataset("test", "tactile", with_label=False, train=True, keep=~self.holdout_mask(),
                                 with_index=True, with_group=True)
         if "+" in self.target_split:  # one stream over both splits, indexed 0..n-1 across them
             return self._tactile_dataset([self._split(x) for x in self.target_split.split("+")],
-                                         with_label=False, with_index=True)
+                                         with_label=False, with_index=True, with_group=True)
         return self.dataset(self.target_split, "tactile", with_label=False, train=True, with_index=True,
                             with_group=True)
 
@@ -385,13 +386,16 @@ class CrossModalDataModule(ShardedDataModule):
         :meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`."""
         return self._loader(self.target_dataset(), shuffle=shuffle, batch_size=self.target_batch_size)
 
-    def _target_data_dataset(self, split: str, with_label: bool, with_index: bool = False) -> CloudDataset:
+    def _target_data_dataset(self, split: str, with_label: bool, with_index: bool = False,
+                             with_group: bool = False) -> CloudDataset:
         """Yaw-augmented tactile clouds of ``target_data_dir``'s ``split`` (``"a+b"``: both, one stream)."""
         return self._tactile_dataset([self._target_data_split(x) for x in split.split("+")],
-                                     with_label=with_label, with_index=with_index)
+                                     with_label=with_label, with_index=with_index, with_group=with_group)
 
-    def _tactile_dataset(self, splits: list[dict], with_label: bool, with_index: bool) -> CloudDataset:
-        """Yaw-augmented tactile clouds of the loaded ``splits`` in one dataset, in that order."""
+    def _tactile_dataset(self, splits: list[dict], with_label: bool, with_index: bool,
+                         with_group: bool = False) -> CloudDataset:
+        """Yaw-augmented tactile clouds of the loaded ``splits`` in one dataset, in that order
+        (``with_group``: with each cloud's object instance, numbered uniquely across splits)."""
         metres = self.units == "metres"
         parts = [modality_clouds(d, "tactile", metres) for d in splits]
         clouds = [c for part in parts for c in part[0]]
@@ -400,7 +404,7 @@ class CrossModalDataModule(ShardedDataModule):
         groups = np.concatenate([np.asarray(d["tactile_instance"]) for d in splits])
         return CloudDataset(clouds, labels, train=True, normalize=self.normalize, rotate_z=self.rotate_z,
                             seed=self.seed, scales=scales, with_label=with_label, with_index=with_index,
-                            groups=groups, with_group=True)
+                            groups=groups, with_group=with_group)
 
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
