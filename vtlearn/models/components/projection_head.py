@@ -8,6 +8,7 @@ PointNet feature (:func:`~vtlearn.losses.contrastive.nt_xent`).
 
 from __future__ import annotations
 
+import torch
 from torch import nn
 
 __all__ = ["ProjectionHead"]
@@ -15,7 +16,8 @@ __all__ = ["ProjectionHead"]
 
 class ProjectionHead(nn.Module):
     """Linear-ReLU-Linear from the pooled feature to the contrastive space (no batch norm, so the
-    perturbed copies leave no statistics behind).
+    perturbed copies leave no statistics behind). The rotation task's head is the same MLP with four
+    outputs (:class:`~vtlearn.models.components.rotation_task.RotationHead`).
 
     Shapes:
         global (B, in_dim) -> (B, out_dim)
@@ -25,5 +27,5 @@ class ProjectionHead(nn.Module):
         super().__init__()
         self.net = nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, out_dim))
 
-    def forward(self, g):
+    def forward(self, g: torch.Tensor) -> torch.Tensor:
         return self.net(g)

@@ -14,7 +14,8 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import nn
+
+from vtlearn.models.components.projection_head import ProjectionHead
 
 __all__ = ["QUARTER_TURNS", "RotationHead", "turn_about_x", "random_quarter_turns"]
 
@@ -53,17 +54,14 @@ def random_quarter_turns(points: torch.Tensor, generator: torch.Generator | None
     return turn_about_x(points, turns), turns
 
 
-class RotationHead(nn.Module):
-    """Linear-ReLU-Linear from the pooled feature to the four quarter turns (no batch norm, so the rotated
-    batches leave no statistics behind).
+class RotationHead(ProjectionHead):
+    """:class:`~vtlearn.models.components.projection_head.ProjectionHead`'s Linear-ReLU-Linear from the
+    pooled feature, read as logits of the four quarter turns (no batch norm, so the rotated batches leave no
+    statistics behind).
 
     Shapes:
         global (B, in_dim) -> logits (B, 4)
     """
 
     def __init__(self, in_dim: int, hidden: int = 256):
-        super().__init__()
-        self.net = nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, QUARTER_TURNS))
-
-    def forward(self, g: torch.Tensor) -> torch.Tensor:
-        return self.net(g)
+        super().__init__(in_dim, hidden, QUARTER_TURNS)
