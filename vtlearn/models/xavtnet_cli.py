@@ -118,7 +118,8 @@ VARIANTS["vtloss_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt"], "pseudo_label_wei
 VARIANTS["noda_vote"] = {"da_method": "none", "pseudo_label_weight": 10.0, "pseudo_label_groups": True}
 # Beyond the thesis: the teacher row's mean teacher with no alignment (no MK-MMD, no CORAL): no-DA plus the
 # consistency, so that the teacher row's margin over no-DA splits into the teacher's share and VTLoss's.
-VARIANTS["noda_mt"] = {"da_method": "none", "consistency_weight": 2.5, "consistency_threshold": 0.9}
+VARIANTS["noda_mt"] = {"da_method": "none", **{k: VARIANTS["vtloss_g12_mt"][k] for k in ("consistency_weight",
+                                                                          "consistency_threshold")}}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
                    "_fm", "_mix", "_con", "_vote")
