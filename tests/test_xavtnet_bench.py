@@ -406,44 +406,63 @@ def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_cr
     assert "not an xAVTNet checkpoint" in capsys.readouterr().err
 
 
+def _counting_loader(items, batch_size):
+    """A loader factory whose loaders count, in ``factory.passes``, how often they are iterated."""
+    import torch
+
+    class Counting(torch.utils.data.DataLoader):
+        def __iter__(self):
+            factory.passes += 1
+            return super().__iter__()
+
+    def factory():
+        return Counting(items, batch_size=batch_size)
+
+    factory.passes = 0
+    return factory
+
+
 def test_balanced_accuracy_scores_the_balanced_assignment_and_keeps_the_random_state():
-    """_balanced_acc is the accuracy of the Sinkhorn assignment of the whole loader's eval-mode
-    probabilities, and leaves torch's random state as it found it, so that --balanced does not move the
-    scores computed after it."""
+    """--balanced scores the Sinkhorn assignment of the whole test loader's eval-mode probabilities, and
+    leaves torch's random state as it found it, so that it does not move the scores computed after it."""
+    from types import SimpleNamespace
+
     import torch
 
     from vtlearn.models.components.class_balance import sinkhorn_balance
-    from vtlearn.models.xavtnet_cli import _balanced_acc
+    from vtlearn.models.xavtnet_cli import _readout_scores
 
     torch.manual_seed(0)
     model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8]).train()
     clouds = torch.randn(12, 20, 3)
     labels = torch.arange(12) % 3
-    loader = torch.utils.data.DataLoader(
+    dm = SimpleNamespace(test_dataloader=_counting_loader(
         [{"points": p, "lengths": torch.tensor(20), "label": y} for p, y in zip(clouds, labels, strict=True)],
-        batch_size=5)
+        batch_size=5))
     state = torch.random.get_rng_state()
-    acc = _balanced_acc(model, loader, [1 / 3, 1 / 3, 1 / 3])
+    scores = _readout_scores(model, dm, prior=[1 / 3, 1 / 3, 1 / 3])
     assert torch.equal(torch.random.get_rng_state(), state)
     assert model.training  # the training flag is restored
+    assert set(scores) == {"tactile_acc_balanced"}
     with torch.no_grad():
         probs = model.eval()(clouds, torch.full((12,), 20)).logits.softmax(-1)
     expected = (sinkhorn_balance(probs).argmax(-1) == labels).double().mean() * 100
-    assert acc == pytest.approx(float(expected))
+    assert scores["tactile_acc_balanced"] == pytest.approx(float(expected))
 
 
 def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random_state():
     """--probe fits a linear probe on the labelled tactile training clouds' global features and scores the
     test clouds: on three classes of clouds that differ in scale, an untrained network's features separate
     them perfectly while its classifier does not. --centroid is SHOT's centroid labelling of the test
-    features. Neither moves torch's random state, so the scores after them are unchanged."""
+    features. Neither moves torch's random state, so the scores after them are unchanged, and all three
+    readings together take one pass over the test clouds."""
     from types import SimpleNamespace
 
     import numpy as np
     import torch
 
     from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
-    from vtlearn.models.xavtnet_cli import _feature_scores
+    from vtlearn.models.xavtnet_cli import _readout_scores
 
     torch.manual_seed(0)
     model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8]).train()
@@ -454,14 +473,15 @@ def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random
         clouds = torch.randn(n, 20, 3, generator=g) * (0.1 * 10.0 ** labels)[:, None, None]
         items = [{"points": p, "lengths": torch.tensor(20), "label": y}
                  for p, y in zip(clouds, labels, strict=True)]
-        return lambda: torch.utils.data.DataLoader(items, batch_size=7)
+        return _counting_loader(items, batch_size=7)
 
     dm = SimpleNamespace(test_dataloader=loader(30, 1), labelled_target_train_dataloader=loader(60, 2))
     state = torch.random.get_rng_state()
-    scores = _feature_scores(model, dm, probe=True, centroid=True)
+    scores = _readout_scores(model, dm, prior=[1 / 3] * 3, probe=True, centroid=True)
     assert torch.equal(torch.random.get_rng_state(), state)
     assert model.training  # extract_features restores the training flag
-    assert set(scores) == {"tactile_acc_probe", "tactile_acc_centroid"}
+    assert set(scores) == {"tactile_acc_probe", "tactile_acc_centroid", "tactile_acc_balanced"}
+    assert dm.test_dataloader.passes == 1 and dm.labelled_target_train_dataloader.passes == 1
     assert scores["tactile_acc_probe"] == 100.0
     with torch.no_grad():
         batch = next(iter(torch.utils.data.DataLoader(list(dm.test_dataloader().dataset), batch_size=30)))
@@ -471,7 +491,9 @@ def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random
     pseudo = centroid_pseudo_labels(out["global"].double(), out["logits"].double().softmax(-1))
     assert scores["tactile_acc_centroid"] == pytest.approx(100 * float(np.mean(pseudo.numpy()
                                                                             == batch["label"].numpy())))
-    assert _feature_scores(model, dm, probe=False, centroid=False) == {}
+    # each reading alone scores as it does beside the others
+    assert _readout_scores(model, dm, probe=True) == {"tactile_acc_probe": scores["tactile_acc_probe"]}
+    assert _readout_scores(model, dm) == {}
 
 
 def test_adapt_bn_reads_the_clouds_as_the_checkpoint_was_trained(tmp_path, tiny_crossmodal, capsys):

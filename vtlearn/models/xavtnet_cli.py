@@ -192,15 +192,20 @@ def _trainer(max_epochs: int, accelerator: str = "cpu"):
                      num_sanity_val_steps=0, limit_val_batches=0)
 
 
-def _collect_features(model, loader, layer: str = "fc2"):
-    """The eval-mode ``layer`` (a key of ``XAVTNet.extract_features``: ``"fc2"``, ``"logits"``, ...) of
-    every cloud of ``loader``, and their labels, as numpy arrays."""
-    feats, labels = [], []
+def _collect_features(model, loader, layers: tuple[str, ...] = ("fc2",)):
+    """The eval-mode ``layers`` (keys of ``XAVTNet.extract_features``: ``"fc2"``, ``"logits"``, ...) of
+    every cloud of ``loader``, read in one pass, and their labels.
+
+    Shapes:
+        -> ({layer: (n_clouds, d)} numpy arrays, labels (n_clouds,))
+    """
+    feats, labels = {k: [] for k in layers}, []
     for batch in loader:
         out = model.extract_features(batch["points"], batch["lengths"])
-        feats.append(out[layer].numpy())
+        for k in layers:
+            feats[k].append(out[k].numpy())
         labels.append(batch["label"].numpy())
-    return np.concatenate(feats), np.concatenate(labels)
+    return {k: np.concatenate(v) for k, v in feats.items()}, np.concatenate(labels)
 
 
 def _tsne_figure(panels: dict, class_names, path: Path, seed: int) -> None:
@@ -272,14 +277,11 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     ``visual_acc_teacher``); with ``adabn`` that teacher is scored once more after AdaBN
     (``tactile_acc_teacher_adabn``).
 
-    ``balanced``: also score the class-balanced assignment of the whole tactile test set
-    (:func:`_balanced_acc`, ``tactile_acc_balanced``; on a teacher row its teacher's as well,
-    ``tactile_acc_teacher_balanced``), before AdaBN.
-
-    ``centroid`` and ``probe``: also score the network and, on a teacher row, its teacher, before AdaBN,
-    by :func:`_feature_scores` (``tactile_acc_centroid``, ``tactile_acc_probe``,
-    ``tactile_acc_teacher_centroid``, ``tactile_acc_teacher_probe``). These, like ``balanced``, leave
-    torch's random state as they found it, so the scores after them are those of a run without them.
+    ``balanced``, ``centroid`` and ``probe``: also score the network and, on a teacher row, its teacher,
+    before AdaBN, by :func:`_readout_scores` (``tactile_acc_balanced``, ``tactile_acc_centroid``,
+    ``tactile_acc_probe`` and their ``tactile_acc_teacher_*`` twins), from one further pass over the test
+    clouds per model. They leave torch's random state as they found it, so the scores after them are
+    those of a run without them.
 
     ``accelerator`` is Lightning's (``cpu``, ``gpu``, ``auto``); Lightning hands the model back on the CPU
     after each fit and test, so the feature extraction below runs there.
@@ -317,12 +319,10 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     row = {"variant": variant, "seed": seed, "tactile_acc": 100 * float(tactile),
            "visual_acc": 100 * float(visual), "fit_s": fit_s, "confusion": conf.astype(int).tolist()}
     prior = dm.source_class_prior() if balanced else None
-    if balanced:
-        row["tactile_acc_balanced"] = _balanced_acc(model, dm.test_dataloader(), prior)
+    # the network as scored for tactile_acc, before AdaBN
+    row.update(_readout_scores(model, dm, prior, probe, centroid))
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
     twin = copy.deepcopy(model) if model.teacher is not None else None
-    if probe or centroid:  # the network as scored for tactile_acc, before AdaBN
-        row.update(_feature_scores(model, dm, probe, centroid))
     if adabn:
         model.adapt_bn_statistics(dm.target_dataloader())
         adapted = _test_acc(trainer, model, dm.test_dataloader())
@@ -331,8 +331,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     if features:
         with torch.no_grad():
             with model.bn_domain("source"):
-                source = _collect_features(model, dm.source_test_dataloader())
-            feats = (*source, *_collect_features(model, dm.test_dataloader()))
+                source, source_labels = _collect_features(model, dm.source_test_dataloader())
+            target, target_labels = _collect_features(model, dm.test_dataloader())
+            feats = (source["fc2"], source_labels, target["fc2"], target_labels)
     if twin is not None:
         twin.reestimate_bn_statistics(dm.train_dataloader())
         row["tactile_acc_bn"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
@@ -340,11 +341,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         row["tactile_acc_teacher"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
         with twin.bn_domain("source"):
             row["visual_acc_teacher"] = 100 * _test_acc(trainer, twin, dm.source_test_dataloader())
-        if balanced:
-            row["tactile_acc_teacher_balanced"] = _balanced_acc(twin, dm.test_dataloader(), prior)
-        if probe or centroid:  # the teacher as scored for tactile_acc_teacher, before AdaBN
-            row.update({k.replace("tactile_acc", "tactile_acc_teacher"): v
-                        for k, v in _feature_scores(twin, dm, probe, centroid).items()})
+        # the teacher as scored for tactile_acc_teacher, before AdaBN
+        row.update({k.replace("tactile_acc", "tactile_acc_teacher"): v
+                    for k, v in _readout_scores(twin, dm, prior, probe, centroid).items()})
         if adabn:  # the teacher's weights with AdaBN's target statistics, as the network above
             twin.adapt_bn_statistics(dm.target_dataloader())
             row["tactile_acc_teacher_adabn"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
@@ -355,25 +354,8 @@ def _test_acc(trainer, model, loader) -> float:
     return float(trainer.test(model, dataloaders=loader, verbose=False)[0]["test/acc"])
 
 
-def _balanced_acc(model, loader, prior: np.ndarray) -> float:
-    """Accuracy (%) of the class-balanced assignment of every cloud of ``loader`` at once: the model's
-    eval-mode probabilities rescaled by Sinkhorn-Knopp to the class frequencies ``prior``
-    (:func:`~vtlearn.models.components.class_balance.sinkhorn_balance`). Transductive, label-free: the
-    labels only score the assignment. The model is on the CPU (Lightning hands it back there). Torch's
-    random state is restored afterwards (iterating a loader draws from it), so the scores computed after
-    this one do not depend on whether it ran."""
-    import torch
-
-    from vtlearn.models.components.class_balance import sinkhorn_balance
-
-    with torch.random.fork_rng():
-        logits, labels = _collect_features(model, loader, "logits")
-    q = sinkhorn_balance(torch.from_numpy(logits).softmax(-1), torch.as_tensor(prior))
-    return 100 * float((q.argmax(-1).numpy() == labels).mean())
-
-
 def _feature_score_checks(rows: list[dict], what: str, checks: dict) -> None:
-    """``checks`` for the ``what`` (``"centroid"`` or ``"probe"``) scores of :func:`_feature_scores`, where
+    """``checks`` for the ``what`` (``"centroid"`` or ``"probe"``) scores of :func:`_readout_scores`, where
     the rows have them: every row's (and teacher's) score less its own tactile accuracy, and less no-DA's
     score of the same kind (like for like)."""
     key = f"tactile_{what}_mean"
@@ -388,15 +370,22 @@ def _feature_score_checks(rows: list[dict], what: str, checks: dict) -> None:
                 checks[f"{r['variant']}{who}_{what}_minus_noda_{what}"] = r[k] - noda
 
 
-def _feature_scores(model, dm, probe: bool, centroid: bool, layer: str = FEATURE_SCORE_LAYER) -> dict:
-    """Two readings of a trained model's ``layer`` features of the tactile test clouds, in eval mode.
+def _readout_scores(model, dm, prior=None, probe: bool = False, centroid: bool = False,
+                    layer: str = FEATURE_SCORE_LAYER) -> dict:
+    """Three further readings of a trained model's tactile test clouds, in eval mode, from one pass over
+    ``dm.test_dataloader()`` (its logits and ``layer`` features together):
 
+    * ``prior`` (class frequencies, or None to skip) -> ``tactile_acc_balanced``: the accuracy (%) of the
+      class-balanced assignment of the whole test set at once, the eval-mode probabilities rescaled by
+      Sinkhorn-Knopp to ``prior``
+      (:func:`~vtlearn.models.components.class_balance.sinkhorn_balance`). Transductive, label-free: the
+      labels only score the assignment.
     * ``centroid`` -> ``tactile_acc_centroid``: the accuracy (%) of SHOT's centroid labels of the whole
       tactile test set at once (:func:`~vtlearn.losses.pseudo_labels.centroid_pseudo_labels`, every label
       kept: each class centroid is the softmax-weighted, then the hard-label mean of the unit-length
-      features, and each cloud takes the nearest by cosine). Transductive and label-free, like
-      ``--balanced``: the labels only score it. It lets the clusters of tactile features, not the
-      classifier's boundaries, decide.
+      features, and each cloud takes the nearest by cosine). Transductive and label-free, like the
+      balanced assignment. It lets the clusters of tactile features, not the classifier's boundaries,
+      decide.
     * ``probe`` -> ``tactile_acc_probe``: the accuracy (%) on the tactile test clouds of a linear probe, a
       multinomial logistic regression (scikit-learn, L2 with C = 1, standardised features) fitted on the
       same layer's features of the labelled tactile training clouds
@@ -406,35 +395,40 @@ def _feature_scores(model, dm, probe: bool, centroid: bool, layer: str = FEATURE
       tactile classes, whatever its classifier does, so ``tactile_acc_probe - tactile_acc`` is what the
       row's own classifier leaves.
 
-    The model is on the CPU (Lightning hands it back there); torch's random state is restored afterwards
-    (the loaders draw from it), as :func:`_balanced_acc` does.
+    The model is on the CPU (Lightning hands it back there). Torch's random state is restored afterwards
+    (iterating a loader draws from it), so the scores computed after these do not depend on whether they
+    ran, and the probe's augmentation draws do not depend on which other readings ran.
 
     Shapes:
-        ``layer`` features (n_clouds, d) per loader -> {score name: float in [0, 100]}
+        ``layer`` features (n_clouds, d), logits (n_clouds, k), prior (k,) -> {score name: float in [0, 100]}
     """
     import torch
 
     from vtlearn.losses.pseudo_labels import centroid_pseudo_labels
+    from vtlearn.models.components.class_balance import sinkhorn_balance
 
     out = {}
-    if not (probe or centroid):
+    if prior is None and not (probe or centroid):
         return out
     with torch.random.fork_rng():
-        feats, labels = _collect_features(model, dm.test_dataloader(), layer)
-        if centroid:
-            logits, _ = _collect_features(model, dm.test_dataloader(), "logits")
-            probs = torch.from_numpy(logits).double().softmax(-1)
-            pseudo = centroid_pseudo_labels(torch.from_numpy(feats), probs)
-            out["tactile_acc_centroid"] = 100 * float((pseudo.numpy() == labels).mean())
-        if probe:
-            from sklearn.linear_model import LogisticRegression
-            from sklearn.pipeline import make_pipeline
-            from sklearn.preprocessing import StandardScaler
+        test, labels = _collect_features(model, dm.test_dataloader(), ("logits", layer))
+    probs = torch.from_numpy(test["logits"]).double().softmax(-1)
+    if prior is not None:
+        q = sinkhorn_balance(probs, torch.as_tensor(prior, dtype=probs.dtype))
+        out["tactile_acc_balanced"] = 100 * float((q.argmax(-1).numpy() == labels).mean())
+    if centroid:
+        pseudo = centroid_pseudo_labels(torch.from_numpy(test[layer]), probs)
+        out["tactile_acc_centroid"] = 100 * float((pseudo.numpy() == labels).mean())
+    if probe:
+        from sklearn.linear_model import LogisticRegression
+        from sklearn.pipeline import make_pipeline
+        from sklearn.preprocessing import StandardScaler
 
-            train_feats, train_labels = _collect_features(model, dm.labelled_target_train_dataloader(), layer)
-            clf = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=5000))
-            clf.fit(train_feats, train_labels)
-            out["tactile_acc_probe"] = 100 * float(clf.score(feats, labels))
+        with torch.random.fork_rng():
+            train, train_labels = _collect_features(model, dm.labelled_target_train_dataloader(), (layer,))
+        clf = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=5000))
+        clf.fit(train[layer], train_labels)
+        out["tactile_acc_probe"] = 100 * float(clf.score(test[layer], labels))
     return out
 
 
