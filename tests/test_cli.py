@@ -84,3 +84,14 @@ def test_format_table_prints_none_as_a_dash():
     rows = text.splitlines()
     assert rows[0] == "### t"
     assert [r.split("|")[2].strip() for r in rows[3:]] == ["-", "0.012", ""]
+
+
+def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(monkeypatch):
+    """A bench JSON records the versions that seeded runs depend on, so figures that drift across
+    sessions can be traced to the packages that changed."""
+    import vtlearn.bench_utils as bu
+
+    monkeypatch.setattr(bu, "RECORDED_PACKAGES", ("numpy", "no-such-package-vtlearn"))
+    info = bu.machine_info()
+    assert info["packages"] == {"numpy": np.__version__, "no-such-package-vtlearn": None}
+    assert info["torch"] and info["cpu_count"] >= 1

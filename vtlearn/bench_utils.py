@@ -104,11 +104,26 @@ def print_table(rows: list[dict], columns: list[str], title: str | None = None) 
     return text
 
 
+# The packages whose versions a benchmark records beside torch's: seeded runs repeat to the digit in one
+# environment, but a different numpy, trimesh or scikit-learn can draw or compute differently, so a figure
+# that does not repeat across sessions can be traced to the versions that changed.
+RECORDED_PACKAGES = ("numpy", "scipy", "lightning", "torch_geometric", "trimesh", "open3d", "pybullet",
+                     "scikit-learn")
+
+
 def machine_info() -> dict:
-    """What a benchmark ran on: CPU count, Python, torch, threads."""
+    """What a benchmark ran on: CPU count, Python, torch, threads, and the versions of
+    :data:`RECORDED_PACKAGES` (``None`` for one that is not installed)."""
     import os
+    from importlib import metadata
 
     import torch
+
+    def version(name: str):
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
 
     return {
         "python": platform.python_version(),
@@ -116,6 +131,7 @@ def machine_info() -> dict:
         "cpu_count": os.cpu_count(),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
+        "packages": {name: version(name) for name in RECORDED_PACKAGES},
     }
 
 
