@@ -525,3 +525,28 @@ def test_adapt_bn_reads_the_clouds_as_the_checkpoint_was_trained(tmp_path, tiny_
         twin.adapt_bn_statistics(dm.target_dataloader())
         same = all(torch.allclose(got[k], twin.state_dict()[k], atol=1e-6) for k in stats)
         assert same == (normalize == "none"), normalize
+
+
+def test_adabn_score_converts_the_model_and_keeps_the_random_state(tiny_crossmodal):
+    """--adabn's score re-estimates the target statistics on the shuffled target stream; it leaves torch's
+    random state as it found it, so the teacher's scores drawn after it are those of a run without it."""
+    import copy
+
+    import torch
+
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet_cli import _adabn_acc, _test_acc, _trainer
+
+    dm = CrossModalDataModule(data_dir=str(tiny_crossmodal), batch_size=4, seed=0)
+    dm.setup("fit")
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=dm.num_classes, global_dim=32, fc_dims=[16, 8])
+    twin = copy.deepcopy(model)
+    trainer = _trainer(1)
+    state = torch.random.get_rng_state()
+    acc = _adabn_acc(trainer, model, dm)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert model.hparams.domain_bn  # converted to statistics per domain, target ones re-estimated
+    with torch.random.fork_rng():  # the same steps by hand, from the same random state
+        twin.adapt_bn_statistics(dm.target_dataloader())
+        assert acc == pytest.approx(100 * _test_acc(trainer, twin, dm.test_dataloader()))

@@ -267,7 +267,9 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
 
     ``adabn``: afterwards, re-estimate the target batch-norm statistics on the unlabelled target stream
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`) and score the tactile clouds again
-    (``tactile_acc_adabn``).
+    (``tactile_acc_adabn``, :func:`_adabn_acc`). Every optional score, and the figures' features, restore
+    torch's random state, so a row's scores do not depend on which other options were asked for (before
+    stop 43, ``--adabn`` and the figures moved the draws of the teacher's scores).
 
     A row with a mean teacher (``consistency_weight > 0``) is scored twice more, on a copy of the trained
     model, after the features: with the network's batch-norm statistics re-estimated on the joint training
@@ -324,12 +326,10 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
     twin = copy.deepcopy(model) if model.teacher is not None else None
     if adabn:
-        model.adapt_bn_statistics(dm.target_dataloader())
-        adapted = _test_acc(trainer, model, dm.test_dataloader())
-        row["tactile_acc_adabn"] = 100 * float(adapted)
+        row["tactile_acc_adabn"] = _adabn_acc(trainer, model, dm)
     feats = None
-    if features:
-        with torch.no_grad():
+    if features:  # the random state is restored, as by the scores above, so the teacher's draws below
+        with torch.no_grad(), torch.random.fork_rng():  # are those of a run without figures
             with model.bn_domain("source"):
                 source, source_labels = _collect_features(model, dm.source_test_dataloader())
             target, target_labels = _collect_features(model, dm.test_dataloader())
@@ -345,13 +345,25 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
         row.update({k.replace("tactile_acc", "tactile_acc_teacher"): v
                     for k, v in _readout_scores(twin, dm, prior, probe, centroid).items()})
         if adabn:  # the teacher's weights with AdaBN's target statistics, as the network above
-            twin.adapt_bn_statistics(dm.target_dataloader())
-            row["tactile_acc_teacher_adabn"] = 100 * _test_acc(trainer, twin, dm.test_dataloader())
+            row["tactile_acc_teacher_adabn"] = _adabn_acc(trainer, twin, dm)
     return row, feats, dm.class_names
 
 
 def _test_acc(trainer, model, loader) -> float:
     return float(trainer.test(model, dataloaders=loader, verbose=False)[0]["test/acc"])
+
+
+def _adabn_acc(trainer, model, dm) -> float:
+    """Tactile test accuracy (%) after AdaBN: ``model``'s target batch-norm statistics re-estimated on the
+    unlabelled target stream (:meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`, which converts
+    it to statistics per domain in place). Torch's random state is restored afterwards (the target
+    stream is shuffled), so that the teacher's scores that follow in :func:`_crossmodal_job`, which draw
+    shuffled training batches, are those of a run without ``--adabn``."""
+    import torch
+
+    with torch.random.fork_rng():
+        model.adapt_bn_statistics(dm.target_dataloader())
+        return 100 * _test_acc(trainer, model, dm.test_dataloader())
 
 
 def _feature_score_checks(rows: list[dict], what: str, checks: dict) -> None:
