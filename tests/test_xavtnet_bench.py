@@ -450,6 +450,39 @@ def test_balanced_accuracy_scores_the_balanced_assignment_and_keeps_the_random_s
     assert scores["tactile_acc_balanced"] == pytest.approx(float(expected))
 
 
+def test_score_checks_write_each_kind_against_its_own_model_plain_noda_and_noda_like_for_like():
+    """One rule for every extra score (--adabn, --balanced, --centroid, --probe): each row's and teacher's
+    score less its own accuracy, less plain no-DA's, and less no-DA's score of the same kind; no-DA's own
+    network has no like-for-like check, and nothing is written for a score a row lacks."""
+    from vtlearn.models.xavtnet_cli import _score_checks
+
+    rows = [
+        {"variant": "noda", "tactile_mean": 40.0, "tactile_adabn_mean": 45.0},
+        {"variant": "vtloss_g12_mt", "tactile_mean": 50.0, "tactile_teacher_mean": 52.0,
+         "tactile_adabn_mean": 49.0, "tactile_teacher_adabn_mean": 56.0},
+        {"variant": "vtloss", "tactile_mean": 47.0},
+    ]
+    checks = {}
+    for what in ("adabn", "balanced", "centroid", "probe"):
+        _score_checks(rows, what, checks)
+    assert checks == {
+        "noda_adabn_minus_acc": 5.0, "noda_adabn_minus_noda": 5.0,
+        "vtloss_g12_mt_adabn_minus_acc": -1.0, "vtloss_g12_mt_adabn_minus_noda": 9.0,
+        "vtloss_g12_mt_adabn_minus_noda_adabn": 4.0,
+        "vtloss_g12_mt_teacher_adabn_minus_acc": 4.0, "vtloss_g12_mt_teacher_adabn_minus_noda": 16.0,
+        "vtloss_g12_mt_teacher_adabn_minus_noda_adabn": 11.0,
+    }
+    # without a no-DA row only the score against the model's own accuracy is left
+    checks = {}
+    _score_checks(rows[1:], "adabn", checks)
+    assert checks == {"vtloss_g12_mt_adabn_minus_acc": -1.0, "vtloss_g12_mt_teacher_adabn_minus_acc": 4.0}
+    # a no-DA row without the score: no like-for-like check, the others stay
+    checks = {}
+    _score_checks([{"variant": "noda", "tactile_mean": 40.0}, rows[1]], "adabn", checks)
+    assert "vtloss_g12_mt_adabn_minus_noda_adabn" not in checks
+    assert checks["vtloss_g12_mt_adabn_minus_noda"] == 9.0
+
+
 def test_feature_scores_read_the_features_not_the_classifier_and_keep_the_random_state():
     """--probe fits a linear probe on the labelled tactile training clouds' global features and scores the
     test clouds: on three classes of clouds that differ in scale, an untrained network's features separate

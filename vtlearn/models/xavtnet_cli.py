@@ -366,20 +366,33 @@ def _adabn_acc(trainer, model, dm) -> float:
         return 100 * _test_acc(trainer, model, dm.test_dataloader())
 
 
-def _feature_score_checks(rows: list[dict], what: str, checks: dict) -> None:
-    """``checks`` for the ``what`` (``"centroid"`` or ``"probe"``) scores of :func:`_readout_scores`, where
-    the rows have them: every row's (and teacher's) score less its own tactile accuracy, and less no-DA's
-    score of the same kind (like for like)."""
+def _score_checks(rows: list[dict], what: str, checks: dict) -> None:
+    """``checks`` for the ``what`` scores (``"adabn"``, ``"balanced"``, ``"centroid"`` or ``"probe"``: the
+    ``tactile_{what}_mean`` and ``tactile_teacher_{what}_mean`` of the rows that have them), for every row
+    and, where it has one, its teacher (``who`` = ``""`` or ``"_teacher"``):
+
+    * ``{variant}{who}_{what}_minus_acc``: the score less the same model's own tactile accuracy (what the
+      reading adds to the classifier);
+    * ``{variant}{who}_{what}_minus_noda``: the score less plain no-DA's tactile accuracy (for no-DA itself
+      this equals its ``_minus_acc``: no-DA's own gain, e.g. ``noda_adabn_minus_noda``);
+    * ``{variant}{who}_{what}_minus_noda_{what}``: like for like, the score less no-DA's score of the same
+      kind (not written for no-DA's own network).
+
+    The ``_minus_noda`` checks need a ``noda`` row; ``_minus_noda_{what}`` needs it to have the score."""
+    noda_row = next((r for r in rows if r["variant"] == "noda"), None)
     key = f"tactile_{what}_mean"
-    noda = next((r[key] for r in rows if r["variant"] == "noda" and key in r), None)
+    noda_score = noda_row.get(key) if noda_row is not None else None
     for r in rows:
-        for who, k in (("", key), ("_teacher", f"tactile_teacher_{what}_mean")):
+        for who, k, own in (("", key, "tactile_mean"),
+                            ("_teacher", f"tactile_teacher_{what}_mean", "tactile_teacher_mean")):
             if k not in r:
                 continue
-            own = r["tactile_mean"] if not who else r["tactile_teacher_mean"]
-            checks[f"{r['variant']}{who}_{what}_minus_acc"] = r[k] - own
-            if noda is not None and (r["variant"] != "noda" or who):
-                checks[f"{r['variant']}{who}_{what}_minus_noda_{what}"] = r[k] - noda
+            name = f"{r['variant']}{who}_{what}"
+            checks[f"{name}_minus_acc"] = r[k] - r[own]
+            if noda_row is not None:
+                checks[f"{name}_minus_noda"] = r[k] - noda_row["tactile_mean"]
+            if noda_score is not None and (r["variant"] != "noda" or who):
+                checks[f"{name}_minus_noda_{what}"] = r[k] - noda_score
 
 
 def _readout_scores(model, dm, prior=None, probe: bool = False, centroid: bool = False,
@@ -573,27 +586,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         checks["vtloss_beats_mmd_and_coral"] = means["vtloss"] > max(means["mmd"], means["coral"])
     if {"vtloss", "vtloss_fc1", "vtloss_fc2"} <= means.keys():
         checks["both_layers_beat_each"] = means["vtloss"] > max(means["vtloss_fc1"], means["vtloss_fc2"])
-    if adabn and "noda" in means:  # against plain no-DA, and like for like against no-DA after AdaBN
-        noda_ada = next(r["tactile_adabn_mean"] for r in rows if r["variant"] == "noda")
-        checks["noda_adabn_minus_noda"] = noda_ada - means["noda"]
-        for r in rows:
-            if r["variant"] != "noda":
-                checks[f"{r['variant']}_adabn_minus_noda"] = r["tactile_adabn_mean"] - means["noda"]
-                checks[f"{r['variant']}_adabn_minus_noda_adabn"] = r["tactile_adabn_mean"] - noda_ada
-            if "tactile_teacher_adabn_mean" in r:
-                checks[f"{r['variant']}_teacher_adabn_minus_noda_adabn"] = (
-                    r["tactile_teacher_adabn_mean"] - noda_ada)
-    if balanced and "noda" in means:  # like for like: both rows' balanced assignments
-        noda_bal = next(r["tactile_balanced_mean"] for r in rows if r["variant"] == "noda")
-        checks["noda_balanced_minus_noda"] = noda_bal - means["noda"]
-        for r in rows:
-            if r["variant"] != "noda":
-                checks[f"{r['variant']}_balanced_minus_noda_balanced"] = r["tactile_balanced_mean"] - noda_bal
-            if "tactile_teacher_balanced_mean" in r:
-                checks[f"{r['variant']}_teacher_balanced_minus_noda_balanced"] = (
-                    r["tactile_teacher_balanced_mean"] - noda_bal)
-    for what in ("centroid", "probe"):
-        _feature_score_checks(rows, what, checks)
+    for what in ("adabn", "balanced", "centroid", "probe"):  # each where the rows have it
+        _score_checks(rows, what, checks)
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
 
