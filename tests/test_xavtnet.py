@@ -1,5 +1,6 @@
 """Tests for the xAVTNet LightningModule and its PointNet components (thesis ch.7)."""
 
+import contextlib
 import math
 import os
 
@@ -21,6 +22,18 @@ from vtlearn.models.xavtnet import XAVTNet, normalize_padded, subsample_padded
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 TINY = dict(num_classes=3, global_dim=32, fc_dims=[16, 8])
+
+
+@contextlib.contextmanager
+def running_statistics_kept(module):
+    """Asserts that the block leaves every batch-norm running statistic of ``module`` as it found it; yields
+    the snapshot (state-dict key -> a copy of the statistic taken on entry)."""
+    running = {k: v.clone() for k, v in module.state_dict().items() if "running" in k}
+    assert running, "the module has no running statistics to watch"
+    yield running
+    for k, v in module.state_dict().items():
+        if k in running:
+            assert torch.equal(v, running[k]), k
 
 
 class _Clouds(Dataset):
@@ -722,12 +735,9 @@ def teacher_against(model, src, tgt, forward):
     """The teacher's logits of a perturbed copy of ``tgt`` (training mode), and ``forward(copy)`` of the
     same copy without gradient: the two draws start from one seed. The teacher's running statistics must
     come out as they went in."""
-    running = {k: v.clone() for k, v in model.teacher.state_dict().items() if "running" in k}
     torch.manual_seed(3)
-    teacher = model.train()._teacher_logits(src, tgt)
-    for k, v in model.teacher.state_dict().items():
-        if k in running:
-            assert torch.equal(v, running[k]), k
+    with running_statistics_kept(model.teacher):
+        teacher = model.train()._teacher_logits(src, tgt)
     torch.manual_seed(3)
     copy = model._perturb(tgt)
     with torch.no_grad():
@@ -874,12 +884,9 @@ def test_rotation_task_trains_the_encoder_on_both_domains_and_keeps_running_stat
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
     model = XAVTNet(**TINY, rotation_weight=10.0).train()
     assert XAVTNet(**TINY).rotation_head is None
-    running = {k: v.clone() for k, v in model.encoder.state_dict().items() if "running" in k}
-    rot, acc = model._rotation_loss(batch["source"], batch["target"])
+    with running_statistics_kept(model.encoder):
+        rot, acc = model._rotation_loss(batch["source"], batch["target"])
     assert torch.isfinite(rot) and 0 <= float(acc) <= 1
-    for k, v in model.encoder.state_dict().items():
-        if k in running:
-            assert torch.equal(v, running[k]), k
     rot.backward()
     assert model.rotation_head.net[0].weight.grad.abs().sum() > 0
     assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.encoder.parameters())
