@@ -283,11 +283,29 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
     assert set(b) == {"reached", "sustained"} and b["reached"]["n_boot"] == 2000
     assert b["reached"]["ratio"] == m["ratios_2pct"]["entropy"]
     assert b["sustained"]["ratio"] == m["ratios_2pct_sustained"]["entropy"]
+    texts = m["ratios_2pct_text"]["entropy"]
+    assert set(texts) == {"labels_to_reach", "labels_to_stay"}
+    if m["ratios_2pct"]["entropy"] is not None:
+        assert texts["labels_to_reach"] == f"{m['ratios_2pct']['entropy']:.2f}"
     for bad, what in (([str(out), str(out2)], "repeat seeds"), ([str(out4), str(out3)], "train_steps"),
                       ([str(out), str(tmp_path / "none.json")], "no such file")):
         assert main(["bench", "active-learning", "--merge", *bad, "--json", str(tmp_path / "x.json"),
                      "--plot", str(tmp_path / "x.png")]) == 2
         assert what in capsys.readouterr().err
+
+
+def test_label_ratio_text_bounds_a_curve_that_misses_the_line_by_the_last_round():
+    """A curve that does not reach the line by its last round has a count beyond it, so the ratio is
+    bounded, not unknown: above by the strategy's last round when only random reaches it, below when only
+    the strategy does."""
+    from vtlearn.models.xavtnet_cli import _ratio_text
+
+    assert _ratio_text(512, 832, 896) == "0.62"
+    assert _ratio_text(None, 832, 896) == "> 1.08 (not reached by 896 labels)"
+    assert _ratio_text(512, None, 896) == "< 0.57 (random does not reach it by 896 labels)"
+    assert (_ratio_text(512, None, 896, random_max_labels=1024)
+            == "< 0.50 (random does not reach it by 1024 labels)")
+    assert _ratio_text(None, None, 896).startswith("n/a")
 
 
 @pytest.mark.slow  # a fresh interpreter importing lightning + train.py: tens of seconds on shared cores

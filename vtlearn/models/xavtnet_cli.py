@@ -801,6 +801,23 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     return meta, runs
 
 
+def _ratio_text(labels: int | None, random_labels: int | None, max_labels: int,
+                random_max_labels: int | None = None) -> str:
+    """A strategy's labels over random's at one relative-error line, as text, where a count is None when
+    its mean curve does not reach the line by its last round (``max_labels`` for the strategy,
+    ``random_max_labels`` for random, the same by default): the ratio itself when both reach it, a lower
+    bound ``> max_labels / random_labels`` when only random does, an upper bound
+    ``< labels / random_max_labels`` when only the strategy does, and ``n/a`` when neither does."""
+    random_max = max_labels if random_max_labels is None else random_max_labels
+    if labels is not None and random_labels is not None:
+        return f"{labels / random_labels:.2f}"
+    if random_labels is not None:
+        return f"> {max_labels / random_labels:.2f} (not reached by {max_labels} labels)"
+    if labels is not None:
+        return f"< {labels / random_max:.2f} (random does not reach it by {random_max} labels)"
+    return f"n/a (neither reaches it by {max_labels} labels)"
+
+
 def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[str, list]) -> int:
     """Table 7.1 analogue (first reached and sustained), ratios to random, paired comparison, plot, JSON."""
     from vtlearn.active.learning_loop import bootstrap_label_ratio, labels_to_reach, paired_advantage
@@ -826,7 +843,8 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
         c["labels_to_reach"] = {f"{int(t * 100)}%": v for t, v in reach.items()}
         c["labels_to_stay"] = {f"{int(t * 100)}%": v for t, v in stay.items()}
         for out_rows, got in ((rows, reach), (stay_rows, stay)):
-            cells = {f"{int(t * 100)}%": (v if v is not None else "not reached") for t, v in got.items()}
+            cells = {f"{int(t * 100)}%": (v if v is not None else f"> {c['n_labels'][-1]}")
+                     for t, v in got.items()}
             out_rows.append({"strategy": strategy, **cells, "final_acc": 100 * c["acc_mean"][-1]})
     print_table(rows, ["strategy", "10%", "5%", "3%", "2%", "final_acc"],
                 f"Table 7.1 analogue: labels to reach relative error vs full-pool model "
@@ -836,6 +854,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     # Labels at 2 % relative error, each query strategy over random (the issue's target is <= 0.65).
     ratios: dict[str, float | None] = {}
     ratios_stay: dict[str, float | None] = {}
+    ratio_texts: dict[str, dict[str, str]] = {}  # with the bound where a curve misses the line
     if "random" in curves:
         for key, out in (("labels_to_reach", ratios), ("labels_to_stay", ratios_stay)):
             r = curves["random"][key]["2%"]
@@ -844,8 +863,10 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                     continue
                 a = c[key]["2%"]
                 out[strategy] = a / r if a is not None and r is not None else None
+                text = ratio_texts.setdefault(strategy, {})[key] = _ratio_text(
+                    a, r, c["n_labels"][-1], curves["random"]["n_labels"][-1])
                 print(f"{strategy}/random labels at 2% relative error ({key.replace('_', ' ')}): "
-                      f"{out[strategy] if out[strategy] is not None else 'n/a'} (target <= 0.65)")
+                      f"{text} (target <= 0.65)")
     # How much of that ratio is the draw of seeds: resample them (the same draw for every curve).
     boot: dict[str, dict] = {}
     if "random" in curves:
@@ -903,6 +924,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
         "bench": "active-learning", **meta,
         "curves": curves, "table_7_1": rows, "table_7_1_sustained": stay_rows,
         "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios, "ratios_2pct_sustained": ratios_stay,
+        "ratios_2pct_text": ratio_texts,
         "paired_vs_random": paired, "bootstrap_2pct": boot,
         "machine": machine_info(),
     })
