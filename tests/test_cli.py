@@ -95,3 +95,57 @@ def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(mo
     info = bu.machine_info()
     assert info["packages"] == {"numpy": np.__version__, "no-such-package-vtlearn": None}
     assert info["torch"] and info["cpu_count"] >= 1
+
+
+def _parser_actions(parser, path=("vtlearn",)):
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parser_actions(sub, (*path, name))
+        else:
+            yield path, action
+
+
+def test_every_integer_option_states_its_minimum_and_its_default_meets_it():
+    """No option parses a bare int: each says whether 0 means something (a seed, an index, "0: all") or
+    the count must be >= 1, so a negative count is refused by argparse before any work starts."""
+    found = 0
+    for path, action in _parser_actions(build_parser()):
+        assert action.type is not int, f"{' '.join(path)} {action.option_strings}: use vtlearn.cli_args.count"
+        minimum = getattr(action.type, "minimum", None)
+        if minimum is None:
+            continue
+        found += 1
+        default = action.default if isinstance(action.default, list | tuple) else [action.default]
+        assert all(v is None or v >= minimum for v in default), (path, action.option_strings)
+    assert found > 100  # the walk reaches every subcommand's options
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["bench", "crossmodal", "--seeds", "-1"], "--seeds"),
+    (["bench", "active-learning", "--rounds", "-1"], "--rounds"),
+    (["bench", "registration", "--trials", "0"], "--trials"),
+    (["metrics", "a.ply", "b.ply", "--points", "-5"], "--points"),
+    (["gen-data", "crossmodal", "--out", "x", "--workers", "-1"], "--workers"),
+    (["bench", "crossmodal", "--seed", "-2"], "--seed"),
+    (["bench", "crossmodal", "--seeds", "two"], "--seeds"),
+])
+def test_a_bad_count_is_refused_with_the_flag_before_any_work(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}:" in err and ("must be >=" in err or "expected an integer" in err)
+
+
+def test_count_type_parses_and_bounds():
+    import argparse
+
+    from vtlearn.cli_args import count
+
+    assert count(0)("0") == 0 and count(1)("7") == 7
+    for bad in ("0", "-3", "1.5", ""):
+        with pytest.raises(argparse.ArgumentTypeError):
+            count(1)(bad)

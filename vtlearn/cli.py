@@ -13,6 +13,7 @@ import logging
 import sys
 
 from vtlearn import __version__
+from vtlearn.cli_args import count
 
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
 COMMAND_MODULES: tuple[str, ...] = (
@@ -111,16 +112,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("a", help="cloud or mesh file")
     p.add_argument("b", help="cloud or mesh file")
-    p.add_argument("--points", type=int, default=2048, help="points sampled from a mesh (default 2048)")
-    p.add_argument("--emd-points", type=int, default=2048, help="subsample size for EMD (default 2048)")
+    p.add_argument("--points", type=count(1), default=2048, help="points sampled from a mesh (default 2048)")
+    p.add_argument("--emd-points", type=count(1), default=2048, help="subsample size for EMD (default 2048)")
     p.set_defaults(func=_cmd_metrics)
 
     p = sub.add_parser("convert", help="convert a cloud between formats, or sample a mesh into a cloud")
     p.add_argument("input")
     p.add_argument("output")
     p.add_argument("--sample", action="store_true", help="treat a .ply input as a mesh and sample it")
-    p.add_argument("--points", type=int, default=2048)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--points", type=count(1), default=2048)
+    p.add_argument("--seed", type=count(0), default=0)
     p.set_defaults(func=_cmd_convert)
 
     bench = sub.add_parser("bench", help="benchmarks: print a table and write JSON")

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 log = logging.getLogger(__name__)
 
@@ -512,10 +513,10 @@ def register(sub) -> None:
     p.add_argument(
         "--categories", default=None, help="comma-separated categories (default wineglass,bottle,mug,can)"
     )
-    p.add_argument("--actor-epochs", type=int, default=None)
-    p.add_argument("--xavtnet-epochs", type=int, default=None)
-    p.add_argument("--n-actions", type=int, default=None, help="active touch/pinch budget (default 20)")
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--actor-epochs", type=count(1), default=None)
+    p.add_argument("--xavtnet-epochs", type=count(1), default=None)
+    p.add_argument("--n-actions", type=count(1), default=None, help="active touch/pinch budget (default 20)")
+    p.add_argument("--seed", type=count(0), default=None)
     p.add_argument(
         "--tiny", action="store_true", help="seconds-scale sizes (smoke test; meaningless quality)"
     )

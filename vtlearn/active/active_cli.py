@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 __all__ = ["register_bench", "run_occupancy_bench"]
 
@@ -362,15 +363,16 @@ def register_bench(sub) -> None:
         "occupancy",
         help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap",
     )
-    p.add_argument("--cells", type=int, default=64, help="cells per grid axis (default 64)")
-    p.add_argument("--actions", type=int, default=500, help="candidate touch actions (default 500)")
+    p.add_argument("--cells", type=count(1), default=64, help="cells per grid axis (default 64)")
+    p.add_argument("--actions", type=count(1), default=500, help="candidate touch actions (default 500)")
     p.add_argument(
-        "--prior-touches", type=int, default=20, help="touches integrated before timing (default 20)"
+        "--prior-touches", type=count(0), default=20, help="touches integrated before timing (default 20)"
     )
-    p.add_argument("--repeats", type=int, default=7)
-    p.add_argument("--loop-actions", type=int, default=50, help="actions timed in the one-at-a-time loop")
+    p.add_argument("--repeats", type=count(1), default=7)
+    p.add_argument("--loop-actions", type=count(1), default=50,
+                   help="actions timed in the one-at-a-time loop")
     p.add_argument("--no-octomap", action="store_true", help="skip the pyoctomap comparison")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/occupancy.json", help="output JSON path")
     p.set_defaults(func=run_occupancy_bench)
 
@@ -382,10 +384,11 @@ def register_bench(sub) -> None:
     p.add_argument(
         "--objects", default="bottle,mug,spray_bottle,wineglass", help="comma-separated sim_data categories"
     )
-    p.add_argument("--seeds", type=int, default=3, help="instances per category (default 3)")
-    p.add_argument("--touches", type=int, default=20, help="touch budget (default 20, as in thesis Fig. 8.7)")
-    p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo NBT candidates per step")
-    p.add_argument("--cells", type=int, default=40, help="grid cells per axis (default 40)")
+    p.add_argument("--seeds", type=count(1), default=3, help="instances per category (default 3)")
+    p.add_argument("--touches", type=count(1), default=20,
+                   help="touch budget (default 20, as in thesis Fig. 8.7)")
+    p.add_argument("--candidates", type=count(1), default=100, help="Monte-Carlo NBT candidates per step")
+    p.add_argument("--cells", type=count(1), default=40, help="grid cells per axis (default 40)")
     p.add_argument("--coverage-radius", type=float, default=0.005, help="metres (default 0.005)")
     p.add_argument(
         "--pinch",

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, wilcoxon_p
+from vtlearn.cli_args import count
 
 THESIS = {
     "active-reconstruction": {
@@ -642,7 +643,7 @@ def _objects_from(args: argparse.Namespace) -> dict:
 
 # ------------------------------------------------------------------------------ registration
 def _common(p, actions_default: int | None = None, extra_gain_modes: tuple[str, ...] = ()) -> None:
-    p.add_argument("--objects-per-category", type=int, default=2)
+    p.add_argument("--objects-per-category", type=count(1), default=2)
     p.add_argument("--strategies", default="active,random,uniform",
                    help="comma-separated: active, random, uniform, random_pinch (random pinches only; "
                         "active-reconstruction)")
@@ -654,18 +655,18 @@ def _common(p, actions_default: int | None = None, extra_gain_modes: tuple[str, 
         + ("; box_fit: expected fit of ACTOR's reconstruction to the known box (beyond the thesis)"
            if "box_fit" in extra_gain_modes else ""),
     )
-    p.add_argument("--candidates", type=int, default=100, help="Monte-Carlo candidates per active step")
-    p.add_argument("--cells", type=int, default=40, help="occupancy grid cells per axis")
-    p.add_argument("--max-input", type=int, default=120, help="network input points (voxel subsampling)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--candidates", type=count(1), default=100, help="Monte-Carlo candidates per active step")
+    p.add_argument("--cells", type=count(1), default=40, help="occupancy grid cells per axis")
+    p.add_argument("--max-input", type=count(1), default=120, help="network input points (voxel subsampling)")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument(
         "--object-seed",
-        type=int,
+        type=count(0),
         default=None,
         help="base seed of the held-out instances (default closed_loop.HELD_OUT_SEED); another value draws "
         "other objects, e.g. to confirm a result on instances it was not tuned on",
     )
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--threads", type=count(1), default=1, help="torch threads")
     p.add_argument("--json", default=None, help="output JSON (PNG beside it)")
 
 
@@ -675,7 +676,7 @@ def register_bench(sub) -> None:
     )
     p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint")
     p.add_argument("--categories", default="wineglass,bottle", help="categories with transparent instances")
-    p.add_argument("--actions", type=int, default=20)
+    p.add_argument("--actions", type=count(1), default=20)
     p.add_argument("--no-pinch", action="store_true", help="touches only")
     _common(p, extra_gain_modes=("box_fit",))
     p.set_defaults(func=run_active_reconstruction)
@@ -689,17 +690,17 @@ def register_bench(sub) -> None:
     )
     p.add_argument("--categories", default=None, help="object categories (default: every class)")
     p.add_argument("--zeta", type=float, default=0.8)
-    p.add_argument("--min-points", type=int, default=10)
-    p.add_argument("--max-actions", type=int, default=30)
+    p.add_argument("--min-points", type=count(1), default=10)
+    p.add_argument("--max-actions", type=count(1), default=30)
     p.add_argument("--recognition-gain", action="store_true",
                    help="add active_recognition: touches by the classifier's expected information "
                         "(vtlearn.active.recognition_nbt; beyond the thesis)")
     p.add_argument("--novelty-gain", action=argparse.BooleanOptionalAction, default=True,
                    help="the row active_novelty: touches by the expected novelty of their contacts on the "
                         "class templates (vtlearn.active.recognition_novelty; beyond the thesis; default on)")
-    p.add_argument("--recognition-top-m", type=int, default=4,
+    p.add_argument("--recognition-top-m", type=count(1), default=4,
                    help="class hypotheses per step (--recognition-gain and --novelty-gain)")
-    p.add_argument("--recognition-templates", type=int, default=1,
+    p.add_argument("--recognition-templates", type=count(1), default=1,
                    help="template shapes per class hypothesis (default 1; the classifier runs top-m x this "
                         "many times per candidate)")
     _common(p)
@@ -709,11 +710,11 @@ def register_bench(sub) -> None:
     p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint")
     p.add_argument("--opaque", default="mug,can", help="opaque categories")
     p.add_argument("--transparent", default="wineglass", help="categories with transparent instances")
-    p.add_argument("--views", type=int, default=3)
-    p.add_argument("--touches-opaque", type=int, default=5)
-    p.add_argument("--touches-transparent", type=int, default=20)
-    p.add_argument("--restarts", type=int, default=4, help="S-TIQF random restarts")
-    p.add_argument("--max-scene", type=int, default=400, help="scene points given to S-TIQF")
+    p.add_argument("--views", type=count(1), default=3)
+    p.add_argument("--touches-opaque", type=count(0), default=5)
+    p.add_argument("--touches-transparent", type=count(0), default=20)
+    p.add_argument("--restarts", type=count(0), default=4, help="S-TIQF random restarts")
+    p.add_argument("--max-scene", type=count(1), default=400, help="scene points given to S-TIQF")
     p.add_argument("--transparent-gain", choices=("box_fit", "grid"), default="box_fit",
                    help="criterion of the probabilistic active row on transparent objects (touch only): "
                         "box_fit (default; vtlearn.active.reconstruction_nbt, beyond the thesis) or grid "
@@ -752,13 +753,13 @@ def register(sub) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--split", default="train", help="source split whose instances are explored")
     p.add_argument("--strategies", default="active,random", help="closed-loop strategies, one episode each")
-    p.add_argument("--touches", type=int, default=20, help="actions per episode")
+    p.add_argument("--touches", type=count(1), default=20, help="actions per episode")
     p.add_argument("--prefixes", default="4,10,20", help="prefix lengths that each give one cloud")
-    p.add_argument("--min-points", type=int, default=10, help="smaller prefixes give no cloud")
-    p.add_argument("--candidates", type=int, default=100, help="candidate touches per active step")
-    p.add_argument("--cells", type=int, default=40, help="occupancy grid cells per axis")
+    p.add_argument("--min-points", type=count(1), default=10, help="smaller prefixes give no cloud")
+    p.add_argument("--candidates", type=count(1), default=100, help="candidate touches per active step")
+    p.add_argument("--cells", type=count(1), default=40, help="occupancy grid cells per axis")
     p.add_argument("--gain-mode", default="probabilistic", help="probabilistic | raycast")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--shard-size", type=int, default=16, help="instances per shard")
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--shard-size", type=count(1), default=16, help="instances per shard")
+    p.add_argument("--workers", type=count(1), default=1)
     p.set_defaults(func=_cmd_gen_episodes)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench"]
 
@@ -100,9 +101,11 @@ def register(subparsers: Any) -> None:
     h.add_argument("--method", default="stiqf", choices=sorted(METHODS),
                    help="registration (default stiqf, global); local methods need --init")
     h.add_argument("--init", default=None, help="nominal T_E_C (.npy (4, 4) or text), start of every view")
-    h.add_argument("--visual-points", type=int, default=1024, help="points sampled from a visual mesh input")
-    h.add_argument("--tactile-points", type=int, default=60, help="points sampled from a tactile mesh input")
-    h.add_argument("--seed", type=int, default=0)
+    h.add_argument("--visual-points", type=count(1), default=1024,
+                   help="points sampled from a visual mesh input")
+    h.add_argument("--tactile-points", type=count(1), default=60,
+                   help="points sampled from a tactile mesh input")
+    h.add_argument("--seed", type=count(0), default=0)
     h.add_argument("--json", action="store_true", help="print the result as JSON")
     h.add_argument("--out", default=None, help="save T_E_C as .npy")
     h.set_defaults(func=_cmd_hand_eye)
@@ -116,10 +119,12 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--estimate-scale", action="store_true", help="S-TIQF: estimate a per-axis scale (eq. 5.12)"
     )
-    p.add_argument("--restarts", type=int, default=0, help="extra random restarts (common wrapper)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--model-points", type=int, default=1024, help="points sampled when the model is a mesh")
-    p.add_argument("--scene-points", type=int, default=120, help="points sampled when the scene is a mesh")
+    p.add_argument("--restarts", type=count(0), default=0, help="extra random restarts (common wrapper)")
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--model-points", type=count(1), default=1024,
+                   help="points sampled when the model is a mesh")
+    p.add_argument("--scene-points", type=count(1), default=120,
+                   help="points sampled when the scene is a mesh")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=_cmd_register)
 
@@ -276,40 +281,41 @@ def register_bench(bench_subparsers: Any) -> None:
     )
     p.add_argument(
         "--trials",
-        type=int,
+        type=count(1),
         default=10,
         help="trials per mesh and scene size (3 meshes x 10 = the thesis's 30)",
     )
     p.add_argument("--sizes", default="20,40,80,120", help="scene sizes, comma separated")
     p.add_argument("--methods", default=None, help="comma-separated subset of methods")
-    p.add_argument("--scale-trials", type=int, default=4, help="trials per mesh of the scale run (0: skip)")
+    p.add_argument("--scale-trials", type=count(0), default=4,
+                   help="trials per mesh of the scale run (0: skip)")
     p.add_argument("--no-time-matched", action="store_true", help="skip ICP restarts matched to S-TIQF time")
     p.add_argument("--no-ablation", action="store_true", help="skip the Table 5.1 ablation")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/registration.json", help="output JSON (.md and .png beside)")
     p.set_defaults(func=_cmd_bench_registration)
 
     p = bench_subparsers.add_parser("hand-eye", help="in-situ hand-eye calibration, S-TIQF vs peers (5.3.4)")
     p.add_argument("--meshes", nargs="+", default=None,
                    help="'bunny', 'shape:CATEGORY[:SEED]' or mesh files (default: bunny + 2 shapes)")
-    p.add_argument("--trials", type=int, default=5, help="trials per mesh")
-    p.add_argument("--views", type=int, default=3, help="camera captures per trial")
-    p.add_argument("--tactile-points", type=int, default=60)
+    p.add_argument("--trials", type=count(1), default=5, help="trials per mesh")
+    p.add_argument("--views", type=count(1), default=3, help="camera captures per trial")
+    p.add_argument("--tactile-points", type=count(1), default=60)
     p.add_argument("--methods", default="stiqf,ransac_fpfh,fgr,tiqf,icp", help="comma-separated methods")
     p.add_argument("--init-trans", type=float, default=0.02, help="nominal calibration error (m)")
     p.add_argument("--init-rot-deg", type=float, default=5.0, help="nominal calibration error (deg)")
     p.add_argument("--full-surface", action="store_true",
                    help="give every view the whole object surface instead of the side facing the camera")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/hand_eye.json", help="output JSON (.png beside)")
     p.set_defaults(func=_cmd_bench_hand_eye)
 
     p = bench_subparsers.add_parser("active-touch", help="active touch look-ahead time and active vs random")
     p.add_argument("--candidates", default="10,100,1000")
     p.add_argument("--faces", default="1000,5000")
-    p.add_argument("--repeats", type=int, default=5, help="timing repeats per configuration")
-    p.add_argument("--trials", type=int, default=10, help="active-vs-random trials")
-    p.add_argument("--touches", type=int, default=25, help="touches per trial")
+    p.add_argument("--repeats", type=count(1), default=5, help="timing repeats per configuration")
+    p.add_argument("--trials", type=count(1), default=10, help="active-vs-random trials")
+    p.add_argument("--touches", type=count(1), default=25, help="touches per trial")
     p.add_argument("--mesh", default="bunny", help="mesh for the active-vs-random curves")
     p.add_argument(
         "--init-rot-deg", type=float, default=30.0, help="initial rotation error bound (thesis 30)"
@@ -317,6 +323,6 @@ def register_bench(bench_subparsers: Any) -> None:
     p.add_argument(
         "--init-trans", type=float, default=0.02, help="initial translation error bound per axis (m)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/active_touch.json", help="output JSON (.png beside)")
     p.set_defaults(func=_cmd_bench_active_touch)

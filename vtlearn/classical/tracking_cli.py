@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from vtlearn.bench_utils import welch_p
+from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench", "run_tracker", "TRACKERS"]
 
@@ -157,7 +158,7 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
     sp.add_argument("--process-std", type=float, nargs=2, default=(0.005, 0.015), metavar=("M", "RAD"))
     sp.add_argument("--visual-std", type=float, default=0.003)
-    sp.add_argument("--max-points", type=int, default=200, help="measurement points per part (0: all)")
+    sp.add_argument("--max-points", type=count(0), default=200, help="measurement points per part (0: all)")
     sp.add_argument("--json", default=None, help="write the per-frame poses here")
     sp.set_defaults(func=_cmd_track)
 
@@ -420,15 +421,16 @@ def register_bench(bench_subparsers: Any) -> None:
     sp.add_argument("--json", default=None, help="write results here")
     sp.add_argument("--plots", default=None, help="directory for the violin and trajectory plots")
     sp.add_argument("--methods", nargs="+", default=list(TRACKERS), choices=list(TRACKERS))
-    sp.add_argument("--trials", type=int, default=10, help="articulated trials per category (thesis: 10)")
-    sp.add_argument("--frames", type=int, default=20, help="frames per articulated trial")
+    sp.add_argument("--trials", type=count(1), default=10,
+                    help="articulated trials per category (thesis: 10)")
+    sp.add_argument("--frames", type=count(1), default=20, help="frames per articulated trial")
     sp.add_argument(
-        "--seq-trials", type=int, default=5, help="sequences per kind (single/multiple/articulated)"
+        "--seq-trials", type=count(1), default=5, help="sequences per kind (single/multiple/articulated)"
     )
-    sp.add_argument("--seq-frames", type=int, default=60, help="frames per sequence (30 Hz)")
+    sp.add_argument("--seq-frames", type=count(1), default=60, help="frames per sequence (30 Hz)")
     # ArtReg's defaults were tuned on seeds 0-2 (articulated) and 5000-5201 (sequences); the default
     # offset keeps the benchmark's scenes disjoint from those
-    sp.add_argument("--seed", type=int, default=100, help="seed offset of the benchmark scenes")
-    sp.add_argument("--width", type=int, default=320)
-    sp.add_argument("--height", type=int, default=240)
+    sp.add_argument("--seed", type=count(0), default=100, help="seed offset of the benchmark scenes")
+    sp.add_argument("--width", type=count(1), default=320)
+    sp.add_argument("--height", type=count(1), default=240)
     sp.set_defaults(func=_cmd_bench)

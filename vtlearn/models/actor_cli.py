@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 log = logging.getLogger(__name__)
 
@@ -426,9 +427,9 @@ def register(subparsers) -> None:
         "stored tactile cloud --index of --split and prints CD to its ground truth in mm",
     )
     p.add_argument("--split", default="test")
-    p.add_argument("--index", type=int, default=0)
+    p.add_argument("--index", type=count(0), default=0)
     p.add_argument(
-        "--max-points", type=int, default=120, help="--data: subsample the tactile cloud to at most this"
+        "--max-points", type=count(1), default=120, help="--data: subsample the tactile cloud to at most this"
     )
     p.add_argument("--out", required=True, help="dense cloud to write")
     p.add_argument("--mesh", help="also write a ball-pivoting mesh (.obj .ply .stl .off)")
@@ -445,7 +446,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--mm-per-unit", type=float, default=1000.0, help="for printing mm (1000: metres)"
     )
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    p.add_argument("--threads", type=count(0), default=0, help="torch CPU threads (0: default)")
     p.set_defaults(func=_cmd_reconstruct)
 
 
@@ -458,10 +459,11 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--recognition-ckpt", help="ACTORRecognition checkpoint (Table 8.1)")
     p.add_argument("--data", required=True, help="`vtlearn gen-data reconstruction` directory")
     p.add_argument("--split", default="test", help="held-out split (default test)")
-    p.add_argument("--min-points", type=int, default=100)
-    p.add_argument("--max-points", type=int, default=120)
-    p.add_argument("--max-clouds", type=int, default=0, help="use only the first N clouds (0: all)")
-    p.add_argument("--per-category", type=int, default=0, help="at most N instances per category (0: all)")
+    p.add_argument("--min-points", type=count(1), default=100)
+    p.add_argument("--max-points", type=count(1), default=120)
+    p.add_argument("--max-clouds", type=count(0), default=0, help="use only the first N clouds (0: all)")
+    p.add_argument("--per-category", type=count(0), default=0,
+                   help="at most N instances per category (0: all)")
     p.add_argument(
         "--input-source",
         choices=["tactile", "voxel"],
@@ -470,7 +472,7 @@ def register_bench(bench_subparsers) -> None:
         "subsampling of the dense cloud (the training distribution)",
     )
     p.add_argument(
-        "--emd-points", type=int, default=1024, help="EMD on this many random points per cloud (0: all)"
+        "--emd-points", type=count(0), default=1024, help="EMD on this many random points per cloud (0: all)"
     )
     p.add_argument(
         "--gpis-normals",
@@ -479,10 +481,10 @@ def register_bench(bench_subparsers) -> None:
         "so GPIS gets exactly ACTOR's input as in thesis 8.3.2; the 40%% target is measured against it) "
         "and 'dense' (row 'GPIS (true normals)': oracle normals of the true surface at each contact)",
     )
-    p.add_argument("--gpis-resolution", type=int, default=32)
+    p.add_argument("--gpis-resolution", type=count(1), default=32)
     p.add_argument("--no-gpis", action="store_true")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--threads", type=count(0), default=0, help="torch CPU threads (0: default)")
     p.add_argument("--json", default="runs/bench/actor.json")
     p.add_argument("--markdown", default="runs/bench/actor.md")
     p.add_argument("--figure", default="runs/bench/actor.png")

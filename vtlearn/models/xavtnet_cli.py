@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, save_figure
+from vtlearn.cli_args import count
 
 log = logging.getLogger(__name__)
 
@@ -1096,7 +1097,7 @@ def register(sub) -> None:
                    help="instead of files: a crossmodal dataset dir; recognises its stored tactile clouds "
                         "--index of --split and prints their true classes")
     p.add_argument("--split", default="test")
-    p.add_argument("--index", type=int, nargs="+", default=[0], help="--data: tactile cloud indices")
+    p.add_argument("--index", type=count(0), nargs="+", default=[0], help="--data: tactile cloud indices")
     p.add_argument("--class-names", default=None,
                    help="a crossmodal manifest.json or a comma list; default: the names in the checkpoint "
                         "(--data: its manifest), else class_0..")
@@ -1109,14 +1110,14 @@ def register(sub) -> None:
                    metavar=("LO_X", "LO_Y", "LO_Z", "HI_X", "HI_Y", "HI_Z"),
                    help="the object's axis-aligned bounding box in metres, instead of --extent-m; needed by "
                         "a checkpoint trained in the object frame (input_normalize none)")
-    p.add_argument("--mc-samples", type=int, default=20,
+    p.add_argument("--mc-samples", type=count(1), default=20,
                    help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
     p.add_argument("--domain", choices=["target", "source"], default="target",
                    help="batch-norm statistics of a domain-BN model: target (tactile) or source (visual)")
     p.add_argument("--zeta", type=float, default=0.8, help="confidence stop of thesis 7.2.4 (default 0.8)")
-    p.add_argument("--top", type=int, default=3, help="classes to print")
-    p.add_argument("--seed", type=int, default=0, help="dropout masks of the MC passes")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    p.add_argument("--top", type=count(1), default=3, help="classes to print")
+    p.add_argument("--seed", type=count(0), default=0, help="dropout masks of the MC passes")
+    p.add_argument("--threads", type=count(0), default=0, help="torch CPU threads (0: default)")
     p.add_argument("--json", default=None, help="write the results as JSON")
     p.add_argument("--figure", default=None, help="PNG: each cloud and its class probabilities")
     p.set_defaults(func=run_recognize)
@@ -1131,9 +1132,9 @@ def register(sub) -> None:
     p.add_argument("--target-data", default=None,
                    help="read the tactile clouds of --split from this dataset instead (e.g. vtlearn "
                         "gen-episodes); --data still gives the test clouds")
-    p.add_argument("--passes", type=int, default=1, help="passes over the clouds (default 1)")
-    p.add_argument("--batch-size", type=int, default=32)
-    p.add_argument("--seed", type=int, default=0, help="order and yaw augmentation of the clouds")
+    p.add_argument("--passes", type=count(1), default=1, help="passes over the clouds (default 1)")
+    p.add_argument("--batch-size", type=count(1), default=32)
+    p.add_argument("--seed", type=count(0), default=0, help="order and yaw augmentation of the clouds")
     p.add_argument("--out", required=True, help="adapted checkpoint (the input is kept)")
     p.set_defaults(func=run_adapt_bn)
 
@@ -1145,21 +1146,21 @@ def register_bench(sub) -> None:
     p.add_argument("--variants", default=",".join(v for v in VARIANTS if not v.endswith(OPT_IN_SUFFIXES)),
                    help=f"comma list of {list(VARIANTS)}, or {ORACLE} (trained on labelled tactile clouds, "
                         "the upper bound); default: the thesis rows and dann")
-    p.add_argument("--seeds", type=int, default=3, help="number of seeds (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="first seed")
-    p.add_argument("--max-epochs", type=int, default=None)
-    p.add_argument("--batch-size", type=int, default=None)
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: the CPU is shared)")
-    p.add_argument("--workers", type=int, default=1,
+    p.add_argument("--seeds", type=count(1), default=3, help="number of seeds (default 3)")
+    p.add_argument("--seed", type=count(0), default=0, help="first seed")
+    p.add_argument("--max-epochs", type=count(1), default=None)
+    p.add_argument("--batch-size", type=count(1), default=None)
+    p.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1: the CPU is shared)")
+    p.add_argument("--workers", type=count(1), default=1,
                    help="(variant, seed) trainings run in parallel, each with --threads threads")
     p.add_argument("--target-split", choices=["train", "test", "train+test"], default=None,
                    help="unlabelled tactile clouds for adaptation: train instances (inductive), the "
                         "test instances themselves (transductive UDA protocol) or both in one stream "
                         "(train+test); default from the config")
-    p.add_argument("--source-points", nargs=2, type=int, default=None, metavar=("N_MIN", "N_MAX"),
+    p.add_argument("--source-points", nargs=2, type=count(1), default=None, metavar=("N_MIN", "N_MAX"),
                    help="thin every visual training cloud to N_MIN..N_MAX points (the tactile density; "
                         "CrossModalDataModule source_points); default from the config: dense")
-    p.add_argument("--source-views", type=int, default=None, metavar="K",
+    p.add_argument("--source-views", type=count(1), default=None, metavar="K",
                    help="fuse K views of the instance into every visual training cloud (CrossModalDataModule "
                         "source_views); default from the config: 1, the single view")
     p.add_argument("--source-touch", action="store_true",
@@ -1213,13 +1214,13 @@ def register_bench(sub) -> None:
                         "batch ∝ score^beta instead of the top kappa)")
     q.add_argument("--power-beta", dest="power_beta", type=float, default=None,
                    help="beta of the power_* strategies (default 1)")
-    q.add_argument("--n0", type=int, default=None, help="initial random labels")
-    q.add_argument("--kappa", type=int, default=None, help="queries per round")
-    q.add_argument("--rounds", type=int, default=None)
-    q.add_argument("--mc-passes", dest="mc_passes", type=int, default=None, help="T of eq. 7.3")
+    q.add_argument("--n0", type=count(1), default=None, help="initial random labels")
+    q.add_argument("--kappa", type=count(1), default=None, help="queries per round")
+    q.add_argument("--rounds", type=count(1), default=None)
+    q.add_argument("--mc-passes", dest="mc_passes", type=count(1), default=None, help="T of eq. 7.3")
     q.add_argument("--warm-start", dest="warm_start", action="store_const", const=True, default=None,
                    help="fine-tune between rounds (default: retrain from scratch)")
-    q.add_argument("--min-steps", dest="min_steps", type=int, default=None,
+    q.add_argument("--min-steps", dest="min_steps", type=count(0), default=None,
                    help="at least this many optimiser steps per training (more epochs on small sets)")
     q.add_argument("--equal-steps", dest="equal_steps", action="store_const", const=True, default=None,
                    help="every training (each round and the full-pool reference) runs the same number of "
@@ -1227,19 +1228,19 @@ def register_bench(sub) -> None:
                         "labelled set, at least --min-steps)")
     q.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu)")
-    q.add_argument("--seeds", type=int, default=2)
-    q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--max-epochs", type=int, default=None)
-    q.add_argument("--batch-size", type=int, default=None)
-    q.add_argument("--threads", type=int, default=1)
-    q.add_argument("--workers", type=int, default=1,
+    q.add_argument("--seeds", type=count(1), default=2)
+    q.add_argument("--seed", type=count(0), default=0)
+    q.add_argument("--max-epochs", type=count(1), default=None)
+    q.add_argument("--batch-size", type=count(1), default=None)
+    q.add_argument("--threads", type=count(1), default=1)
+    q.add_argument("--workers", type=count(1), default=1,
                    help="(strategy, seed) loops and full-pool references run in parallel processes")
     q.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                    help="train nothing: pool the seeds of earlier results made with the same protocol "
                         "(e.g. --seed 0 --seeds 3 and --seed 3 --seeds 3) into one table, plot and JSON; "
                         "files of the same seeds with other strategies (e.g. --strategies bald) are "
                         "joined first")
-    q.add_argument("--n-boot", dest="n_boot", type=int, default=2000,
+    q.add_argument("--n-boot", dest="n_boot", type=count(1), default=2000,
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default="runs/bench/active_learning.png")
     q.add_argument("--json", default="runs/bench/active_learning.json")

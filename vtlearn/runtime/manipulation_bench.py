@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 __all__ = [
     "PUSH_METHODS",
@@ -724,7 +725,7 @@ def register_bench(bench_subparsers: Any) -> None:
         "pushing", help="goal-driven visuo-tactile pushing vs no correction (6.2.4)"
     )
     p.add_argument("--trials", type=_int_at_least_1, default=10, help="trials (object, goal), default 10")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--methods", default=",".join(PUSH_METHODS), help="comma-separated subset of methods")
     p.add_argument(
         "--objects",
@@ -751,6 +752,6 @@ def register_bench(bench_subparsers: Any) -> None:
         help="part poses: the truth plus --noise-mm/--noise-deg, or tracked by ArtReg from a simulated "
         "depth camera (the thesis's loop); default %(default)s",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/articulation.json", help="output JSON")
     p.set_defaults(func=_cmd_bench_articulation)

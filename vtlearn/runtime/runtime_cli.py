@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench"]
 
@@ -294,13 +295,15 @@ def register_bench(bench_subparsers) -> None:
     p = bench_subparsers.add_parser(
         "declutter", help="the declutter graph against nearest-first and random orders on the same scenes"
     )
-    p.add_argument("--scenes", type=int, default=10, help="cluttered scenes (default %(default)s)")
-    p.add_argument("--clutter", type=int, default=4, help="clutter objects per scene (default %(default)s)")
+    p.add_argument("--scenes", type=count(1), default=10, help="cluttered scenes (default %(default)s)")
+    p.add_argument("--clutter", type=count(0), default=4,
+                   help="clutter objects per scene (default %(default)s)")
     p.add_argument(
         "--policies", default="graph,nearest,random", help="declutter policies (default %(default)s)"
     )
-    p.add_argument("--max-actions", type=int, default=10, help="action limit per scene (default %(default)s)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-actions", type=count(1), default=10,
+                   help="action limit per scene (default %(default)s)")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/declutter.json", help="output JSON")
     p.set_defaults(func=_cmd_bench_declutter)
 
@@ -308,15 +311,15 @@ def register_bench(bench_subparsers) -> None:
         "runtime", help="the two-arm runtime on cluttered scenes: success rate, CD, recognition, ADI"
     )
     _add_model_args(p)
-    p.add_argument("--scenes", type=int, default=4, help="cluttered scenes (default %(default)s)")
+    p.add_argument("--scenes", type=count(1), default=4, help="cluttered scenes (default %(default)s)")
     p.add_argument(
         "--strategies", default="active,random", help="exploration strategies (default %(default)s)"
     )
-    p.add_argument("--n-touches", type=int, default=20, help="touch budget (default %(default)s)")
+    p.add_argument("--n-touches", type=count(1), default=20, help="touch budget (default %(default)s)")
     p.add_argument(
-        "--n-candidates", type=int, default=40, help="candidates per active step (default %(default)s)"
+        "--n-candidates", type=count(1), default=40, help="candidates per active step (default %(default)s)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/runtime.json", help="output JSON (figure beside it)")
     p.set_defaults(func=_cmd_bench_runtime)
 
@@ -337,7 +340,7 @@ def register(sub) -> None:
     p.add_argument(
         "--clutter", default="can,box,bowl", help="comma-separated clutter categories (default %(default)s)"
     )
-    p.add_argument("--n-touches", type=int, default=20, help="touch budget (default %(default)s)")
+    p.add_argument("--n-touches", type=count(1), default=20, help="touch budget (default %(default)s)")
     p.add_argument(
         "--strategy",
         choices=("active", "random", "uniform"),
@@ -345,14 +348,14 @@ def register(sub) -> None:
         help="exploration strategy (default %(default)s; docs/runtime.md compares them)",
     )
     p.add_argument(
-        "--max-declutter", type=int, default=8, help="declutter action limit (default %(default)s)"
+        "--max-declutter", type=count(0), default=8, help="declutter action limit (default %(default)s)"
     )
     p.add_argument(
         "--n-candidates",
-        type=int,
+        type=count(1),
         default=40,
         help="IK-checked candidates per active step (default %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--out", default="runs/runtime", help="output directory (default %(default)s)")
     p.set_defaults(func=_cmd_runtime)

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from vtlearn.bench_utils import csv_list
+from vtlearn.cli_args import count
 
 
 def _cmd_gen_shapes(args: argparse.Namespace) -> int:
@@ -64,36 +65,37 @@ def register(sub) -> None:
     p.add_argument(
         "--categories", type=csv_list, default=list(CATEGORIES), help="comma-separated (default: all 12)"
     )
-    p.add_argument("--per-category", type=int, default=10)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sections", type=int, default=48, help="angular resolution of revolved parts")
+    p.add_argument("--per-category", type=count(1), default=10)
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--sections", type=count(1), default=48, help="angular resolution of revolved parts")
     p.set_defaults(func=_cmd_gen_shapes)
 
     p = sub.add_parser("gen-data", help="sharded synthetic datasets (reconstruction | crossmodal)")
     p.add_argument("kind", choices=["reconstruction", "crossmodal"])
     p.add_argument("--out", required=True)
     p.add_argument("--categories", type=csv_list, default=list(CATEGORIES))
-    p.add_argument("--per-category", type=int, default=10)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--per-category", type=count(1), default=10)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument(
         "--splits",
         type=lambda s: [float(x) for x in s.split(",")],
         default=[0.7, 0.15, 0.15],
         help="train,val,test instance fractions",
     )
-    p.add_argument("--shard-size", type=int, default=16, help="instances per shard")
-    p.add_argument("--sections", type=int, default=48)
+    p.add_argument("--shard-size", type=count(1), default=16, help="instances per shard")
+    p.add_argument("--sections", type=count(1), default=48)
     p.add_argument(
         "--sensor", default="xela_4x4", help="xela_4x4 | xela_6x4 | xela_6x1 | contactile_3x3 | RxC@Pmm"
     )
-    p.add_argument("--touches", type=int, default=40, help="reconstruction: touches per instance")
-    p.add_argument("--pinches", type=int, default=10, help="reconstruction: pinches per instance")
+    p.add_argument("--touches", type=count(1), default=40, help="reconstruction: touches per instance")
+    p.add_argument("--pinches", type=count(0), default=10, help="reconstruction: pinches per instance")
     p.add_argument("--position-noise", type=float, default=0.0, help="tactile position noise std (m)")
     p.add_argument("--dropout", type=float, default=0.0, help="taxel dropout probability")
-    p.add_argument("--views", type=int, default=4, help="crossmodal: visual clouds per instance")
-    p.add_argument("--tactile-clouds", type=int, default=4, help="crossmodal: tactile clouds per instance")
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--height", type=int, default=240)
+    p.add_argument("--views", type=count(1), default=4, help="crossmodal: visual clouds per instance")
+    p.add_argument("--tactile-clouds", type=count(1), default=4,
+                   help="crossmodal: tactile clouds per instance")
+    p.add_argument("--width", type=count(1), default=320)
+    p.add_argument("--height", type=count(1), default=240)
     p.add_argument("--no-depth-noise", action="store_true")
     p.add_argument("--visual-crop-margin", type=float, default=0.05,
                    help="crossmodal: keep visual points inside the object's box grown by this fraction")
@@ -105,21 +107,21 @@ def register(sub) -> None:
         help="use real meshes instead of procedural ones: a ShapeNetCore v2, ModelNet40 or "
         "category-per-folder directory, or 'pybullet_data'",
     )
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--workers", type=count(1), default=1)
     p.set_defaults(func=_cmd_gen_data)
 
     p = sub.add_parser("preview", help="PNG grid per category: mesh, dense, tactile and visual clouds")
     p.add_argument("dataset", help="a gen-data directory")
     p.add_argument("--out", default=None, help="PNG path (default DATASET/preview.png)")
-    p.add_argument("--max-categories", type=int, default=12)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-categories", type=count(1), default=12)
+    p.add_argument("--seed", type=count(0), default=0)
     p.set_defaults(func=_cmd_preview)
 
 
 def register_bench(sub) -> None:
     p = sub.add_parser("sim", help="touches/s, camera frame->cloud ms, shapes/s")
     p.add_argument("--json", default="runs/bench/sim.json")
-    p.add_argument("--touches", type=int, default=2000)
-    p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--shapes", type=int, default=48)
+    p.add_argument("--touches", type=count(1), default=2000)
+    p.add_argument("--frames", type=count(1), default=30)
+    p.add_argument("--shapes", type=count(1), default=48)
     p.set_defaults(func=lambda a: __import__("vtlearn.sim_data.bench", fromlist=["run"]).run(a))
