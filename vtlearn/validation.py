@@ -10,7 +10,16 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["as_points", "as_transform", "check_class_scores", "check_not_collinear", "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_points", "as_transform", "check_class_scores", "check_not_collinear",
+           "to_numpy"]
+
+
+class ConfigMismatchError(ValueError):
+    """The model and the datamodule of one run disagree (class count, class names, input normalisation).
+
+    Raised from a LightningModule's ``setup``, where the two first meet; ``train.py`` reports it as one line
+    that names the argument, like an argument it could not instantiate.
+    """
 
 
 def to_numpy(x: Any, dtype=np.float64) -> np.ndarray:

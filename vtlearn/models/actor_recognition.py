@@ -24,6 +24,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 
 from vtlearn.models.actor import _masked_centre, _plain_hparams, load_actor, read_lightning_checkpoint
 from vtlearn.models.components.actor_encoder import ActorEncoder
+from vtlearn.validation import ConfigMismatchError
 
 __all__ = ["ACTORRecognition", "load_recognition", "random_rotation_matrices"]
 
@@ -150,7 +151,8 @@ class ACTORRecognition(L.LightningModule):
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         n = getattr(dm, "num_classes", None)
         if n is not None and int(n) != self.hparams.num_classes:
-            raise ValueError(f"num_classes: model has {self.hparams.num_classes}, datamodule has {n}")
+            raise ConfigMismatchError(
+                f"num_classes: model has {self.hparams.num_classes}, datamodule has {n}")
 
     def _class_names(self) -> list[str]:
         if self.hparams.class_names:

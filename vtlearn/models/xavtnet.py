@@ -127,6 +127,7 @@ from vtlearn.models.components.xavtnet_backbone import (
     XAVTNetOutput,
     check_cloud_batch,
 )
+from vtlearn.validation import ConfigMismatchError
 
 __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 
@@ -615,7 +616,7 @@ class XAVTNet(L.LightningModule):
             if self.hparams.input_normalize is None:
                 self.hparams.input_normalize = str(mode)
             elif self.hparams.input_normalize != mode:
-                raise ValueError(
+                raise ConfigMismatchError(
                     f"input_normalize: the model's {self.hparams.input_normalize!r} differs from the "
                     f"datamodule's normalize={mode!r}; set them alike (or leave input_normalize unset)"
                 )
@@ -624,14 +625,14 @@ class XAVTNet(L.LightningModule):
             return
         names = [str(n) for n in names]
         if len(names) != self.hparams.num_classes:
-            raise ValueError(
+            raise ConfigMismatchError(
                 f"datamodule: {len(names)} classes {names}, "
                 f"the model has num_classes={self.hparams.num_classes}"
             )
         if self.hparams.class_names is None:
             self.hparams.class_names = names
         elif list(self.hparams.class_names) != names:
-            raise ValueError(
+            raise ConfigMismatchError(
                 f"class_names: the model's {list(self.hparams.class_names)} "
                 f"differ from the datamodule's {names}"
             )
