@@ -127,3 +127,18 @@ def test_recognition_config(kind, tiny_data, tmp_path, monkeypatch):
     from vtlearn.models.actor_recognition import load_recognition
 
     assert load_recognition(rec_dir / "checkpoints/last.ckpt").hparams.num_classes == 3
+
+
+def test_thesis_config_logs_csv_and_honours_wandb_disabled(tiny_data, tmp_path, monkeypatch):
+    """configs/actor.yaml logs to wandb and CSV together; with WANDB_MODE=disabled no wandb run is written
+    (Lightning's offline flag used to overwrite the mode with "dryrun") and the CSV metrics still are."""
+    from train import cli_main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WANDB_MODE", "disabled")
+    cli_main(["fit", f"--config={ROOT / 'configs/actor.yaml'}", "--trainer.max_epochs=1",
+              "--data.init_args.num_workers=0", "--trainer.accelerator=cpu", *_common(tiny_data), *TINY_ARGS])
+    assert os.environ["WANDB_MODE"] == "disabled"
+    assert list((tmp_path / "runs/actor/csv").rglob("metrics.csv"))
+    assert not (tmp_path / "runs/actor/wandb").exists()
+    assert (tmp_path / "runs/actor/checkpoints/last.ckpt").is_file()
