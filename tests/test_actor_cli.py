@@ -153,13 +153,10 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
             "12",
             "--json",
             str(out / "a.json"),
-            "--markdown",
-            str(out / "a.md"),
-            "--figure",
-            str(out / "a.png"),
         ]
     )
     assert rc == 0
+    assert (out / "a.md").is_file() and (out / "a.png").is_file()  # the table and figure beside the JSON
     res = json.loads((out / "a.json").read_text())
     methods = {r["method"] for r in res["summary"] if r["group"] == "all"}
     assert {"ACTOR", "ACTOR (no attention)", "GPIS", "GPIS (true normals)"} <= methods

@@ -83,13 +83,24 @@ def test_data_kwargs_override_and_missing_dataset():
         _data_kwargs({"data": {"batch_size": 8}}, None)
 
 
+def test_load_config_names_the_flag_for_a_missing_or_broken_file(tmp_path):
+    with pytest.raises(ValueError, match="--config: no such file"):
+        load_config(str(tmp_path / "nope.yaml"))
+    (tmp_path / "bad.yaml").write_text("model: [unclosed\n")
+    with pytest.raises(ValueError, match="--config: .* is not valid YAML"):
+        load_config(str(tmp_path / "bad.yaml"))
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    with pytest.raises(ValueError, match="--config: .* is not a YAML mapping"):
+        load_config(str(tmp_path / "list.yaml"))
+
+
 def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 
     cfg = _tiny_config(tmp_path, tiny_crossmodal)
     out = tmp_path / "cm.json"
     rc = main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
-               "--json", str(out), "--out-dir", str(tmp_path / "fig")])
+               "--json", str(out)])  # the figures go beside the JSON, in cm/
     assert rc == 0
     res = json.loads(out.read_text())
     assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
@@ -97,6 +108,7 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert "vtloss_minus_noda" in res["checks"]
     assert (res["accelerator"], res["workers"]) == ("cpu", 1)
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
+    assert Path(res["figures"]["tsne"]).parent == tmp_path / "cm"
     assert "Table 7.2/7.4 analogue" in capsys.readouterr().out
     # the same jobs in two spawned worker processes give the same runs, in the same order
     out2 = tmp_path / "cm2.json"
@@ -107,8 +119,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     key = [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"]) for r in res["runs"]]
     assert key == [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"])
                    for r in res2["runs"]]
-    assert main(["bench", "crossmodal", "--config", str(cfg), "--workers", "0", "--json", str(out2)]) == 2
-    assert "--workers: need >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # refused by argparse, before any training
+        main(["bench", "crossmodal", "--config", str(cfg), "--workers", "0", "--json", str(out2)])
+    assert exc.value.code == 2 and "argument --workers: must be >= 1" in capsys.readouterr().err
     # the train-on-target upper bound is a variant of its own, scored like the others
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "tactile_oracle", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0
@@ -154,9 +167,10 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
                  "--source-points", "20", "10", "--no-figures", "--json", str(out2)]) == 2
     assert "source_points" in capsys.readouterr().err
-    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
-                 "--source-views", "0", "--no-figures", "--json", str(out2)]) == 2
-    assert "source_views" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+              "--source-views", "0", "--no-figures", "--json", str(out2)])
+    assert exc.value.code == 2 and "argument --source-views: must be >= 1" in capsys.readouterr().err
     # --adabn scores every row a second time with target statistics; the *_dbn rows train with them; a
     # teacher row is scored as its teacher too (on a copy, so AdaBN's conversion does not stop it)
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants",
@@ -259,7 +273,8 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
     # equal-budget protocol: every training runs max_epochs over the whole pool, whatever its labels
     out3 = tmp_path / "al3.json"
     assert main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--equal-steps",
-                 "--json", str(out3), "--plot", str(tmp_path / "al3.png")]) == 0
+                 "--json", str(out3)]) == 0
+    assert (tmp_path / "al3.png").is_file()  # the plot goes beside the JSON unless --plot names it
     res3 = json.loads(out3.read_text())
     assert res3["train_steps"] == res3["max_epochs"] * math.ceil(res3["pool_size"] / 4)
     # --merge pools the seeds of runs with the same protocol, and refuses anything else
@@ -415,9 +430,10 @@ def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_cr
     assert "--ckpt" in capsys.readouterr().err
     assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--out", str(ckpt)]) == 2
     assert "--out" in capsys.readouterr().err
-    assert main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--passes", "0",
-                 "--out", str(out)]) == 2
-    assert "--passes" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["adapt-bn", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--passes", "0",
+              "--out", str(out)])
+    assert exc.value.code == 2 and "argument --passes: must be >= 1" in capsys.readouterr().err
     other = tmp_path / "other.ckpt"  # a Lightning checkpoint of another model
     torch.save({"state_dict": {"decoder.w": torch.zeros(2)}, "hyper_parameters": {}}, other)
     assert main(["adapt-bn", "--ckpt", str(other), "--data", str(tiny_crossmodal), "--out", str(out)]) == 2
@@ -601,3 +617,34 @@ def test_adabn_score_converts_the_model_and_keeps_the_random_state(tiny_crossmod
     with torch.random.fork_rng():  # the same steps by hand, from the same random state
         twin.adapt_bn_statistics(dm.target_dataloader())
         assert acc == pytest.approx(100 * _test_acc(trainer, twin, dm.test_dataloader()))
+
+
+def test_train_py_reports_a_bad_config_in_one_line(tmp_path, tiny_crossmodal, capsys, monkeypatch):
+    """A dataset directory without a manifest, or a model whose class count differs from the dataset's, ends
+    train.py with exit code 2 and one line naming the argument, not a traceback through jsonargparse."""
+    monkeypatch.syspath_prepend(str(ROOT))
+    monkeypatch.chdir(tmp_path)
+    from train import _reason, main
+
+    def config(data_dir, num_classes):
+        path = tmp_path / "cfg.yaml"
+        path.write_text(yaml.safe_dump({
+            "model": {"class_path": "vtlearn.models.xavtnet.XAVTNet",
+                      "init_args": {"num_classes": num_classes, "global_dim": 32, "fc_dims": [16, 8]}},
+            "data": {"class_path": "vtlearn.datamodules.CrossModalDataModule",
+                     "init_args": {"data_dir": str(data_dir), "batch_size": 4}},
+            "trainer": {"max_epochs": 1, "logger": False, "enable_checkpointing": False}}))
+        return f"--config={path}"
+
+    assert main(["fit", config(tmp_path / "no_dataset_here", 3)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("train.py: error: data_dir: no manifest.json in")
+    assert not any("Traceback" in line for line in err)
+    assert main(["fit", config(tiny_crossmodal, 7)]) == 2
+    err = capsys.readouterr().err
+    assert "train.py: error: datamodule:" in err and "num_classes=7" in err and "Traceback" not in err
+    # the jsonargparse union report keeps the vtlearn alternative's line only
+    text = ("Does not validate against any of the Union subtypes\nSubtypes: [...]\nErrors:\n"
+            "  - data_dir: missing\n  - Expected a <class 'NoneType'>\nGiven value: ...")
+    assert _reason(ValueError(text)) == "data_dir: missing"
+    assert _reason(ValueError("plain")) == "plain"

@@ -216,6 +216,9 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     from vtlearn.models.actor import load_actor, reconstruct
     from vtlearn.models.gpis import gpis_reconstruct
 
+    for name, suffix in (("markdown", ".md"), ("figure", ".png")):  # beside the JSON unless given
+        if getattr(args, name) is None:
+            setattr(args, name, str(Path(args.json).with_suffix(suffix)))
     if args.threads:
         torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
@@ -486,6 +489,7 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--threads", type=count(0), default=0, help="torch CPU threads (0: default)")
     p.add_argument("--json", default="runs/bench/actor.json")
-    p.add_argument("--markdown", default="runs/bench/actor.md")
-    p.add_argument("--figure", default="runs/bench/actor.png")
+    p.add_argument("--markdown", default=None,
+                   help="Markdown table (default: beside --json, .md; '' for none)")
+    p.add_argument("--figure", default=None, help="PNG figure (default: beside --json, .png; '' for none)")
     p.set_defaults(func=_cmd_bench_actor)

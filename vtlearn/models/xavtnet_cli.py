@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import time
 from pathlib import Path
 
@@ -151,10 +152,15 @@ def load_config(path: str | None) -> dict:
         return {"model": {}, "data": {}, "trainer": {}, "active": {}}
     import yaml
 
+    if not os.path.isfile(path):
+        raise ValueError(f"--config: no such file: {path}")
     with open(path) as f:
-        raw = yaml.safe_load(f) or {}
+        try:
+            raw = yaml.safe_load(f) or {}
+        except yaml.YAMLError as exc:
+            raise ValueError(f"--config: {path} is not valid YAML ({exc})") from None
     if not isinstance(raw, dict):
-        raise ValueError(f"config: {path} is not a YAML mapping")
+        raise ValueError(f"--config: {path} is not a YAML mapping")
 
     def init_args(section):
         sec = raw.get(section) or {}
@@ -506,7 +512,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if unknown:
         raise ValueError(f"--variants: unknown {unknown}; choose from {[*VARIANTS, ORACLE]}")
     seeds = list(range(args.seed, args.seed + args.seeds))
-    out_dir = Path(args.out_dir)
+    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
     base = {k: v for k, v in cfg["model"].items() if k not in VARIANTS["vtloss"] and k != "num_classes"}
 
     jobs = [(v, s) for v in variants for s in seeds]
@@ -901,7 +907,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                     ["strategy", "mean_diff", "ahead", "wilcoxon_p"],
                     "Paired against random over seeds and query rounds (accuracy points)")
     ratio = ratios.get("entropy")
-    plot = Path(args.plot)
+    plot = Path(args.plot) if args.plot else Path(args.json).with_suffix(".png")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1110,7 +1116,7 @@ def register(sub) -> None:
                    metavar=("LO_X", "LO_Y", "LO_Z", "HI_X", "HI_Y", "HI_Z"),
                    help="the object's axis-aligned bounding box in metres, instead of --extent-m; needed by "
                         "a checkpoint trained in the object frame (input_normalize none)")
-    p.add_argument("--mc-samples", type=count(1), default=20,
+    p.add_argument("--mc-samples", type=count(0), default=20,
                    help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
     p.add_argument("--domain", choices=["target", "source"], default="target",
                    help="batch-norm statistics of a domain-BN model: target (tactile) or source (visual)")
@@ -1200,7 +1206,8 @@ def register_bench(sub) -> None:
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
     p.add_argument("--no-figures", action="store_true", help="skip the confusion matrix and t-SNE figures")
-    p.add_argument("--out-dir", default="runs/bench/crossmodal", help="figure folder")
+    p.add_argument("--out-dir", default=None,
+                   help="figure folder (default: beside --json, named after it without .json)")
     p.add_argument("--json", default="runs/bench/crossmodal.json")
     p.set_defaults(func=run_crossmodal_bench)
 
@@ -1242,6 +1249,6 @@ def register_bench(sub) -> None:
                         "joined first")
     q.add_argument("--n-boot", dest="n_boot", type=count(1), default=2000,
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
-    q.add_argument("--plot", default="runs/bench/active_learning.png")
+    q.add_argument("--plot", default=None, help="PNG of accuracy against labels (default: beside --json)")
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
