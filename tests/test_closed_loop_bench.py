@@ -174,6 +174,9 @@ def test_bench_bad_input(ckpts, tmp_path, capsys):
     assert "categories" in capsys.readouterr().err
     assert main(["bench", "active-reconstruction", "--ckpt", ckpts["xavtnet"]]) == 2  # not an ACTOR
     assert "ckpt" in capsys.readouterr().err
+    assert main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--max-actions", "3"]) == 2
+    assert "--max-actions: need >= 10 (the table reads the accuracy at 10 actions), got 3" in (
+        capsys.readouterr().err)
     for flag in ("--recognition-top-m", "--recognition-templates"):  # refused by argparse, with the flag
         with pytest.raises(SystemExit) as exc:
             main(["bench", "active-recognition", "--ckpt", ckpts["xavtnet"], "--recognition-gain", flag, "0"])

@@ -141,3 +141,17 @@ def test_train_on_tactile_trains_on_labelled_touches_and_adds_episode_clouds(cro
     trainer.fit(model, datamodule=both)
     # the single-stream branch of training_step: cross-entropy only, no domain terms
     assert "train/ce" in trainer.callback_metrics and "train/mmd" not in trainer.callback_metrics
+
+
+def test_gen_episodes_default_prefixes_fit_the_touch_budget():
+    """`vtlearn gen-episodes --touches 4` used to fail on its own default prefixes 4,10,20; unset, they are
+    cut to the budget, and given ones are parsed as given (the config checks them against the budget)."""
+    from vtlearn.active.experiments_cli import _episode_prefixes
+
+    assert _episode_prefixes(None, 20) == [4, 10, 20]
+    assert _episode_prefixes(None, 12) == [4, 10]
+    assert _episode_prefixes(None, 4) == [4]
+    assert _episode_prefixes(None, 3) == [3]
+    assert _episode_prefixes("2,6", 4) == [2, 6]
+    with pytest.raises(ValueError, match="--prefixes"):
+        _episode_prefixes("2,x", 4)

@@ -265,10 +265,11 @@ def run_active_recognition(args: argparse.Namespace) -> int:
     _setup(args)
     if not 0 < args.zeta <= 1:
         raise ValueError(f"zeta: need a confidence in (0, 1], got {args.zeta}")
-    if args.min_points < 1 or args.max_actions < 10:
-        raise ValueError(
-            f"min-points, max-actions: need >= 1 and >= 10, got {args.min_points}, {args.max_actions}"
-        )
+    if args.min_points < 1:
+        raise ValueError(f"--min-points: need >= 1, got {args.min_points}")
+    if args.max_actions < 10:
+        raise ValueError(f"--max-actions: need >= 10 (the table reads the accuracy at 10 actions), "
+                         f"got {args.max_actions}")
     model = load_xavtnet(args.ckpt)
     class_names = _class_names(args, int(model.hparams.num_classes))
     cats = csv_list(args.categories) if args.categories else class_names
@@ -723,12 +724,23 @@ def register_bench(sub) -> None:
     p.set_defaults(func=run_shared_exploration)
 
 
+def _episode_prefixes(text: str | None, touches: int) -> list[int]:
+    """``--prefixes`` as integers; unset, the default 4, 10, 20 cut to those within ``--touches`` (and
+    ``--touches`` itself when none is). Given prefixes are kept as given, for the config to check."""
+    if text is None:
+        return [k for k in (4, 10, 20) if k <= touches] or [touches]
+    try:
+        return [int(k) for k in csv_list(text)]
+    except ValueError:
+        raise ValueError(f"--prefixes: need comma-separated integers, got {text!r}") from None
+
+
 def _cmd_gen_episodes(args: argparse.Namespace) -> int:
     from vtlearn.active.episode_data import EpisodeDataConfig, generate_episode_dataset
 
     cfg = EpisodeDataConfig(
         source=args.source, split=args.split, strategies=csv_list(args.strategies), touches=args.touches,
-        prefixes=[int(k) for k in csv_list(args.prefixes)], min_points=args.min_points,
+        prefixes=_episode_prefixes(args.prefixes, args.touches), min_points=args.min_points,
         n_candidates=args.candidates, cells=args.cells, gain_mode=args.gain_mode, seed=args.seed,
         shard_size=args.shard_size,
     )
@@ -754,7 +766,8 @@ def register(sub) -> None:
     p.add_argument("--split", default="train", help="source split whose instances are explored")
     p.add_argument("--strategies", default="active,random", help="closed-loop strategies, one episode each")
     p.add_argument("--touches", type=count(1), default=20, help="actions per episode")
-    p.add_argument("--prefixes", default="4,10,20", help="prefix lengths that each give one cloud")
+    p.add_argument("--prefixes", default=None,
+                   help="prefix lengths that each give one cloud (default 4,10,20, those <= --touches)")
     p.add_argument("--min-points", type=count(1), default=10, help="smaller prefixes give no cloud")
     p.add_argument("--candidates", type=count(1), default=100, help="candidate touches per active step")
     p.add_argument("--cells", type=count(1), default=40, help="occupancy grid cells per axis")
