@@ -68,7 +68,7 @@ def test_motion_sequence_multiple_with_tactile_and_artreg_tracks_it():
     assert err.mean() < 0.02  # the thesis' 2 cm bound
 
 
-def test_track_cli_round_trip(tmp_path):
+def test_track_cli_round_trip(tmp_path, capsys):
     from vtlearn.cli import main
     from vtlearn.io import write_cloud
 
@@ -87,3 +87,6 @@ def test_track_cli_round_trip(tmp_path):
     assert res["n_frames"] == 5 and len(res["frames"]) == 5
     T_last = np.array(res["frames"][-1]["T_world_object"][0])
     assert abs(T_last[0, 3] - 0.008) < 0.002
+    assert main(["track", "--models", str(tmp_path / "model.ply"), "--frames", str(frames),
+                 "--max-points", "2", "--json", str(out)]) == 2
+    assert "--max-points: need 0 (all points) or >= 3 per part, got 2" in capsys.readouterr().err

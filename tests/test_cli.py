@@ -149,3 +149,10 @@ def test_count_type_parses_and_bounds():
     for bad in ("0", "-3", "1.5", ""):
         with pytest.raises(argparse.ArgumentTypeError):
             count(1)(bad)
+
+
+def test_lightning_info_lines_are_printed_once():  # a fresh interpreter importing lightning: ~5 s
+    code = ("import logging; from vtlearn.cli import main; main(['info']); import lightning.pytorch; "
+            "logging.getLogger('lightning.pytorch.utilities.rank_zero').info('once-only-marker')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert (out.stdout + out.stderr).count("once-only-marker") == 1

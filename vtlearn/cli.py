@@ -143,6 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )
+    # Lightning prints its INFO lines through its own handler on the "lightning" logger; passed on to the root
+    # handler as well, each was printed twice
+    logging.getLogger("lightning").propagate = False
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2

@@ -81,6 +81,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
     from vtlearn.io import read_cloud
 
+    if 0 < args.max_points < 3:
+        raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
     models = [read_cloud(m) for m in args.models]
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
