@@ -172,7 +172,15 @@ def test_bench_actor_tiny(ckpts, tiny_data, tmp_path, capsys):
     assert np.array(res["recognition"]["confusion"]).sum() == 2
     assert (out / "a.md").read_text().count("|") > 10
     assert (out / "a.png").is_file() and (out / "a_confusion.png").is_file()
-    assert "targets:" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "targets:" in printed and "GPIS failures: " in printed
+    # without GPIS there are no GPIS failures to report
+    assert main(["bench", "actor", "--ckpt", ckpts["actor"], "--data", str(data), "--max-clouds", "1",
+                 "--min-points", "20", "--max-points", "40", "--emd-points", "64", "--no-gpis",
+                 "--json", str(out / "b.json")]) == 0
+    printed = capsys.readouterr().out
+    assert "targets:" in printed and "GPIS failures" not in printed
+    assert "GPIS failures" not in (out / "b.md").read_text()
 
 
 def test_gpis_variants_parse_and_reject_unknown():

@@ -156,3 +156,23 @@ def test_lightning_info_lines_are_printed_once():  # a fresh interpreter importi
             "logging.getLogger('lightning.pytorch.utilities.rank_zero').info('once-only-marker')")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert (out.stdout + out.stderr).count("once-only-marker") == 1
+
+
+def test_info_lists_each_package_once_and_reports_one_that_does_not_import(capsys, monkeypatch):
+    import importlib
+
+    real = importlib.import_module
+
+    def fake(name, *a, **k):  # Open3D installed but missing the system's libusb
+        if name == "open3d":
+            raise OSError("libusb-1.0.so.0: cannot open shared object file")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(importlib, "import_module", fake)
+    assert main(["info"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    wanted = {"numpy", "lightning", "open3d", "pybullet", "pytorch-kinematics", "wandb"}
+    assert wanted <= set(info["packages"])
+    assert all(isinstance(v, str) for k, v in info["packages"].items() if k != "scikit-learn")
+    assert not {"numpy", "open3d", "pybullet"} & set(info)  # versions live under "packages" only
+    assert list(info["import_errors"]) == ["open3d"] and "libusb" in info["import_errors"]["open3d"]

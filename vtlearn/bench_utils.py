@@ -111,9 +111,10 @@ RECORDED_PACKAGES = ("numpy", "scipy", "lightning", "torch_geometric", "trimesh"
                      "scikit-learn")
 
 
-def machine_info() -> dict:
+def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
     """What a benchmark ran on: CPU count, Python, torch, threads, and the versions of
-    :data:`RECORDED_PACKAGES` (``None`` for one that is not installed)."""
+    :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names; ``None`` for one that is not
+    installed)."""
     import os
     from importlib import metadata
 
@@ -131,7 +132,7 @@ def machine_info() -> dict:
         "cpu_count": os.cpu_count(),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
-        "packages": {name: version(name) for name in RECORDED_PACKAGES},
+        "packages": {name: version(name) for name in (*RECORDED_PACKAGES, *extra_packages)},
     }
 
 

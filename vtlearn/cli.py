@@ -29,27 +29,29 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+# distribution name -> module, for the packages `vtlearn info` also tries to import
+INFO_IMPORTS = {"numpy": "numpy", "scipy": "scipy", "lightning": "lightning",
+                "torch_geometric": "torch_geometric", "open3d": "open3d", "trimesh": "trimesh",
+                "pybullet": "pybullet", "pytorch-kinematics": "pytorch_kinematics", "wandb": "wandb"}
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
+    """Versions (``packages``, from the installed distributions) and, under ``import_errors``, any package
+    that is installed but does not import, e.g. Open3D without the system's libusb."""
     import json
 
     from vtlearn.bench_utils import machine_info
 
-    info = machine_info()
-    for mod in (
-        "numpy",
-        "scipy",
-        "lightning",
-        "torch_geometric",
-        "open3d",
-        "trimesh",
-        "pybullet",
-        "pytorch_kinematics",
-        "wandb",
-    ):
+    info = machine_info(extra_packages=("pytorch-kinematics", "wandb"))
+    errors = {}
+    for dist, mod in INFO_IMPORTS.items():
+        if info["packages"].get(dist) is None:
+            continue
         try:
-            info[mod] = getattr(importlib.import_module(mod), "__version__", "installed")
+            importlib.import_module(mod)
         except Exception as exc:  # noqa: BLE001 - report, never crash, an info command
-            info[mod] = f"unavailable ({type(exc).__name__})"
+            errors[dist] = f"{type(exc).__name__}: {exc}"
+    info["import_errors"] = errors
     info["vtlearn"] = __version__
     print(json.dumps(info, indent=2))
     return 0

@@ -377,7 +377,9 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
             print(f"wrote {cpath}")
 
     ttext = ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in targets.items())
-    print(f"targets: {ttext}; GPIS failures: {gpis_failures}/{len(items)}")
+    # with --no-gpis no GPIS ran, so there are no failures to report
+    gtext = "" if args.no_gpis else f"; GPIS failures: {gpis_failures}/{len(items)}"
+    print(f"targets: {ttext}{gtext}")
     result = {
         "input_source": args.input_source,
         "data": args.data,
@@ -402,7 +404,7 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     if args.markdown:
         Path(args.markdown).parent.mkdir(parents=True, exist_ok=True)
         Path(args.markdown).write_text(
-            "\n\n".join(text) + f"\n\ntargets: {ttext}; GPIS failures: {gpis_failures}/{len(items)}\n"
+            "\n\n".join(text) + f"\n\ntargets: {ttext}{gtext}\n"
         )
         print(f"wrote {args.markdown}")
     if args.figure:
