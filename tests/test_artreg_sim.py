@@ -90,3 +90,15 @@ def test_track_cli_round_trip(tmp_path, capsys):
     assert main(["track", "--models", str(tmp_path / "model.ply"), "--frames", str(frames),
                  "--max-points", "2", "--json", str(out)]) == 2
     assert "--max-points: need 0 (all points) or >= 3 per part, got 2" in capsys.readouterr().err
+
+
+
+def test_track_cli_names_the_extra_a_method_needs(tmp_path, capsys, monkeypatch):
+    """--method filterreg without probreg installed: exit 2 and the extra to install, not a KeyError."""
+    import vtlearn.classical.tracking_baselines as baselines
+    from vtlearn.cli import main
+
+    monkeypatch.setattr(baselines, "HAS_PROBREG", False)
+    assert main(["track", "--models", str(tmp_path / "m.ply"), "--frames", str(tmp_path),
+                 "--method", "filterreg"]) == 2
+    assert "--method: 'filterreg' needs the optional probreg extra" in capsys.readouterr().err

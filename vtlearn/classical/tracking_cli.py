@@ -83,6 +83,10 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
     if 0 < args.max_points < 3:
         raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
+    trackers = _trackers()
+    if args.method not in trackers:  # listed by --method, but its backend is an optional extra
+        raise ValueError(f"--method: {args.method!r} needs the optional probreg extra "
+                         "(pip install -e .[probreg])")
     models = [read_cloud(m) for m in args.models]
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
@@ -103,7 +107,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         T0 = T0.reshape(-1, 4, 4)
     else:
         T0 = np.repeat(np.eye(4)[None], len(models), 0)  # models are the t = 0 segmented clouds
-    cls = _trackers()[args.method]
+    cls = trackers[args.method]
     kwargs = {}
     if args.method == "artreg":
         kwargs = {
