@@ -20,6 +20,7 @@ The pipeline of the thesis, step by step:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,6 +37,34 @@ __all__ = [
     "region_growing",
     "segment_parts",
 ]
+
+
+# Open3D's PCA normal and covariance estimation falls back to a default normal and an identity covariance
+# when a point has fewer than 3 neighbours, and a KNN search of 0 neighbours crashes the process.
+_MIN_KNN = 3
+
+
+def _check_int(value: Any, name: str, minimum: int) -> int:
+    """``value`` as an int if it is an integer >= ``minimum``, else a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name}: need an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name}: need >= {minimum}, got {value}")
+    return int(value)
+
+
+def _check_real(
+    value: Any, name: str, *, low: float, high: float = math.inf, open_low: bool = False
+) -> float:
+    """``value`` as a float if it is finite and in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: need a real number, got {value!r}") from None
+    if not (math.isfinite(v) and (v > low if open_low else v >= low) and v <= high):
+        bound = f"{'>' if open_low else '>='} {low:g}" + (f" and <= {high:g}" if math.isfinite(high) else "")
+        raise ValueError(f"{name}: need a finite value {bound}, got {value!r}")
+    return v
 
 
 def _colors(colors: Any, n: int, name: str = "colors") -> np.ndarray | None:
@@ -71,8 +100,8 @@ def remove_plane(
     Args:
         points: (N, 3) cloud, N >= 3.
         colors: optional (N, 3) RGB in [0, 1], filtered alongside.
-        distance_threshold: inlier distance to the plane (m).
-        num_iterations: RANSAC iterations.
+        distance_threshold: inlier distance to the plane (m), finite and > 0.
+        num_iterations: RANSAC iterations, an integer >= 1.
         seed: seed of Open3D's random generator (None leaves it alone).
 
     Returns:
@@ -81,11 +110,11 @@ def remove_plane(
     """
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
-    if not distance_threshold > 0:
-        raise ValueError(f"distance_threshold must be > 0, got {distance_threshold!r}")
+    distance_threshold = _check_real(distance_threshold, "distance_threshold", low=0.0, open_low=True)
+    num_iterations = _check_int(num_iterations, "num_iterations", 1)
     if seed is not None:
         o3d.utility.random.seed(int(seed))
-    plane, inliers = _pcd(pts).segment_plane(float(distance_threshold), 3, int(num_iterations))
+    plane, inliers = _pcd(pts).segment_plane(distance_threshold, 3, num_iterations)
     keep = np.ones(len(pts), dtype=bool)
     keep[np.asarray(inliers, dtype=np.int64)] = False
     return pts[keep], (col[keep] if col is not None else None), np.asarray(plane, dtype=np.float64)
@@ -94,24 +123,43 @@ def remove_plane(
 def remove_statistical_outliers(
     points: Any, colors: Any = None, *, nb_neighbors: int = 20, std_ratio: float = 2.0
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Open3D statistical outlier removal. Returns the kept points and colours. (N, 3) -> (M, 3)."""
+    """Open3D statistical outlier removal. Returns the kept points and colours. (N, 3) -> (M, 3).
+
+    Args:
+        points: (N, 3) cloud, N >= 1.
+        colors: optional (N, 3) RGB in [0, 1], filtered alongside.
+        nb_neighbors: neighbours of the mean distance, an integer >= 1.
+        std_ratio: a point goes when its mean distance exceeds the cloud's mean by more than this many
+            standard deviations; finite and > 0.
+    """
     pts = as_points(points, "points", min_points=1)
     col = _colors(colors, len(pts))
-    if nb_neighbors < 1:
-        raise ValueError(f"nb_neighbors must be >= 1, got {nb_neighbors!r}")
+    nb_neighbors = _check_int(nb_neighbors, "nb_neighbors", 1)
+    std_ratio = _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
     if len(pts) <= nb_neighbors:
         return pts, col
-    _, idx = _pcd(pts).remove_statistical_outlier(int(nb_neighbors), float(std_ratio))
+    _, idx = _pcd(pts).remove_statistical_outlier(nb_neighbors, std_ratio)
     idx = np.asarray(idx, dtype=np.int64)
     return pts[idx], (col[idx] if col is not None else None)
 
 
-def estimate_normals_and_curvature(points: np.ndarray, knn: int = 15) -> tuple[np.ndarray, np.ndarray]:
+def estimate_normals_and_curvature(points: Any, knn: int = 15) -> tuple[np.ndarray, np.ndarray]:
     """Normals (Open3D, PCA of k neighbours) and surface variation curvature l0 / (l0 + l1 + l2).
+
+    Args:
+        points: (N, 3) finite cloud, N >= 1.
+        knn: neighbours of each PCA, an integer >= 3 (Open3D gives a default normal below 3).
 
     Shapes:
         points: (N, 3) -> normals (N, 3), curvature (N,).
     """
+    pts = as_points(points, "points", min_points=1)
+    knn = _check_int(knn, "knn", _MIN_KNN)
+    return _normals_and_curvature(pts, knn)
+
+
+def _normals_and_curvature(points: np.ndarray, knn: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`estimate_normals_and_curvature` without the argument checks."""
     pcd = _pcd(points)
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn))
     pcd.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(knn))
@@ -141,12 +189,13 @@ def region_growing(
         colors: optional (N, 3) RGB in [0, 1]; without colours only normals drive the growth and
             no merging is done.
         normals: optional (N, 3); estimated from ``knn`` neighbours when omitted.
-        knn: neighbourhood size for growth and adjacency.
-        angle_threshold: max angle (rad) between neighbouring normals (sign-agnostic).
-        colour_threshold: max RGB distance between neighbouring points.
-        curvature_threshold: points flatter than this continue the growth as seeds.
-        merge_colour_threshold: adjacent regions with mean colours closer than this are merged.
-        min_region_size: regions with fewer points get label -1.
+        knn: neighbourhood size for normals, growth and adjacency, an integer >= 3.
+        angle_threshold: max angle (rad) between neighbouring normals (sign-agnostic), finite, in (0, pi].
+        colour_threshold: max RGB distance between neighbouring points, finite and >= 0.
+        curvature_threshold: points flatter than this continue the growth as seeds, finite and >= 0.
+        merge_colour_threshold: adjacent regions with mean colours closer than this are merged, finite and
+            >= 0.
+        min_region_size: regions with fewer points get label -1; an integer >= 1.
         colour_space: ``"chromaticity"`` compares ``rgb / (r + g + b)`` (times 3, so grey is
             (1, 1, 1)), which ignores the brightness changes that shading puts on the faces of one
             part; ``"rgb"`` compares raw colours.
@@ -158,17 +207,23 @@ def region_growing(
     col = _colors(colors, len(pts))
     if colour_space not in ("chromaticity", "rgb"):
         raise ValueError(f"colour_space must be 'chromaticity' or 'rgb', got {colour_space!r}")
+    knn = _check_int(knn, "knn", _MIN_KNN)
+    min_region_size = _check_int(min_region_size, "min_region_size", 1)
+    angle_threshold = _check_real(angle_threshold, "angle_threshold", low=0.0, high=math.pi, open_low=True)
+    colour_threshold = _check_real(colour_threshold, "colour_threshold", low=0.0)
+    curvature_threshold = _check_real(curvature_threshold, "curvature_threshold", low=0.0)
+    merge_colour_threshold = _check_real(merge_colour_threshold, "merge_colour_threshold", low=0.0)
     if col is not None and colour_space == "chromaticity":
         col = 3.0 * col / np.maximum(col.sum(1, keepdims=True), 1e-3)
     n = len(pts)
     if normals is None:
-        nrm, curv = estimate_normals_and_curvature(pts, knn)
+        nrm, curv = _normals_and_curvature(pts, knn)
     else:
         nrm = as_points(normals, "normals")
         if nrm.shape != pts.shape:
             raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
         nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        _, curv = estimate_normals_and_curvature(pts, knn)
+        _, curv = _normals_and_curvature(pts, knn)
     k = min(knn, n)
     tree = o3d.geometry.KDTreeFlann(_pcd(pts))
     nbrs = np.empty((n, k), dtype=np.int64)
@@ -273,13 +328,22 @@ def segment_parts(
     """Plane removal, outlier removal, region growing and colour merging (thesis 6.2.2).
 
     Regions smaller than ``min_region_fraction`` of the remaining points (at least 30) are dropped,
-    unless ``min_region_size`` is passed through ``region_growing_kwargs``.
+    unless ``min_region_size`` is passed through ``region_growing_kwargs``. ``min_region_fraction`` must lie
+    in [0, 1]; ``nb_neighbors`` and ``std_ratio`` are checked as in :func:`remove_statistical_outliers`,
+    ``region_growing_kwargs`` as in :func:`region_growing`.
 
     Shapes:
         points: (N, 3); colors: (N, 3) RGB in [0, 1] or None. See :class:`SegmentationResult`.
     """
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
+    min_region_fraction = _check_real(min_region_fraction, "min_region_fraction", low=0.0, high=1.0)
+    _check_int(nb_neighbors, "nb_neighbors", 1)
+    _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
+    if "knn" in region_growing_kwargs:  # checked here too: a bad knn must not depend on the cloud
+        _check_int(region_growing_kwargs["knn"], "knn", _MIN_KNN)
+    if "min_region_size" in region_growing_kwargs:
+        _check_int(region_growing_kwargs["min_region_size"], "min_region_size", 1)
     plane = None
     if remove_support_plane:
         pts, col, plane = remove_plane(pts, col, distance_threshold=plane_distance_threshold, seed=seed)

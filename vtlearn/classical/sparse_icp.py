@@ -14,6 +14,8 @@ frame; metres.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -22,12 +24,44 @@ from vtlearn.validation import as_points, as_transform
 __all__ = ["kabsch", "shrink_lp", "sparse_icp"]
 
 
-def kabsch(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def _check_mu(mu) -> float:
+    if not (isinstance(mu, (int, float, np.integer, np.floating)) and math.isfinite(mu) and mu > 0):
+        raise ValueError(f"mu: must be finite and > 0, got {mu}")
+    return float(mu)
+
+
+def _check_p(p) -> float:
+    if not (isinstance(p, (int, float, np.integer, np.floating)) and 0 < p <= 1):
+        raise ValueError(f"p: must lie in (0, 1], got {p}")
+    return float(p)
+
+
+def _check_count(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def kabsch(x, y) -> np.ndarray:
     """Least-squares rigid ``T_y_x`` with ``y_i ~ R x_i + t`` (Umeyama 1991, no scale).
+
+    Args:
+        x: source points, finite, at least 3 (the rotation is unique only for 3 or more non-collinear
+            points; collinear ones give one of the minimisers).
+        y: target points, finite, the same number of rows as ``x``.
 
     Shapes:
         x, y: ``(N, 3)`` corresponding rows -> ``(4, 4)``.
     """
+    x = as_points(x, "x", min_points=3)
+    y = as_points(y, "y", min_points=3)
+    if len(x) != len(y):
+        raise ValueError(f"y: expected {len(x)} rows to match x, got {len(y)}")
+    return _kabsch(x, y)
+
+
+def _kabsch(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """:func:`kabsch` without the argument checks (the ADMM inner loop)."""
     mx, my = x.mean(0), y.mean(0)
     U, _, Vt = np.linalg.svd((x - mx).T @ (y - my))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
@@ -44,9 +78,21 @@ def shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.
     Below the threshold ``h_a = a + (p/mu) a^(p-1)``, ``a = (2 (1-p) / mu)^(1/(2-p))`` the minimiser is 0;
     above, ``z = beta h`` with ``beta = 1 - (p/mu) |h|^(p-2) beta^(p-1)`` found by fixed-point iteration.
 
+    Args:
+        h: finite points.
+        mu: ADMM penalty, finite and > 0.
+        p: norm exponent in (0, 1].
+        n_fixed_point: fixed-point iterations, an integer >= 1.
+
     Shapes:
         h: ``(N, 3)`` -> ``(N, 3)``.
     """
+    h = as_points(h, "h", min_points=0)
+    return _shrink_lp(h, _check_mu(mu), _check_p(p), _check_count(n_fixed_point, "n_fixed_point"))
+
+
+def _shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.ndarray:
+    """:func:`shrink_lp` without the argument checks (the ADMM inner loop)."""
     a = (2.0 / mu * (1.0 - p)) ** (1.0 / (2.0 - p))
     ha = a + (p / mu) * a ** (p - 1.0)
     hn = np.linalg.norm(h, axis=1)
@@ -80,8 +126,10 @@ def sparse_icp(
         target: fixed points, e.g. the dense model.
         T_init: initial ``T_target_source``.
         p: norm exponent in (0, 1].
-        mu: ADMM penalty (in 1/length^(2-p) units; 10 suits objects of about 1 m, as in Bouaziz et al.).
-        max_icp: correspondence iterations; max_admm: ADMM iterations per correspondence set.
+        mu: ADMM penalty (in 1/length^(2-p) units; 10 suits objects of about 1 m, as in Bouaziz et al.),
+            finite and > 0.
+        max_icp: correspondence iterations; max_admm: ADMM iterations per correspondence set; both
+            integers >= 1.
         tol: stop when the largest source-point displacement of an ICP iteration is below ``tol`` (m).
 
     Shapes:
@@ -92,10 +140,10 @@ def sparse_icp(
     """
     X = as_points(source, "source", min_points=3)
     Y = as_points(target, "target", min_points=3)
-    if not 0 < p <= 1:
-        raise ValueError(f"p: must lie in (0, 1], got {p}")
-    if not mu > 0:
-        raise ValueError(f"mu: must be > 0, got {mu}")
+    p = _check_p(p)
+    mu = _check_mu(mu)
+    max_icp = _check_count(max_icp, "max_icp")
+    max_admm = _check_count(max_admm, "max_admm")
     T = np.eye(4) if T_init is None else as_transform(T_init, "T_init")
     tree = cKDTree(Y) if target_tree is None else target_tree
     Xt = X @ T[:3, :3].T + T[:3, 3]
@@ -107,8 +155,8 @@ def sparse_icp(
         Q = Y[idx]
         X_prev = Xt
         for _ in range(max_admm):
-            Z = shrink_lp(Xt - Q + lam / mu, mu, p)
-            T_step = kabsch(Xt, Q + Z - lam / mu)
+            Z = _shrink_lp(Xt - Q + lam / mu, mu, p)
+            T_step = _kabsch(Xt, Q + Z - lam / mu)
             Xt = Xt @ T_step[:3, :3].T + T_step[:3, 3]
             T = T_step @ T
             delta = Xt - Q - Z

@@ -91,6 +91,13 @@ def aabb_scale(scene, model, R=None) -> np.ndarray:
     return scale
 
 
+def _normals_like(normals, cloud: np.ndarray, name: str) -> np.ndarray:
+    n = as_points(normals, name)
+    if n.shape != cloud.shape:
+        raise ValueError(f"{name}: expected shape {cloud.shape} like its cloud, got {n.shape}")
+    return n
+
+
 def best_buddy_pairs(
     scene_in_model,
     model,
@@ -101,12 +108,40 @@ def best_buddy_pairs(
 ):
     """Mutual nearest neighbours between a scene (already in the model frame) and a model (eq. 5.15).
 
+    Args:
+        scene_in_model: finite scene points in the model frame, at least 1.
+        model: finite model points, at least 1.
+        model_tree: optional prebuilt ``cKDTree(model)`` (must hold as many points as ``model``).
+        scene_normals_in_model, model_normals: optional finite normals, one per point of their cloud.
+        normal_angle_deg: normal-agreement threshold (degrees, finite); used when both normals are given.
+
     Returns:
         ``(scene_idx, model_idx)`` index arrays of the best-buddy pairs.
 
     Shapes:
         scene_in_model: ``(N, 3)``; model: ``(M, 3)``; normals: same shapes as their clouds.
     """
+    scene_in_model = as_points(scene_in_model, "scene_in_model", min_points=1)
+    model = as_points(model, "model", min_points=1)
+    if model_tree is not None and model_tree.n != len(model):
+        raise ValueError(f"model_tree: holds {model_tree.n} points, model has {len(model)}")
+    if scene_normals_in_model is not None:
+        scene_normals_in_model = _normals_like(
+            scene_normals_in_model, scene_in_model, "scene_normals_in_model"
+        )
+    if model_normals is not None:
+        model_normals = _normals_like(model_normals, model, "model_normals")
+    if normal_angle_deg is not None and not math.isfinite(normal_angle_deg):
+        raise ValueError(f"normal_angle_deg: must be finite or None, got {normal_angle_deg}")
+    return _best_buddy_pairs(
+        scene_in_model, model, model_tree, scene_normals_in_model, model_normals, normal_angle_deg
+    )
+
+
+def _best_buddy_pairs(
+    scene_in_model, model, model_tree, scene_normals_in_model, model_normals, normal_angle_deg
+):
+    """:func:`best_buddy_pairs` without the argument checks (called in the TIQF outer loop)."""
     tree = cKDTree(model) if model_tree is None else model_tree
     _, nn_model = tree.query(scene_in_model, k=1)
     _, nn_back = cKDTree(scene_in_model).query(model[nn_model], k=1)
@@ -429,7 +464,7 @@ class STIQF:
         def corr(scene_in_model, R, t):
             if self.best_buddies:
                 sn = None if scene_normals is None else scene_normals @ R  # rows R^T n
-                si, mi = best_buddy_pairs(
+                si, mi = _best_buddy_pairs(
                     scene_in_model, model, tree, sn, model_normals, self.normal_angle_deg
                 )
             else:

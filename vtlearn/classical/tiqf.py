@@ -118,6 +118,26 @@ def _rotation_from_euler_small(angles: np.ndarray) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
+def _check_quaternion(q, name: str, *, batched: bool = False) -> np.ndarray:
+    """``q`` as a float array if it is a finite quaternion (w, x, y, z) of norm > 1e-9.
+
+    ``batched`` allows leading dimensions ``(..., 4)``; otherwise the shape must be ``(4,)``.
+    """
+    try:
+        q = np.asarray(q, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    ok = q.shape[-1:] == (4,) if batched else q.shape == (4,)
+    if not ok:
+        want = "(..., 4)" if batched else "(4,)"
+        raise ValueError(f"{name}: expected a quaternion (w, x, y, z) of shape {want}, got {q.shape}")
+    if not np.isfinite(q).all():
+        raise ValueError(f"{name}: contains NaN or inf")
+    if not (np.linalg.norm(q, axis=-1) > 1e-9).all():
+        raise ValueError(f"{name}: quaternion has (near) zero norm; it must be non-zero")
+    return q
+
+
 def _rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
@@ -179,9 +199,9 @@ def tiqf_update(x, P, s_ji, o_ji, rho: float, weights=None) -> tuple[np.ndarray,
     (for instance one per candidate touch in the active look-ahead) are processed in one go.
 
     Args:
-        x: prior quaternion mean (w, x, y, z), unit norm.
-        P: prior covariance.
-        s_ji, o_ji: scene and model difference vectors of the pairs.
+        x: prior quaternion mean (w, x, y, z), unit norm; finite and non-zero.
+        P: prior covariance, finite.
+        s_ji, o_ji: scene and model difference vectors of the pairs, finite.
         rho: correspondence uncertainty of eq. 4.18.
         weights: optional per-pair weights in [0, 1] (0 masks a padded pair).
 
@@ -189,6 +209,26 @@ def tiqf_update(x, P, s_ji, o_ji, rho: float, weights=None) -> tuple[np.ndarray,
         x: ``(..., 4)``; P: ``(..., 4, 4)``; s_ji, o_ji: ``(..., M, 3)``; weights: ``(..., M)``.
         Returns the posterior ``x`` ``(..., 4)`` (renormalised, eq. 4.22) and ``P`` ``(..., 4, 4)``.
     """
+    x = _check_quaternion(x, "x", batched=True)
+    P = np.asarray(P, dtype=np.float64)
+    if P.shape[-2:] != (4, 4):
+        raise ValueError(f"P: expected a covariance of shape (..., 4, 4), got {P.shape}")
+    if not np.isfinite(P).all():
+        raise ValueError("P: contains NaN or inf")
+    s_ji = np.asarray(s_ji, dtype=np.float64)
+    o_ji = np.asarray(o_ji, dtype=np.float64)
+    for arr, name in ((s_ji, "s_ji"), (o_ji, "o_ji")):
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name}: contains NaN or inf")
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if not (np.isfinite(weights).all() and (weights >= 0).all() and (weights <= 1).all()):
+            raise ValueError("weights: must be finite and in [0, 1]")
+    return _tiqf_update(x, P, s_ji, o_ji, rho, weights)
+
+
+def _tiqf_update(x, P, s_ji, o_ji, rho: float, weights=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`tiqf_update` without the argument checks (the filter loops)."""
     x = np.asarray(x, dtype=np.float64)
     P = np.asarray(P, dtype=np.float64)
     H = pseudo_measurement_matrix(s_ji, o_ji)  # ...xMx4x4
@@ -257,10 +297,26 @@ def _posterior(x, P, Lam):
 def tiqf_translation(R, scene_points, model_points) -> np.ndarray:
     """Closed-form translation of eq. 4.23: ``t = mean_i(s_i - R o_i)``.
 
+    Args:
+        R: finite rotation ``R_scene_model``.
+        scene_points, model_points: finite, at least 1, the same number of rows.
+
     Shapes:
         R: ``(3, 3)``; scene_points, model_points: ``(N, 3)`` corresponding rows -> ``(3,)``.
     """
-    return np.mean(scene_points - model_points @ np.asarray(R).T, axis=0)
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape != (3, 3) or not np.isfinite(R).all():
+        raise ValueError(f"R: expected a finite (3, 3) rotation, got shape {R.shape}")
+    s = as_points(scene_points, "scene_points", min_points=1)
+    o = as_points(model_points, "model_points", min_points=1)
+    if len(s) != len(o):
+        raise ValueError(f"scene_points: expected {len(o)} rows to match model_points, got {len(s)}")
+    return _translation(R, s, o)
+
+
+def _translation(R: np.ndarray, scene_points: np.ndarray, model_points: np.ndarray) -> np.ndarray:
+    """:func:`tiqf_translation` without the argument checks (the filter loops)."""
+    return np.mean(scene_points - model_points @ R.T, axis=0)
 
 
 def make_pairs(
@@ -400,12 +456,18 @@ class TIQF:
         i, j = make_pairs(len(scene_points), max_all_pairs=0, n_shifts=self.n_shifts, rng=rng)
         s_ji = scene_points[j] - scene_points[i]
         o_ji = model_points[j] - model_points[i]
-        return tiqf_update(x, P, s_ji, o_ji, self.rho)
+        return _tiqf_update(x, P, s_ji, o_ji, self.rho)
 
     def solve_known_correspondences(self, model_points, scene_points, q_init=None, n_iter: int | None = None):
         """Register index-aligned correspondences (``scene[k] = R model[k] + t``), no correspondence search.
 
         Repeats the update until the rotation change is below ``tol_rot_deg`` (or ``n_iter`` updates).
+
+        Args:
+            model_points, scene_points: index-aligned correspondences, finite, at least 3, equal lengths.
+            q_init: initial rotation quaternion (w, x, y, z), shape ``(4,)``, finite, norm > 1e-9
+                (normalised here); default identity.
+            n_iter: maximum number of updates (default ``max_iter``).
 
         Shapes:
             model_points, scene_points: ``(N, 3)`` -> ``T_scene_model`` ``(4, 4)``, q ``(4,)``, P ``(4, 4)``.
@@ -415,7 +477,11 @@ class TIQF:
         if len(o) != len(s):
             raise ValueError(f"scene_points: expected {len(o)} rows to match model_points, got {len(s)}")
         rng = np.random.default_rng(self.seed)
-        x = np.array([1.0, 0, 0, 0]) if q_init is None else np.asarray(q_init, dtype=np.float64)
+        if q_init is None:
+            x = np.array([1.0, 0, 0, 0])
+        else:
+            x = _check_quaternion(q_init, "q_init")
+            x = x / np.linalg.norm(x)
         P = self.sigma0 * np.eye(4)
         n_iter = self.max_iter if n_iter is None else n_iter
         for _ in range(n_iter):
@@ -427,7 +493,7 @@ class TIQF:
         R = _quat_to_matrix(x)
         T = np.eye(4)
         T[:3, :3] = R
-        T[:3, 3] = tiqf_translation(R, s, o)
+        T[:3, 3] = _translation(R, s, o)
         return T, x, P
 
     # -- ICP-style outer loop ----------------------------------------------------------------------------
@@ -448,7 +514,7 @@ class TIQF:
             P_prior = self.sigma0 * np.eye(4) if self.reset_covariance else P
             x, P = self.update(x, P_prior, s_sel, o_sel, rng)
             R_new = _quat_to_matrix(x)
-            t_new = tiqf_translation(R_new, s_sel, o_sel)
+            t_new = _translation(R_new, s_sel, o_sel)
             dt = np.linalg.norm(t_new - t)
             dr = _rotation_angle_deg(R, R_new)
             R, t = R_new, t_new
@@ -631,9 +697,9 @@ class SequentialTIQF:
             if self.mode == "reassociate":
                 x, P = tiqf_update_moment(x_prior, P_prior, all_pairs_moment(self.scene, o), self.rho)
             else:
-                x, P = tiqf_update(x_prior, P_prior, self.scene[j] - self.scene[i], o[j] - o[i], self.rho)
+                x, P = _tiqf_update(x_prior, P_prior, self.scene[j] - self.scene[i], o[j] - o[i], self.rho)
             R_new = _quat_to_matrix(x)
-            t_new = tiqf_translation(R_new, self.scene, o)
+            t_new = _translation(R_new, self.scene, o)
             done = (
                 np.linalg.norm(t_new - t) < self.tol_trans
                 and _rotation_angle_deg(R, R_new) < self.tol_rot_deg
