@@ -195,7 +195,16 @@ def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarra
     """Read ``path`` as a point cloud: cloud formats as they are, meshes sampled uniformly on the surface.
 
     A ``.ply`` with faces is treated as a mesh. Shapes: output ``(N, 3)`` (``n_points`` for meshes).
+
+    Args:
+        path: a cloud (``.npy``, ``.ply`` without faces, ...) or mesh (``.obj``, ``.stl``, ``.off``, ``.ply``
+            with faces) file.
+        n_points: points sampled on a mesh surface, an integer ``>= 1``. Ignored for cloud files, which are
+            returned with all their points (not subsampled); it is still validated.
+        seed: seed of the mesh surface sampling.
     """
+    if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or n_points < 1:
+        raise ValueError(f"n_points: must be an integer >= 1, got {n_points!r}")
     p = _existing(path)
     suffix = p.suffix.lower()
     is_mesh = suffix in (".obj", ".stl", ".off")

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_points", "as_transform", "check_class_scores", "check_not_collinear",
-           "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_pair", "as_points", "as_transform", "check_class_scores",
+           "check_not_collinear", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -20,6 +20,20 @@ class ConfigMismatchError(ValueError):
     Raised from a LightningModule's ``setup``, where the two first meet; ``train.py`` reports it as one line
     that names the argument, like an argument it could not instantiate.
     """
+
+
+def as_pair(x: Any, name: str, what: str = "a (low, high) pair of numbers") -> tuple[float, float]:
+    """Two numbers, e.g. a ``(low, high)`` range or a ``(horizontal, vertical)`` field of view; a
+    ``ValueError`` naming ``name`` for anything else (one number, three, a string).
+
+    Shapes:
+        x: 2 numbers -> (float, float)
+    """
+    try:
+        a, b = (float(v) for v in x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected {what}, got {x!r}") from None
+    return a, b
 
 
 def to_numpy(x: Any, dtype=np.float64) -> np.ndarray:

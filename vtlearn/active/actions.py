@@ -269,7 +269,13 @@ def sample_pinch_actions(
 
 def marsaglia_sphere(n: int, rng: np.random.Generator) -> np.ndarray:
     """``(n, 3)`` points uniform on the unit sphere by Marsaglia (1972): draw ``(x1, x2)`` uniform in the
-    unit disc, then ``(2 x1 sqrt(1 - s), 2 x2 sqrt(1 - s), 1 - 2 s)`` with ``s = x1^2 + x2^2``."""
+    unit disc, then ``(2 x1 sqrt(1 - s), 2 x2 sqrt(1 - s), 1 - 2 s)`` with ``s = x1^2 + x2^2``.
+
+    Args:
+        n: number of points, an integer ``>= 1``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n: must be an integer >= 1, got {n!r}")
     out = np.empty((0, 2))
     while out.shape[0] < n:
         x = rng.uniform(-1, 1, (2 * (n - out.shape[0]) + 8, 2))

@@ -135,12 +135,28 @@ def acquisition_scores(probs: torch.Tensor, strategy: str, generator: torch.Gene
     return torch.rand(probs.shape[1], generator=generator)
 
 
-def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
-    """Indices of the ``k`` highest scores, highest first (ties broken by lower index)."""
+def _check_scores(scores) -> None:
+    """``ValueError`` naming ``scores`` unless it is a non-empty 1-D tensor."""
+    if not isinstance(scores, torch.Tensor):
+        raise ValueError(f"scores must be a 1-D torch.Tensor, got {type(scores).__name__}")
     if scores.dim() != 1:
         raise ValueError(f"scores must be 1-D, got {tuple(scores.shape)}")
+    if scores.numel() == 0:
+        raise ValueError("scores: empty (no unlabelled samples to select from)")
+
+
+def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
+    """Indices of the ``k`` highest scores, highest first (ties broken by lower index).
+
+    Args:
+        scores: non-empty, finite 1-D tensor.
+        k: ``1 <= k <= len(scores)``.
+    """
+    _check_scores(scores)
     if not 1 <= k <= scores.numel():
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
+    if not torch.isfinite(scores).all():
+        raise ValueError("scores: contains NaN or inf")
     order = torch.sort(-scores, stable=True).indices
     return order[:k]
 
@@ -155,10 +171,9 @@ def select_power(
     β = 0 uniform sampling.
 
     Shapes:
-        scores (U,) -> (k,) indices, in draw order
+        scores (U,) -> (k,) indices, in draw order (scores non-empty, finite, >= 0; ``1 <= k <= U``)
     """
-    if scores.dim() != 1:
-        raise ValueError(f"scores must be 1-D, got {tuple(scores.shape)}")
+    _check_scores(scores)
     if not 1 <= k <= scores.numel():
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
     if not (beta >= 0 and math.isfinite(beta)):

@@ -233,7 +233,7 @@ class OccupancyGrid:
         return np.ravel_multi_index(cells.T, self.shape)
 
     # ------------------------------------------------------------------ ray traversal
-    def _check_rays(self, origins, directions, max_range):
+    def _check_rays(self, origins, directions, max_range, range_name: str = "max_range"):
         o = as_points(origins, "origins")
         d = as_points(directions, "directions")
         if d.shape[0] != o.shape[0]:
@@ -246,9 +246,11 @@ class OccupancyGrid:
         if r.ndim == 0:
             r = np.full(o.shape[0], float(r))
         if r.shape != (o.shape[0],):
-            raise ValueError(f"max_range: expected a scalar or shape ({o.shape[0]},), got {tuple(r.shape)}")
+            raise ValueError(
+                f"{range_name}: expected a scalar or shape ({o.shape[0]},), got {tuple(r.shape)}"
+            )
         if not np.isfinite(r).all() or (r < 0).any():
-            raise ValueError("max_range: must be finite and non-negative")
+            raise ValueError(f"{range_name}: must be finite and non-negative")
         return o, d, r
 
     def traverse(self, origins, directions, max_range, stop_mask=None) -> RayTraversal:
@@ -400,10 +402,13 @@ class OccupancyGrid:
         every cell before it as a miss; a ray without a return (``hit`` False) misses every cell up to
         ``ranges``. Each cell is updated at most once per call, and hit wins over miss.
 
+        Args:
+            ranges: measured ranges, finite and ``>= 0``.
+
         Shapes:
             origins, directions: ``(R, 3)``; ranges: scalar or ``(R,)``; hit: ``(R,)`` bool.
         """
-        o, d, r = self._check_rays(origins, directions, ranges)
+        o, d, r = self._check_rays(origins, directions, ranges, "ranges")
         hit = np.asarray(hit, dtype=bool)
         if hit.shape != (o.shape[0],):
             raise ValueError(f"hit: expected a ({o.shape[0]},) bool array, got shape {tuple(hit.shape)}")

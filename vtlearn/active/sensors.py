@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtlearn.sim_data.sensors import SENSORS, TaxelSensor, get_sensor
-from vtlearn.validation import to_numpy
+from vtlearn.validation import as_pair, to_numpy
 
 __all__ = ["PinchSensor", "Rays", "TactileArray", "ToFCamera", "as_transforms", "cast_rays_on_mesh"]
 
@@ -181,7 +181,7 @@ class ToFCamera:
 
     Args:
         width, height: image size in pixels.
-        fov_deg: horizontal and vertical field of view in degrees.
+        fov_deg: horizontal and vertical field of view in degrees, a pair each in (0, 180).
         stride: keep every ``stride``-th pixel in both directions (the subsampling of ``n_v`` beams).
         max_range: beam length, metres.
     """
@@ -196,7 +196,7 @@ class ToFCamera:
     ):
         if int(width) < 1 or int(height) < 1:
             raise ValueError(f"width, height: need positive pixel counts, got {width} x {height}")
-        fx_deg, fy_deg = (float(f) for f in fov_deg)
+        fx_deg, fy_deg = as_pair(fov_deg, "fov_deg", "a (horizontal, vertical) pair of angles in degrees")
         if not (0 < fx_deg < 180 and 0 < fy_deg < 180):
             raise ValueError(f"fov_deg: each angle must lie in (0, 180) degrees, got {fov_deg}")
         if int(stride) < 1:

@@ -198,6 +198,9 @@ def translation_error(t_est, t_gt) -> float:
 def scale_error(s_est, s_gt) -> float:
     """Scale error, thesis eq. 5.25: ``sqrt(sum_axis (s_gt - s_est)^2)`` over the per-axis scales.
 
+    Args:
+        s_est, s_gt: finite, strictly positive scales.
+
     Shapes:
         s_est, s_gt: ``(3,)`` (a scalar is broadcast to all three axes) -> float.
     """
@@ -207,4 +210,7 @@ def scale_error(s_est, s_gt) -> float:
         raise ValueError(f"s_est, s_gt: expected per-axis scales (3,), got {se.shape} and {sg.shape}")
     if not (np.isfinite(se).all() and np.isfinite(sg).all()):
         raise ValueError("s_est, s_gt: contain NaN or inf")
+    for name, s in (("s_est", se), ("s_gt", sg)):
+        if not (s > 0).all():
+            raise ValueError(f"{name}: scales must be > 0, got {s.tolist()}")
     return float(np.linalg.norm(sg - se))

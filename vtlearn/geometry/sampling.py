@@ -108,7 +108,17 @@ def farthest_point_sample(points, n: int) -> np.ndarray:
 
 
 def lengths_mask(lengths: torch.Tensor, n_max: int) -> torch.Tensor:
-    """Boolean validity mask from ``lengths``. Shapes: ``(B,)`` -> ``(B, n_max)``."""
+    """Boolean validity mask from ``lengths``. Shapes: ``(B,)`` -> ``(B, n_max)``.
+
+    Args:
+        lengths: 1-D tensor of per-cloud lengths.
+        n_max: the padded cloud size, ``>= 0``.
+    """
+    if not isinstance(lengths, torch.Tensor) or lengths.dim() != 1:
+        got = tuple(lengths.shape) if isinstance(lengths, torch.Tensor) else type(lengths).__name__
+        raise ValueError(f"lengths: expected a 1-D tensor of shape (B,), got {got}")
+    if not isinstance(n_max, (int, np.integer)) or isinstance(n_max, bool) or n_max < 0:
+        raise ValueError(f"n_max: must be an integer >= 0, got {n_max!r}")
     return torch.arange(n_max, device=lengths.device)[None, :] < lengths[:, None]
 
 
@@ -144,11 +154,16 @@ def knn(
     are computed but meaningless; mask them with ``x_lengths``. Distances are Euclidean (not squared) and
     differentiable.
 
+    Args:
+        k: number of neighbours, ``1 <= k <=`` the smallest ``y`` cloud length.
+
     Shapes:
         x: ``(B, N, 3)``, y: ``(B, M, 3)``, lengths ``(B,)`` -> dists ``(B, N, k)``, idx ``(B, N, k)`` int64.
     """
     if x.dim() != 3 or y.dim() != 3 or x.shape[-1] != y.shape[-1] or x.shape[0] != y.shape[0]:
         raise ValueError(f"x, y: expected (B, N, D) and (B, M, D), got {tuple(x.shape)} and {tuple(y.shape)}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"k: must be an integer >= 1, got {k!r}")
     m = y.shape[1]
     if y_lengths is None:
         y_lengths = torch.full((y.shape[0],), m, dtype=torch.int64, device=y.device)

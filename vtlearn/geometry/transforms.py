@@ -7,13 +7,32 @@ points_b)``.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from vtlearn.geometry._compat import as_tensor, numpy_compatible
 from vtlearn.geometry.lie import make_transform
 from vtlearn.geometry.quaternion import quat_to_matrix, random_quaternion
-from vtlearn.validation import as_points
+from vtlearn.validation import as_pair, as_points
 
 __all__ = ["transform_points", "random_pose", "random_rotation", "canonical_box"]
+
+
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _check_homogeneous(a: np.ndarray, tol: float = 1e-5) -> None:
+    """Cheap (O(1) per transform, no rotation check) test that ``a`` (..., 4, 4) is finite with last row
+    0 0 0 1; ``ValueError`` naming ``T_a_b`` if not. Runs in inner loops, hence the exact fast path."""
+    total = float(a.sum())
+    if total - total != 0.0 and not np.isfinite(a).all():  # NaN/inf (the sum alone may just overflow)
+        raise ValueError("T_a_b: contains NaN or inf")
+    if a.ndim == 2 and a[3].tolist() == [0.0, 0.0, 0.0, 1.0]:
+        return
+    dev = np.abs(a[..., 3, :] - _LAST_ROW)
+    if dev.max() <= tol:
+        return
+    bad = a.reshape(-1, 4, 4)[int(np.argmax(dev.reshape(-1, 4).max(axis=1)))][3]
+    raise ValueError(f"T_a_b: last row must be (0, 0, 0, 1), got {bad.tolist()}")
 
 
 @numpy_compatible
@@ -21,13 +40,18 @@ def transform_points(T_a_b, points_b):
     """``points_a = R_a_b points_b + t_a_b``.
 
     Args:
-        T_a_b: one transform ``(4, 4)`` or a batch ``(B, 4, 4)``.
+        T_a_b: one transform ``(4, 4)`` or a batch ``(B, 4, 4)``; must be finite with last row
+            ``(0, 0, 0, 1)`` (checked for CPU inputs only, to avoid a device sync; the rotation block is not
+            checked for orthonormality, as this runs in inner loops: use
+            :func:`vtlearn.validation.as_transform` for that).
         points_b: ``(N, 3)`` with a single transform, or ``(B, N, 3)`` with one transform per cloud.
 
     Shapes:
         (4, 4), (N, 3) -> (N, 3);  (4, 4), (B, N, 3) -> (B, N, 3);  (B, 4, 4), (B, N, 3) -> (B, N, 3).
     """
     T = as_tensor(T_a_b, "T_a_b", last_dims=(4, 4))
+    if T.is_cpu and T.numel() and T.dtype != torch.bfloat16:
+        _check_homogeneous(T.detach().numpy() if T.requires_grad else T.numpy())
     p = as_tensor(points_b, "points_b", last_dims=(3,)).to(T.dtype)
     if T.dim() == 3 and (p.dim() != 3 or p.shape[0] != T.shape[0]):
         raise ValueError(
@@ -55,10 +79,13 @@ def random_pose(
 
     The default ``[-5, 5]`` m matches the initial-pose range of the thesis registration benchmark (5.3.3).
 
+    Args:
+        trans_range: a ``(low, high)`` pair with ``high >= low``.
+
     Shapes:
         output: ``(4, 4)`` or ``(n, 4, 4)`` numpy float64.
     """
-    lo, hi = trans_range
+    lo, hi = as_pair(trans_range, "trans_range")
     if not hi >= lo:
         raise ValueError(f"trans_range: expected (low, high) with high >= low, got {trans_range}")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)

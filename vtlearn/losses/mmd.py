@@ -106,9 +106,21 @@ def gaussian_bandwidths(
 def multi_kernel_matrix(x: torch.Tensor, y: torch.Tensor, bandwidths: torch.Tensor) -> torch.Tensor:
     """``K_ij = (1/b) Σ_u exp(−‖x_i − y_j‖² / h_u)`` (eq. 7.6 with β_u = 1/b).
 
+    Args:
+        x, y: 2-D feature matrices with the same feature dimension ``d``.
+        bandwidths: non-empty 1-D tensor (shapes only are checked: this runs every training step).
+
     Shapes:
         x (n, d), y (m, d), bandwidths (b,) -> (n, m)
     """
+    if x.dim() != 2 or y.dim() != 2:
+        raise ValueError(
+            f"x, y: expected 2-D (n, d) and (m, d) features, got {tuple(x.shape)} and {tuple(y.shape)}"
+        )
+    if x.shape[1] != y.shape[1]:
+        raise ValueError(f"y: feature dimension {y.shape[1]} does not match x's {x.shape[1]}")
+    if bandwidths.dim() != 1 or bandwidths.numel() == 0:
+        raise ValueError(f"bandwidths: expected a non-empty 1-D tensor, got shape {tuple(bandwidths.shape)}")
     # Squared distances written out (not cdist) so the float64 gradcheck sees a smooth function at 0.
     sq = (x * x).sum(-1, keepdim=True) + (y * y).sum(-1)[None, :] - 2.0 * x @ y.T
     sq = sq.clamp_min(0.0)

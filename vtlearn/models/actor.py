@@ -431,15 +431,30 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
     """Dense reconstruction of one sparse cloud or a padded batch, as numpy.
 
     Args:
-        model: an :class:`ACTOR` (put in eval mode here).
-        points: one cloud (N, 3) (numpy, torch or list), or a padded batch (B, N, 3) with ``lengths``.
+        model: an :class:`ACTOR` (put in eval mode here); anything that is not a torch module returning
+            ``(B, P, 3)`` clouds (e.g. None or an XAVTNet classifier) is refused.
+        points: one cloud (N, 3) (numpy, torch or list) with N >= 3, or a padded batch (B, N, 3) with
+            ``lengths``, B >= 1 and N >= 1.
         lengths: (B,) valid points per cloud, batch input only.
 
     Shapes:
         (N, 3) -> (num_points, 3); (B, N, 3) -> (B, num_points, 3).
     """
+    if not isinstance(model, torch.nn.Module):
+        raise ValueError(f"model: expected an ACTOR (e.g. from load_actor), got {type(model).__name__}")
     model.eval()
-    device = next(model.parameters()).device
+    device = next(model.parameters(), torch.empty(0)).device
+
+    def run(x, *lt):
+        out = model(x, *lt)
+        # A network whose forward gives (B, P, 3) point clouds is accepted (test stand-ins); others are not.
+        if not isinstance(out, Tensor) or out.dim() != 3 or out.shape[-1] != 3:
+            raise ValueError(
+                f"model: expected an ACTOR (a network returning (B, P, 3) clouds), got "
+                f"{type(model).__name__} returning {type(out).__name__}"
+            )
+        return out.cpu().numpy()
+
     if (
         isinstance(points, Tensor)
         and points.dim() == 3
@@ -449,10 +464,16 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
         x = torch.as_tensor(
             np.asarray(points) if isinstance(points, np.ndarray) else points, dtype=torch.float32
         )
+        if x.shape[-1] != 3:
+            raise ValueError(f"points: expected a padded batch of shape (B, N, 3), got {tuple(x.shape)}")
+        if x.shape[0] == 0 or x.shape[1] == 0:
+            raise ValueError(
+                f"points: the batch has no clouds or the clouds are empty, shape {tuple(x.shape)}"
+            )
         if not torch.isfinite(x).all():
             raise ValueError("points: contains NaN or inf")
         lt = None if lengths is None else torch.as_tensor(lengths, dtype=torch.long).to(device)
-        return model(x.to(device), lt).cpu().numpy()
+        return run(x.to(device), lt)
     pts = as_points(points, "points", min_points=3)
     x = torch.as_tensor(pts, dtype=torch.float32, device=device)[None]
-    return model(x).cpu().numpy()[0]
+    return run(x)[0]

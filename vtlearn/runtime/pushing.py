@@ -201,12 +201,16 @@ def distance_to_goal(O, T) -> float:
 
 
 def sensor_frame(point, d) -> np.ndarray:
-    """T_W_S at ``point`` (3,) with z_S along the horizontal part of ``d``, x_S = z_S x z_W, y_S = -z_W."""
+    """T_W_S at ``point`` (3,) with z_S along the horizontal part of ``d``, x_S = z_S x z_W, y_S = -z_W.
+
+    Shapes:
+        point (3,), d (2,) or (3,) (only its horizontal part is used) -> (4, 4)
+    """
     point = np.asarray(point, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     if point.shape != (3,) or not np.isfinite(point).all():
         raise ValueError(f"point: need a finite (3,) position, got {point.tolist()}")
-    if d.shape[0] < 2 or not np.isfinite(d).all() or np.hypot(d[0], d[1]) < 1e-12:
+    if d.shape not in ((2,), (3,)) or not np.isfinite(d).all() or np.hypot(d[0], d[1]) < 1e-12:
         raise ValueError(f"d: need a finite direction with a horizontal part, got {d.tolist()}")
     d = d / np.hypot(d[0], d[1])
     z = np.array([d[0], d[1], 0.0])
