@@ -245,3 +245,22 @@ def test_tiqf_translation_bad_scene_points(scene):
 def test_tiqf_translation_bad_R():
     with pytest.raises(ValueError, match="^R:"):
         tiqf_translation(np.eye(4), CLOUD, CLOUD)
+
+
+@pytest.mark.parametrize("kwargs, name", [(dict(grid=1), "grid"), (dict(grid=0), "grid"),
+                                          (dict(zeta=1.0), "zeta"), (dict(zeta=0.0), "zeta"),
+                                          (dict(t_min=2.0), "t_min")])
+def test_stiqf_settings_that_could_not_anneal_or_build_a_field_are_refused(kwargs, name):
+    """zeta >= 1 never cools (the annealing loop would not end), and a grid of one node has no spacing."""
+    from vtlearn.classical.stiqf import STIQF
+
+    with pytest.raises(ValueError, match=name):
+        STIQF(**kwargs)
+
+
+@pytest.mark.parametrize("grid", [0, 1, 2.5])
+def test_distance_field_bad_grid(grid):
+    from vtlearn.classical.stiqf import DistanceField
+
+    with pytest.raises(ValueError, match="grid"):
+        DistanceField(CLOUD, grid=grid)

@@ -173,6 +173,10 @@ class DistanceField:
         distance_fn=None,
     ):
         points = as_points(points, "points", min_points=1)
+        if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 2:
+            raise ValueError(f"grid: need an integer >= 2 lattice nodes per side, got {grid!r}")
+        if not (math.isfinite(pad) and pad >= 0):
+            raise ValueError(f"pad: need a finite margin >= 0, got {pad}")
         lo, hi = points.min(0), points.max(0)
         side = float((hi - lo).max())
         side = side if side > 0 else 1.0
@@ -427,6 +431,12 @@ class STIQF:
         self.sa_max_points = sa_max_points
         if n_refine < 1:
             raise ValueError(f"n_refine: must be >= 1, got {n_refine}")
+        if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 2:
+            raise ValueError(f"grid: need an integer >= 2 distance-field nodes per side, got {grid!r}")
+        if not 0 < zeta < 1:  # the annealing temperature t <- zeta t must fall to t_min
+            raise ValueError(f"zeta: need a cooling factor in (0, 1), got {zeta}")
+        if not 0 < t_min < t0:
+            raise ValueError(f"t0, t_min: need 0 < t_min < t0, got t0={t0}, t_min={t_min}")
         self.estimate_scale = estimate_scale
         self.t0, self.t_min, self.zeta, self.restarts = t0, t_min, zeta, restarts
         self.sa_cost, self.grid, self.n_refine = sa_cost, grid, n_refine
