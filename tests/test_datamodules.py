@@ -6,17 +6,6 @@ import torch
 
 from vtlearn.datamodules import ActivePoolDataModule, CrossModalDataModule, ReconstructionDataModule
 from vtlearn.datamodules.shards import load_split, random_voxel_subsample
-from vtlearn.sim_data.fixtures import make_tiny_dataset
-
-
-@pytest.fixture(scope="module")
-def recon_dir(tmp_path_factory):
-    return make_tiny_dataset("reconstruction", tmp_path_factory.mktemp("recon"))
-
-
-@pytest.fixture(scope="module")
-def cross_dir(tmp_path_factory):
-    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
 
 
 def test_reconstruction_batch_contract(recon_dir):

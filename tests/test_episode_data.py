@@ -10,13 +10,7 @@ from vtlearn.active.closed_loop import TouchWorld, make_object, run_episode
 from vtlearn.active.episode_data import EpisodeDataConfig, generate_episode_dataset
 from vtlearn.datamodules import CrossModalDataModule
 from vtlearn.datamodules.shards import load_split, split_clouds
-from vtlearn.sim_data.fixtures import make_tiny_dataset
 from vtlearn.sim_data.writer import GenConfig, plan_instances
-
-
-@pytest.fixture(scope="module")
-def cross_dir(tmp_path_factory):
-    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
 
 
 @pytest.fixture(scope="module")

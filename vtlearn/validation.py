@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_pair", "as_points", "as_transform", "check_class_scores",
+__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_transform", "check_class_scores",
            "check_not_collinear", "to_numpy"]
 
 
@@ -20,6 +20,14 @@ class ConfigMismatchError(ValueError):
     Raised from a LightningModule's ``setup``, where the two first meet; ``train.py`` reports it as one line
     that names the argument, like an argument it could not instantiate.
     """
+
+
+def as_int(value: Any, name: str, minimum: int = 1) -> int:
+    """``value`` as a Python int; a ``ValueError`` naming ``name`` unless it is an integer (Python or numpy;
+    not a bool, a float or a string) ``>= minimum``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}: need an integer >= {minimum}, got {value!r}")
+    return int(value)
 
 
 def as_pair(x: Any, name: str, what: str = "a (low, high) pair of numbers") -> tuple[float, float]:

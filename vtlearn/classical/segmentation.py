@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
-from vtlearn.validation import as_points
+from vtlearn.validation import as_int, as_points
 
 __all__ = [
     "SegmentationResult",
@@ -42,15 +42,6 @@ __all__ = [
 # Open3D's PCA normal and covariance estimation falls back to a default normal and an identity covariance
 # when a point has fewer than 3 neighbours, and a KNN search of 0 neighbours crashes the process.
 _MIN_KNN = 3
-
-
-def _check_int(value: Any, name: str, minimum: int) -> int:
-    """``value`` as an int if it is an integer >= ``minimum``, else a ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}: need an integer >= {minimum}, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{name}: need >= {minimum}, got {value}")
-    return int(value)
 
 
 def _check_real(
@@ -111,7 +102,7 @@ def remove_plane(
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
     distance_threshold = _check_real(distance_threshold, "distance_threshold", low=0.0, open_low=True)
-    num_iterations = _check_int(num_iterations, "num_iterations", 1)
+    num_iterations = as_int(num_iterations, "num_iterations", 1)
     if seed is not None:
         o3d.utility.random.seed(int(seed))
     plane, inliers = _pcd(pts).segment_plane(distance_threshold, 3, num_iterations)
@@ -134,7 +125,7 @@ def remove_statistical_outliers(
     """
     pts = as_points(points, "points", min_points=1)
     col = _colors(colors, len(pts))
-    nb_neighbors = _check_int(nb_neighbors, "nb_neighbors", 1)
+    nb_neighbors = as_int(nb_neighbors, "nb_neighbors", 1)
     std_ratio = _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
     if len(pts) <= nb_neighbors:
         return pts, col
@@ -154,7 +145,7 @@ def estimate_normals_and_curvature(points: Any, knn: int = 15) -> tuple[np.ndarr
         points: (N, 3) -> normals (N, 3), curvature (N,).
     """
     pts = as_points(points, "points", min_points=1)
-    knn = _check_int(knn, "knn", _MIN_KNN)
+    knn = as_int(knn, "knn", _MIN_KNN)
     return _normals_and_curvature(pts, knn)
 
 
@@ -207,8 +198,8 @@ def region_growing(
     col = _colors(colors, len(pts))
     if colour_space not in ("chromaticity", "rgb"):
         raise ValueError(f"colour_space must be 'chromaticity' or 'rgb', got {colour_space!r}")
-    knn = _check_int(knn, "knn", _MIN_KNN)
-    min_region_size = _check_int(min_region_size, "min_region_size", 1)
+    knn = as_int(knn, "knn", _MIN_KNN)
+    min_region_size = as_int(min_region_size, "min_region_size", 1)
     angle_threshold = _check_real(angle_threshold, "angle_threshold", low=0.0, high=math.pi, open_low=True)
     colour_threshold = _check_real(colour_threshold, "colour_threshold", low=0.0)
     curvature_threshold = _check_real(curvature_threshold, "curvature_threshold", low=0.0)
@@ -338,12 +329,12 @@ def segment_parts(
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
     min_region_fraction = _check_real(min_region_fraction, "min_region_fraction", low=0.0, high=1.0)
-    _check_int(nb_neighbors, "nb_neighbors", 1)
+    as_int(nb_neighbors, "nb_neighbors", 1)
     _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
     if "knn" in region_growing_kwargs:  # checked here too: a bad knn must not depend on the cloud
-        _check_int(region_growing_kwargs["knn"], "knn", _MIN_KNN)
+        as_int(region_growing_kwargs["knn"], "knn", _MIN_KNN)
     if "min_region_size" in region_growing_kwargs:
-        _check_int(region_growing_kwargs["min_region_size"], "min_region_size", 1)
+        as_int(region_growing_kwargs["min_region_size"], "min_region_size", 1)
     plane = None
     if remove_support_plane:
         pts, col, plane = remove_plane(pts, col, distance_threshold=plane_distance_threshold, seed=seed)

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_transform
 
 __all__ = ["kabsch", "shrink_lp", "sparse_icp"]
 
@@ -34,12 +34,6 @@ def _check_p(p) -> float:
     if not (isinstance(p, (int, float, np.integer, np.floating)) and 0 < p <= 1):
         raise ValueError(f"p: must lie in (0, 1], got {p}")
     return float(p)
-
-
-def _check_count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def kabsch(x, y) -> np.ndarray:
@@ -88,7 +82,7 @@ def shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.
         h: ``(N, 3)`` -> ``(N, 3)``.
     """
     h = as_points(h, "h", min_points=0)
-    return _shrink_lp(h, _check_mu(mu), _check_p(p), _check_count(n_fixed_point, "n_fixed_point"))
+    return _shrink_lp(h, _check_mu(mu), _check_p(p), as_int(n_fixed_point, "n_fixed_point"))
 
 
 def _shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.ndarray:
@@ -142,8 +136,8 @@ def sparse_icp(
     Y = as_points(target, "target", min_points=3)
     p = _check_p(p)
     mu = _check_mu(mu)
-    max_icp = _check_count(max_icp, "max_icp")
-    max_admm = _check_count(max_admm, "max_admm")
+    max_icp = as_int(max_icp, "max_icp")
+    max_admm = as_int(max_admm, "max_admm")
     T = np.eye(4) if T_init is None else as_transform(T_init, "T_init")
     tree = cKDTree(Y) if target_tree is None else target_tree
     Xt = X @ T[:3, :3].T + T[:3, 3]
