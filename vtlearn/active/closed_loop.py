@@ -649,12 +649,15 @@ def load_xavtnet(ckpt, data: dict | None = None):
         k.startswith("head.") for k in data["state_dict"]
     ):
         raise ValueError(f"ckpt: {ckpt} is not an xAVTNet checkpoint (no encoder.* / head.* weights)")
+    if any(k.startswith("encoder.features.convs.") for k in data["state_dict"]):
+        raise ValueError(f"ckpt: {ckpt} is an ACTOR recognition checkpoint, not an XAVTNet one (load it with "
+                         "vtlearn.models.actor_recognition.load_recognition)")
     names = set(inspect.signature(XAVTNet.__init__).parameters) - {"self"}
     hp = {k: v for k, v in dict(data["hyper_parameters"]).items() if k in names}
-    model = XAVTNet(**hp)
     try:
+        model = XAVTNet(**hp)
         model.load_state_dict(data["state_dict"], strict=True)
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError, ValueError) as exc:
         raise ValueError(
             f"ckpt: {ckpt} does not match the xAVTNet architecture: {str(exc).splitlines()[0]}"
         ) from exc

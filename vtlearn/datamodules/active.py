@@ -18,6 +18,7 @@ from torch.utils.data import DataLoader
 
 from vtlearn.datamodules.crossmodal import CloudDataset, modality_clouds
 from vtlearn.datamodules.shards import ShardedDataModule, normalize_cloud
+from vtlearn.validation import as_int
 
 
 class ActivePoolDataModule(ShardedDataModule):
@@ -26,6 +27,10 @@ class ActivePoolDataModule(ShardedDataModule):
     initial_labels: pool items labelled at the start (n0), drawn at random with ``seed``.
     modality: ``tactile`` or ``visual``.
     batch_size, normalize, units, rotate_z, num_workers, verify: as in :class:`CrossModalDataModule`.
+
+    ``data_dir`` must be a ``crossmodal`` or ``reconstruction`` dataset (``crossmodal`` for
+    ``modality="visual"``), else a ValueError naming it; ``initial_labels`` (>= 0), ``batch_size`` (>= 1) and
+    ``num_workers`` (>= 0) must be ints.
     """
 
     def __init__(
@@ -42,15 +47,21 @@ class ActivePoolDataModule(ShardedDataModule):
         verify: bool = True,
     ):
         super().__init__()
-        if batch_size < 1:
-            raise ValueError(f"batch_size: need >= 1, got {batch_size}")
+        batch_size = as_int(batch_size, "batch_size")
+        num_workers = as_int(num_workers, "num_workers", 0)
+        initial_labels = as_int(initial_labels, "initial_labels", 0)
+        if modality not in ("tactile", "visual"):
+            raise ValueError(f"modality: expected 'tactile' or 'visual', got {modality!r}")
         if units not in ("canonical", "metres"):
             raise ValueError(f"units: expected 'canonical' or 'metres', got {units!r}")
         normalize_cloud(np.zeros((1, 3)), normalize)
         self.modality, self.batch_size = modality, batch_size
         self.normalize, self.units, self.rotate_z = normalize, units, rotate_z
         self.num_workers, self.seed = num_workers, seed
-        self._open_dataset(data_dir, verify)
+        manifest = self._open_dataset(data_dir, verify, kind=("crossmodal", "reconstruction"))
+        if modality == "visual" and manifest.get("kind") != "crossmodal":
+            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset with no visual "
+                             "clouds; modality='visual' needs a 'crossmodal' one")
         clouds, labels, scales = modality_clouds(self._split("train"), modality, units == "metres")
         self._pool = (clouds, labels, scales)
         n = len(clouds)
@@ -73,12 +84,18 @@ class ActivePoolDataModule(ShardedDataModule):
         return np.flatnonzero(~self._labelled)
 
     def query(self, indices) -> torch.Tensor:
-        """Reveal the labels of unlabelled pool ``indices`` and move them to the labelled set."""
-        idx = np.asarray(
-            torch.as_tensor(indices).cpu().numpy() if torch.is_tensor(indices) else indices, dtype=np.int64
-        ).reshape(-1)
+        """Reveal the labels of unlabelled pool ``indices`` (integers in ``[0, pool_size)``, e.g. the
+        ``index`` entries of :meth:`unlabelled_dataloader` batches) and move them to the labelled set."""
+        try:
+            idx = np.asarray(indices.detach().cpu().numpy() if torch.is_tensor(indices) else indices)
+        except (TypeError, ValueError):
+            raise ValueError(f"indices: expected integer pool indices, got {indices!r}") from None
+        idx = idx.reshape(-1)
         if len(idx) == 0:
             raise ValueError("indices: empty")
+        if idx.dtype.kind not in "iu":
+            raise ValueError(f"indices: expected integer pool indices, got {idx.dtype} {idx.tolist()[:8]}")
+        idx = idx.astype(np.int64)
         if len(np.unique(idx)) != len(idx):
             raise ValueError(f"indices: duplicates in {idx.tolist()}")
         if idx.min() < 0 or idx.max() >= self.pool_size:

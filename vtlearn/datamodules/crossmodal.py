@@ -24,12 +24,15 @@ from torch.utils.data import DataLoader, Dataset
 
 from vtlearn.datamodules.shards import (
     ShardedDataModule,
+    load_manifest,
+    load_split,
     normalize_cloud,
     random_voxel_subsample,
     rotation_z,
     split_clouds,
     worker_rng,
 )
+from vtlearn.validation import as_int
 
 
 def _check_points_range(value, name: str) -> tuple[int, int]:
@@ -231,6 +234,10 @@ class CrossModalDataModule(ShardedDataModule):
             active-touch criterion from the quality of the domain adaptation (docs/active_perception.md).
             Evaluation loaders are the same for both.
         num_workers, seed, verify: see :class:`ReconstructionDataModule`.
+
+    Integer settings (``batch_size``, ``target_batch_size``, ``source_views``: >= 1, ``num_workers``: >= 0)
+    must be ints; a damaged dataset (manifest, missing or unreadable shard) raises a ValueError naming
+    ``data_dir`` or ``target_data_dir`` (FileNotFoundError when a file is missing).
     """
 
     def __init__(
@@ -256,10 +263,10 @@ class CrossModalDataModule(ShardedDataModule):
         super().__init__()
         if target_split not in TARGET_SPLITS:
             raise ValueError(f"target_split: expected one of {list(TARGET_SPLITS)}, got {target_split!r}")
-        if batch_size < 1:
-            raise ValueError(f"batch_size: need >= 1, got {batch_size}")
-        if target_batch_size is not None and target_batch_size < 1:
-            raise ValueError(f"target_batch_size: need >= 1 or None, got {target_batch_size}")
+        batch_size = as_int(batch_size, "batch_size")
+        num_workers = as_int(num_workers, "num_workers", 0)
+        if target_batch_size is not None:
+            target_batch_size = as_int(target_batch_size, "target_batch_size")
         self.target_batch_size = target_batch_size
         if train_on not in ("visual", "tactile"):
             raise ValueError(f"train_on: expected 'visual' or 'tactile', got {train_on!r}")
@@ -269,9 +276,7 @@ class CrossModalDataModule(ShardedDataModule):
         self.batch_size, self.normalize, self.units = batch_size, normalize, units
         self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
         self.target_split, self.train_on = target_split, train_on
-        if int(source_views) < 1:
-            raise ValueError(f"source_views: need >= 1, got {source_views}")
-        self.source_views, self.source_touch = int(source_views), bool(source_touch)
+        self.source_views, self.source_touch = as_int(source_views, "source_views"), bool(source_touch)
         self.source_points = (
             None if source_points is None else _check_points_range(source_points, "source_points")
         )
@@ -292,9 +297,7 @@ class CrossModalDataModule(ShardedDataModule):
         self.target_data_dir = target_data_dir
         self._target_splits: dict[str, dict] = {}
         if target_data_dir is not None:
-            from vtlearn.datamodules.shards import load_manifest
-
-            other = load_manifest(target_data_dir)
+            other = load_manifest(target_data_dir, name="target_data_dir")
             if list(other["class_names"]) != self.class_names:
                 raise ValueError(
                     f"target_data_dir: class names {other['class_names']} differ from data_dir's "
@@ -409,9 +412,8 @@ class CrossModalDataModule(ShardedDataModule):
     def _target_data_split(self, split: str) -> dict:
         """A split of ``target_data_dir``, loaded (and checksummed with ``verify``) once."""
         if split not in self._target_splits:
-            from vtlearn.datamodules.shards import load_split
-
-            self._target_splits[split] = load_split(self.target_data_dir, split, self.verify)
+            self._target_splits[split] = load_split(self.target_data_dir, split, self.verify,
+                                                    name="target_data_dir")
         return self._target_splits[split]
 
     def source_train_dataset(self) -> CloudDataset:

@@ -32,6 +32,9 @@ from vtlearn.datamodules.shards import (
     split_clouds,
     worker_rng,
 )
+from vtlearn.validation import as_int
+
+DATASET_KINDS = ("reconstruction", "crossmodal")  # `gen-data` kinds with dense clouds per instance
 
 
 class ReconstructionDataset(Dataset):
@@ -101,6 +104,10 @@ class ReconstructionDataModule(ShardedDataModule):
         tactile_fraction: fraction of training / validation inputs taken from the instance's stored
             simulated tactile clouds instead of voxel subsampling (0: thesis protocol; see module doc).
         verify: check shard sha256 sums against the manifest when loading.
+
+    ``data_dir`` must be a ``reconstruction`` or ``crossmodal`` dataset (another kind, e.g.
+    ``tactile-episodes``, has no dense clouds: a ValueError naming ``data_dir``); ``batch_size``,
+    ``min_points``, ``max_points`` (>= 1) and ``num_workers`` (>= 0) must be ints.
     """
 
     def __init__(
@@ -116,17 +123,17 @@ class ReconstructionDataModule(ShardedDataModule):
         verify: bool = True,
     ):
         super().__init__()
-        if not 0.0 <= tactile_fraction <= 1.0:
-            raise ValueError(f"tactile_fraction: need a value in [0, 1], got {tactile_fraction}")
+        number = isinstance(tactile_fraction, (int, float, np.integer, np.floating))
+        if not number or not 0.0 <= tactile_fraction <= 1.0:
+            raise ValueError(f"tactile_fraction: need a value in [0, 1], got {tactile_fraction!r}")
         self.tactile_fraction = float(tactile_fraction)
-        if batch_size < 1:
-            raise ValueError(f"batch_size: need >= 1, got {batch_size}")
+        self.batch_size = as_int(batch_size, "batch_size")
+        min_points, max_points = as_int(min_points, "min_points"), as_int(max_points, "max_points")
         if not 1 <= min_points <= max_points:
             raise ValueError(f"min_points/max_points: need 1 <= min <= max, got {min_points}, {max_points}")
-        self.batch_size = batch_size
         self.min_points, self.max_points = min_points, max_points
-        self.rotate_z, self.num_workers, self.seed = rotate_z, num_workers, seed
-        self._open_dataset(data_dir, verify)
+        self.rotate_z, self.num_workers, self.seed = rotate_z, as_int(num_workers, "num_workers", 0), seed
+        self._open_dataset(data_dir, verify, kind=DATASET_KINDS)
 
     def _dataset(self, split: str, tactile: bool = False) -> ReconstructionDataset:
         d = self._split(split)

@@ -17,23 +17,68 @@ import torch
 from vtlearn.geometry import pad_clouds
 
 
-def load_manifest(data_dir: str | Path) -> dict:
+def _bad_manifest(name: str, data_dir, what: str) -> ValueError:
+    return ValueError(
+        f"{name}: manifest.json in {data_dir} {what}; the dataset is damaged or not a `vtlearn gen-data` "
+        "dataset (regenerate it)"
+    )
+
+
+def load_manifest(data_dir: str | Path, name: str = "data_dir") -> dict:
+    """The ``manifest.json`` of a `gen-data` dataset, with its structure checked.
+
+    Raises:
+        FileNotFoundError: ``data_dir`` or its manifest does not exist.
+        ValueError (naming ``name``, the caller's argument): the manifest is not JSON, not an object, lacks
+            ``class_names`` / ``splits`` / ``shards``, lists no split, or lists a malformed shard.
+    """
+    if data_dir is None or not isinstance(data_dir, (str, Path)) or str(data_dir) == "":
+        raise ValueError(f"{name}: expected a dataset directory, got {data_dir!r}")
     path = Path(data_dir) / "manifest.json"
-    if not path.exists():
+    if not path.is_file():
+        where = "" if Path(data_dir).is_dir() else " (no such directory)"
         raise FileNotFoundError(
-            f"data_dir: no manifest.json in {data_dir} (run `vtlearn gen-data` first, "
+            f"{name}: no manifest.json in {data_dir}{where} (run `vtlearn gen-data` first, "
             "or finish an interrupted run by rerunning it)"
         )
-    return json.loads(path.read_text())
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise _bad_manifest(name, data_dir, f"is not readable JSON ({exc})") from None
+    if not isinstance(manifest, dict):
+        raise _bad_manifest(name, data_dir, f"is a JSON {type(manifest).__name__}, not an object")
+    for key, typ in (("class_names", list), ("splits", dict), ("shards", list)):
+        if key not in manifest:
+            raise _bad_manifest(name, data_dir, f"has no {key!r} key")
+        if not isinstance(manifest[key], typ):
+            raise _bad_manifest(name, data_dir, f"has a {key!r} that is not a JSON {typ.__name__}")
+    if not manifest["class_names"] or not all(isinstance(c, str) for c in manifest["class_names"]):
+        raise _bad_manifest(name, data_dir, "has no class names (need a list of strings)")
+    if not manifest["splits"]:
+        raise ValueError(f"{name}: the dataset in {data_dir} has no splits (its manifest.json lists none); "
+                         "regenerate it")
+    for i, meta in enumerate(manifest["shards"]):
+        if not isinstance(meta, dict) or not all(isinstance(meta.get(k), str) for k in ("file", "split")):
+            raise _bad_manifest(name, data_dir, f"has a malformed shard entry {i} (needs 'file' and 'split')")
+        f = Path(meta["file"])
+        if f.is_absolute() or ".." in f.parts:
+            raise _bad_manifest(name, data_dir, f"lists shard {meta['file']!r} outside the dataset directory")
+    return manifest
 
 
-def load_split(data_dir: str | Path, split: str, verify: bool = True) -> dict[str, np.ndarray]:
-    """Concatenate the shards of ``split``; ``tactile_offsets`` are rebased. Checks sha256 if ``verify``."""
+def load_split(
+    data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir"
+) -> dict[str, np.ndarray]:
+    """Concatenate the shards of ``split``; ``tactile_offsets`` are rebased. Checks sha256 if ``verify``.
+
+    Errors name ``name`` (the caller's argument for ``data_dir``): a FileNotFoundError for a shard listed
+    in the manifest but missing, a ValueError for a checksum mismatch or a shard numpy cannot read.
+    """
     from vtlearn.sim_data.writer import sha256_file
 
+    manifest = load_manifest(data_dir, name)
     data_dir = Path(data_dir)
-    manifest = load_manifest(data_dir)
-    if split not in manifest["splits"]:
+    if not isinstance(split, str) or split not in manifest["splits"]:
         raise ValueError(f"split: {split!r} not in {sorted(manifest['splits'])}")
     parts: dict[str, list[np.ndarray]] = {}
     base = 0
@@ -41,15 +86,26 @@ def load_split(data_dir: str | Path, split: str, verify: bool = True) -> dict[st
         if meta["split"] != split:
             continue
         path = data_dir / meta["file"]
-        if verify and sha256_file(path) != meta["sha256"]:
-            raise ValueError(f"data_dir: shard {path} does not match its manifest sha256 (corrupt or edited)")
-        with np.load(path, allow_pickle=False) as z:
-            for k in z.files:
-                a = z[k]
-                if k == "tactile_offsets":
-                    a = a[1:] + base if parts.get(k) else a + base
-                    base = int(a[-1])
-                parts.setdefault(k, []).append(a)
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"{name}: shard {meta['file']} listed in the manifest is missing from {data_dir}; "
+                "regenerate the dataset (or rerun the interrupted `vtlearn gen-data`)"
+            )
+        if verify and sha256_file(path) != meta.get("sha256"):
+            raise ValueError(f"{name}: shard {path} does not match its manifest sha256 (corrupt or edited)")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except Exception as exc:  # BadZipFile, zlib / CRC errors, truncated headers, pickled arrays
+            raise ValueError(
+                f"{name}: shard {meta['file']} is unreadable ({type(exc).__name__}: {exc}); regenerate it "
+                "(rerun `vtlearn gen-data`)"
+            ) from None
+        for k, a in arrays.items():
+            if k == "tactile_offsets":
+                a = a[1:] + base if parts.get(k) else a + base
+                base = int(a[-1])
+            parts.setdefault(k, []).append(a)
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
@@ -150,10 +206,16 @@ class ShardedDataModule(pl.LightningDataModule):
     manifest, and :meth:`_split` loads (and, with ``verify``, checksums) a split on first use.
     """
 
-    def _open_dataset(self, data_dir: str | Path, verify: bool, kind: str | None = None) -> dict:
+    def _open_dataset(
+        self, data_dir: str | Path, verify: bool, kind: str | tuple[str, ...] | None = None
+    ) -> dict:
+        """Read and check ``data_dir``'s manifest; ``kind``: the dataset kind(s) accepted (a ValueError
+        naming ``data_dir`` for another)."""
         manifest = load_manifest(data_dir)
-        if kind is not None and manifest.get("kind") != kind:
-            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need {kind!r}")
+        kinds = (kind,) if isinstance(kind, str) else kind
+        if kinds is not None and manifest.get("kind") not in kinds:
+            need = repr(kinds[0]) if len(kinds) == 1 else " or ".join(repr(k) for k in kinds)
+            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need {need}")
         self.data_dir, self.verify = data_dir, verify
         self.class_names: list[str] = list(manifest["class_names"])
         self.num_classes: int = len(self.class_names)

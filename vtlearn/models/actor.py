@@ -401,13 +401,36 @@ def _plain_hparams(hparams: dict[str, Any], cls) -> dict[str, Any]:
     return out
 
 
+def _check_map_location(map_location) -> torch.device:
+    """``map_location`` as a ``torch.device``, or a ValueError naming it (e.g. ``"bogus"``)."""
+    try:
+        return torch.device(map_location)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise ValueError(
+            f"map_location: expected a torch device such as 'cpu' or 'cuda:0', got {map_location!r} "
+            f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+        ) from None
+
+
+def _to_device(model, map_location):
+    """``model`` moved to the checked ``map_location`` (a ValueError naming it for a device this machine
+    does not have)."""
+    try:
+        return model.to(map_location)
+    except (AssertionError, RuntimeError) as exc:
+        raise ValueError(f"map_location: cannot move the model to {map_location!r} "
+                         f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+
+
 def load_actor(ckpt: str | Path, map_location: str | torch.device = "cpu") -> ACTOR:
     """Load an :class:`ACTOR` from a Lightning checkpoint with ``weights_only=True``, in eval mode.
 
     Raises:
         FileNotFoundError: missing file.
-        ValueError: corrupted file, or a checkpoint of another model (the message says which).
+        ValueError: corrupted file, a checkpoint of another model (the message says which), or a
+            ``map_location`` that is not a torch device of this machine.
     """
+    map_location = _check_map_location(map_location)
     data = read_lightning_checkpoint(ckpt)
     state = data["state_dict"]
     if not any(k.startswith("encoder.features.") for k in state) or not any(
@@ -423,7 +446,7 @@ def load_actor(ckpt: str | Path, map_location: str | torch.device = "cpu") -> AC
         raise ValueError(
             f"ckpt: {ckpt} does not match the ACTOR architecture: {str(exc).splitlines()[0]}"
         ) from exc
-    return model.to(map_location).eval()
+    return _to_device(model, map_location).eval()
 
 
 @torch.no_grad()

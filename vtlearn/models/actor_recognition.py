@@ -234,12 +234,32 @@ class ACTORRecognition(L.LightningModule):
 
 
 def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu") -> ACTORRecognition:
-    """Load an :class:`ACTORRecognition` checkpoint (``weights_only=True``), in eval mode."""
+    """Load an :class:`ACTORRecognition` checkpoint (``weights_only=True``), in eval mode.
+
+    Raises:
+        FileNotFoundError: missing file.
+        ValueError (naming ``ckpt`` or ``map_location``): a corrupted file, a checkpoint of another model
+            (an xAVTNet or ACTOR one: the message says which), or a ``map_location`` that is not a device.
+    """
+    from vtlearn.models.actor import _check_map_location, _to_device
+
+    map_location = _check_map_location(map_location)
     data = read_lightning_checkpoint(ckpt)
     state = data["state_dict"]
     if not any(k.startswith("head.") for k in state) or not any(k.startswith("encoder.") for k in state):
         raise ValueError(
             f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no head.* / encoder.* weights)"
+        )
+    head_numbered = all(k.split(".")[1].isdigit() for k in state if k.startswith("head."))
+    if not head_numbered or not any(k.startswith("encoder.features.convs.") for k in state):
+        if any(k.startswith("head.fc") for k in state) or any(k.startswith("encoder.mlp1.") for k in state):
+            raise ValueError(
+                f"ckpt: {ckpt} is an XAVTNet checkpoint, not an ACTOR recognition one (load it with "
+                "vtlearn.active.closed_loop.load_xavtnet)"
+            )
+        raise ValueError(
+            f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no encoder.features.convs.* weights, or "
+            "head.* weights that are not an nn.Sequential)"
         )
     hp = _plain_hparams(dict(data["hyper_parameters"]), ACTORRecognition)
     hp["actor_ckpt"] = None  # the encoder weights are in the state dict
@@ -257,4 +277,4 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
         model.load_state_dict(state, strict=True)
     except (RuntimeError, TypeError, ValueError) as exc:
         raise ValueError(f"ckpt: {ckpt} does not match ACTORRecognition: {str(exc).splitlines()[0]}") from exc
-    return model.to(map_location).eval()
+    return _to_device(model, map_location).eval()

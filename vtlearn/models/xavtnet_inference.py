@@ -193,13 +193,14 @@ def recognize_clouds(
 
     Args:
         model: :class:`~vtlearn.models.xavtnet.XAVTNet`, e.g. from
-            :func:`~vtlearn.active.closed_loop.load_xavtnet` (``weights_only=True``).
-        clouds: gravity-aligned clouds (z up), at least 3 points each.
+            :func:`~vtlearn.active.closed_loop.load_xavtnet` (``weights_only=True``); another model (e.g. an
+            ACTOR) is a ValueError.
+        clouds: a list of gravity-aligned clouds (z up), at least 3 points each.
         class_names: names of the classes; default from the checkpoint (:func:`checkpoint_class_names`).
         extent_m: the objects' largest bounding-box extents in metres, one for all or one per cloud
             (``None`` entries: the cloud's own extent).
         units: the units the model was trained on, see :func:`canonical_cloud`.
-        mc_samples: ``T`` stochastic passes with dropout on (eq. 7.3); 0 for one deterministic pass.
+        mc_samples: ``T`` stochastic passes with dropout on (eq. 7.3), an int; 0 for one deterministic pass.
         domain: batch-norm statistics of a ``domain_bn`` model: ``"target"`` (tactile clouds) or
             ``"source"`` (visual clouds). Ignored by other models.
         seed: the dropout masks of the MC passes.
@@ -216,14 +217,29 @@ def recognize_clouds(
     from vtlearn.active.mc_dropout import bald_score, mc_dropout_probs, predictive_entropy
     from vtlearn.datamodules.shards import normalize_cloud
     from vtlearn.geometry.sampling import pad_clouds
+    from vtlearn.models.xavtnet import XAVTNet
+    from vtlearn.validation import as_int
 
+    if not isinstance(model, XAVTNet):
+        raise ValueError(
+            f"model: expected an XAVTNet (e.g. from load_xavtnet), got {type(model).__name__}"
+        )
     if isinstance(clouds, np.ndarray) and clouds.ndim == 2:
         raise ValueError("clouds: expected a list of (N, 3) clouds, got a single array; wrap it in a list")
-    clouds = list(clouds)
+    if clouds is None or isinstance(clouds, (str, bytes, dict)):
+        raise ValueError(f"clouds: expected a list of (N, 3) clouds, got {type(clouds).__name__}")
+    try:
+        clouds = list(clouds)
+    except TypeError:
+        raise ValueError(f"clouds: expected a list of (N, 3) clouds, got {type(clouds).__name__}") from None
     if not clouds:
         raise ValueError("clouds: empty list; need at least one cloud")
-    if int(mc_samples) < 0:
-        raise ValueError(f"mc_samples: need >= 0 (0: one deterministic pass), got {mc_samples}")
+    try:
+        mc_samples = as_int(mc_samples, "mc_samples", 0)
+    except ValueError:
+        raise ValueError(
+            f"mc_samples: need an integer >= 0 (0: one deterministic pass), got {mc_samples!r}"
+        ) from None
     n = len(clouds)
     extents = _one_per_cloud(extent_m, n, "extent_m", "extents", extent_m is None or np.isscalar(extent_m))
     boxes = _one_per_cloud(
