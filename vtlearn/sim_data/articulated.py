@@ -63,11 +63,26 @@ CATEGORIES = ("dishwasher", "glasses", "drawer", "blade")
 
 @dataclass
 class Box:
-    """A box of a link: ``half`` extents (m), centre ``xyz`` and roll-pitch-yaw ``rpy`` in the link frame."""
+    """A box of a link: ``half`` extents (m), centre ``xyz`` and roll-pitch-yaw ``rpy`` in the link frame.
+
+    ``half`` is 3 finite positive numbers, ``xyz`` and ``rpy`` 3 finite numbers each (``ValueError``).
+    """
 
     half: tuple[float, float, float]
     xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        for name in ("half", "xyz", "rpy"):
+            v = getattr(self, name)
+            try:
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):
+                a = np.zeros(0)
+            if a.shape != (3,) or not np.isfinite(a).all():
+                raise ValueError(f"{name}: need 3 finite numbers, got {v!r}")
+            if name == "half" and not (a > 0).all():
+                raise ValueError(f"half: need positive half extents, got {v!r}")
 
     def mesh(self) -> trimesh.Trimesh:
         m = trimesh.creation.box(extents=2 * np.asarray(self.half))
@@ -345,9 +360,15 @@ def look_at_45(target: np.ndarray, distance: float, azimuth: float = -np.pi / 2)
     """T_world_camera (OpenCV axes) of a camera 45 deg above the table looking at ``target``.
 
     ``azimuth`` is the direction, in the table plane, from the target to the camera (default -y, the
-    objects' front).
+    objects' front). ``target`` is a finite (3,) point, ``distance`` finite and > 0, ``azimuth`` finite.
     """
     target = np.asarray(target, dtype=np.float64)
+    if target.shape != (3,) or not np.isfinite(target).all():
+        raise ValueError(f"target: need a finite (3,) point, got {target.tolist()}")
+    if not (np.isfinite(distance) and distance > 0):
+        raise ValueError(f"distance: need a positive finite distance in metres, got {distance}")
+    if not np.isfinite(azimuth):
+        raise ValueError(f"azimuth: need a finite angle in radians, got {azimuth}")
     d = np.array(
         [np.cos(azimuth) * np.cos(np.pi / 4), np.sin(azimuth) * np.cos(np.pi / 4), np.sin(np.pi / 4)]
     )

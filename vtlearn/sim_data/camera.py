@@ -31,11 +31,15 @@ import numpy as np
 import pybullet as p
 
 from vtlearn.sim_data.scene import Scene
+from vtlearn.validation import as_int, as_transform
 
 
 @dataclass
 class DepthNoise:
-    """Kinect-like depth noise; see the module docstring. ``DepthNoise.off()`` disables it."""
+    """Kinect-like depth noise; see the module docstring. ``DepthNoise.off()`` disables it.
+
+    All values are finite; ``axial_a``, ``axial_b``, ``lateral_px`` >= 0 and ``0 <= min_range < max_range``.
+    """
 
     axial_a: float = 0.0012
     axial_b: float = 0.0019
@@ -48,6 +52,23 @@ class DepthNoise:
     @classmethod
     def off(cls) -> DepthNoise:
         return cls(enabled=False)
+
+    def __post_init__(self):
+        for name in ("axial_a", "axial_b", "axial_z0", "lateral_px", "min_range", "max_range"):
+            v = getattr(self, name)
+            try:
+                ok = bool(np.isfinite(float(v)))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(f"{name}: need a finite number, got {v!r}")
+            if name in ("axial_a", "axial_b", "lateral_px") and v < 0:
+                raise ValueError(f"{name}: need >= 0, got {v!r}")
+        if not 0 <= self.min_range < self.max_range:
+            raise ValueError(
+                "min_range/max_range: need 0 <= min_range < max_range, "
+                f"got {self.min_range}, {self.max_range}"
+            )
 
 
 @dataclass
@@ -90,7 +111,7 @@ class RGBDCamera:
     """A pinhole RGB-D camera rendered by TinyRenderer.
 
     Args:
-        width, height: image size in pixels.
+        width, height: image size in pixels (integers >= 1).
         fov_y_deg: vertical field of view (the Azure Kinect NFOV depth mode is about 65 deg).
         near, far: clipping planes in metres.
         noise: :class:`DepthNoise` (``DepthNoise.off()`` for exact depth).
@@ -107,7 +128,9 @@ class RGBDCamera:
         noise: DepthNoise | None = None,
         transparency: TransparencyModel | None = None,
     ):
-        self.width, self.height = int(width), int(height)
+        self.width, self.height = as_int(width, "width", 1), as_int(height, "height", 1)
+        if not (np.isfinite(near) and np.isfinite(far)):
+            raise ValueError(f"near/far: need finite clipping planes, got {near}, {far}")
         self.K = intrinsics_from_fov(self.width, self.height, fov_y_deg)
         # TinyRenderer rasterises pixel (u, v) at image coordinates (u, v + 1) rather than at the
         # centre (u + 0.5, v + 0.5), measured against the mesh (median error 0.2 mm vs 1 mm). Shift
@@ -242,6 +265,8 @@ def backproject(
     """Back-project a metric depth image to world-frame points ``p_world = T_world_camera @ p_camera``.
 
     Pixel (u, v) looks through its centre (u + 0.5, v + 0.5); ``p_camera = z K^-1 [u, v, 1]``.
+    ``K`` must be finite and invertible, ``T_world_camera`` a finite rigid transform, ``mask`` (if given)
+    the shape of ``depth`` and ``lateral_px`` finite and >= 0 (``ValueError`` naming the argument).
     """
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim != 2:
@@ -249,6 +274,15 @@ def backproject(
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"K: need shape (3, 3), got {K.shape}")
+    if not np.isfinite(K).all():
+        raise ValueError("K: contains NaN or inf")
+    if K[0, 0] == 0 or K[1, 1] == 0 or abs(np.linalg.det(K)) < 1e-12:
+        raise ValueError(f"K: singular intrinsics (fx={K[0, 0]}, fy={K[1, 1]}, det={np.linalg.det(K)})")
+    T = as_transform(T_world_camera, "T_world_camera")
+    if mask is not None and np.shape(mask) != depth.shape:
+        raise ValueError(f"mask: need the shape of depth {depth.shape}, got {np.shape(mask)}")
+    if not (np.isfinite(lateral_px) and lateral_px >= 0):
+        raise ValueError(f"lateral_px: need a finite value >= 0, got {lateral_px}")
     valid = depth > 0 if mask is None else (np.asarray(mask, bool) & (depth > 0))
     v, u = np.nonzero(valid)
     z = depth[v, u]
@@ -260,7 +294,6 @@ def backproject(
     x = (uu - K[0, 2]) / K[0, 0] * z
     y = (vv - K[1, 2]) / K[1, 1] * z
     pts_c = np.stack([x, y, z], axis=1)
-    T = np.asarray(T_world_camera, dtype=np.float64)
     return pts_c @ T[:3, :3].T + T[:3, 3]
 
 
@@ -270,8 +303,12 @@ def viewpoint_rotation(p_view: np.ndarray, o_centroid: np.ndarray) -> np.ndarray
     Eq. 5.3: h = (p_view - o_centroid) / |.|;  eq. 5.4: theta = acos(h . Z), e = (h x Z) / |h x Z|;
     eq. 5.5: R_v = Rodrigues(e, theta), which rotates h onto Z. Hence R_v^T Z = h, and the camera,
     which must look along -h, is R_world_camera = R_v^T Rx(pi). Straight above (h = Z), e is
-    undefined and R_v = I.
+    undefined and R_v = I. ``p_view`` and ``o_centroid`` are distinct finite (3,) points.
     """
+    for name, x in (("p_view", p_view), ("o_centroid", o_centroid)):
+        a = np.asarray(x, dtype=np.float64)
+        if a.shape != (3,) or not np.isfinite(a).all():
+            raise ValueError(f"{name}: need a finite (3,) point, got {x!r}")
     h = np.asarray(p_view, float) - np.asarray(o_centroid, float)
     nh = np.linalg.norm(h)
     if nh < 1e-12:
@@ -303,11 +340,18 @@ def sample_hemisphere_views(
     """(n, 4, 4) T_world_camera on the upper hemisphere of ``radius`` around ``o_centroid`` (eq. 5.3-5.5).
 
     Positions are uniform on the sphere by Marsaglia's method, reflected to z >= 0 and rejected
-    below ``min_elevation_deg`` (views grazing the table see little of the object).
+    below ``min_elevation_deg`` (views grazing the table see little of the object). ``o_centroid`` is a
+    finite (3,) point, ``radius`` finite and > 0, ``n >= 1`` and ``min_elevation_deg`` finite and < 90.
     """
-    if n < 1 or not radius > 0:
-        raise ValueError(f"n/radius: need n >= 1 and radius > 0, got {n}, {radius}")
+    if n < 1:
+        raise ValueError(f"n: need >= 1 views, got {n}")
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: need a positive finite distance, got {radius}")
+    if not (np.isfinite(min_elevation_deg) and min_elevation_deg < 90):
+        raise ValueError(f"min_elevation_deg: need a finite angle < 90, got {min_elevation_deg}")
     o = np.asarray(o_centroid, dtype=np.float64)
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise ValueError(f"o_centroid: need a finite (3,) point, got {o_centroid!r}")
     out = []
     min_z = np.sin(np.deg2rad(min_elevation_deg))
     while len(out) < n:

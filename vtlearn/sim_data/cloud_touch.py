@@ -54,7 +54,8 @@ def touch_cloud(
     Each touch draws a pressing direction (from above with probability equal to the top face's share of the
     five touchable box faces, else horizontal at a uniform azimuth), a random pad roll, and a pad centre
     uniform over ``margin`` of the cloud's extent across the direction (as thesis 7.2.4 samples touch points
-    on the box faces). A touch whose footprint holds no point is a miss and costs one of ``max_touches``.
+    on the box faces). A touch whose footprint holds no point is a miss and costs one of ``max_touches``
+(>= 1); ``margin`` is a fraction in [0, 1].
 
     Args:
         points: the cloud, z up (objects stand on a table; the bottom is never touched).
@@ -78,6 +79,10 @@ def touch_cloud(
         raise ValueError(f"pitch: need a positive finite taxel pitch, got {pitch}")
     if int(rows) < 1 or int(cols) < 1:
         raise ValueError(f"rows, cols: need a positive taxel layout, got {rows}x{cols}")
+    if int(max_touches) < 1:
+        raise ValueError(f"max_touches: need >= 1, got {max_touches}")
+    if not (np.isfinite(margin) and 0 <= margin <= 1):
+        raise ValueError(f"margin: need a fraction in [0, 1], got {margin}")
     tol = 0.5 * pitch if depth_tol is None else float(depth_tol)
     if not tol >= 0:
         raise ValueError(f"depth_tol: need >= 0, got {depth_tol}")

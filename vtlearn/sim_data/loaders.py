@@ -9,8 +9,8 @@ Supported layouts (detected automatically by :func:`scan_mesh_folder`):
 
 Each item is ``{"category", "file", "scale_m"}``. ``scale_m`` is a nominal real size in metres for the
 category, because these meshes carry no metric scale. Meshes that cannot be read, are empty, have
-non-finite vertices, zero area, or non-manifold edges (shared by more than two faces) are skipped,
-and the reason is logged. They never crash a run.
+non-finite vertices, zero area, are flat (one plane), or have non-manifold edges (shared by more than two
+faces) are skipped, and the reason is logged. They never crash a run. Open meshes are kept.
 """
 
 from __future__ import annotations
@@ -53,20 +53,52 @@ NOMINAL_SIZE_M = {
 DEFAULT_SIZE_M = 0.15
 
 
-def check_mesh(path: str | Path):
-    """(mesh, None) for a usable mesh, (None, reason) otherwise."""
-    from vtlearn.io import read_mesh
+def _flatness(vertices: np.ndarray) -> float:
+    """Smallest over largest principal spread of ``vertices`` (V, 3): 0 for points in one plane or line."""
+    c = vertices - vertices.mean(axis=0)
+    ev = np.clip(np.linalg.eigvalsh(c.T @ c), 0.0, None)  # ascending
+    return float(np.sqrt(ev[0] / ev[-1])) if ev[-1] > 0 else 0.0
 
+
+def check_mesh(path: str | Path):
+    """(mesh, None) for a usable mesh, (None, reason) otherwise.
+
+    Unusable: unreadable or unsupported files, no faces, NaN/inf vertices (checked on the file's raw
+    vertices, before trimesh's processing silently drops them with their faces), zero surface area, a
+    flat mesh (all vertices in one plane or on one line: a planar polygon is not a touchable object), or
+    non-manifold edges. Open (non-watertight) meshes are accepted: real ShapeNet meshes often are.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+    """
+    import trimesh
+
+    from vtlearn.io import MESH_SUFFIXES
+
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"path: no such mesh file {p}")
+    if p.suffix.lower() not in MESH_SUFFIXES:
+        return None, f"unreadable (unsupported mesh format {p.suffix!r}; expected one of {MESH_SUFFIXES})"
     try:
-        mesh = read_mesh(path)
+        # process=False: processing would drop NaN vertices and their faces without telling us
+        raw = trimesh.load(str(p), force="mesh", process=False)
     except Exception as exc:  # noqa: BLE001 - any reader failure means "skip this file"
+        return None, f"unreadable ({type(exc).__name__}: {exc})"
+    if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
+        return None, "no faces"
+    if not np.all(np.isfinite(raw.vertices)):
+        return None, "non-finite vertices"
+    try:
+        mesh = trimesh.Trimesh(raw.vertices, raw.faces, process=True)
+    except Exception as exc:  # noqa: BLE001 - e.g. face indices out of range
         return None, f"unreadable ({type(exc).__name__}: {exc})"
     if len(mesh.faces) == 0:
         return None, "no faces"
-    if not np.all(np.isfinite(mesh.vertices)):
-        return None, "non-finite vertices"
     if not mesh.area > 0:
         return None, "zero surface area"
+    if _flatness(np.asarray(mesh.vertices, dtype=np.float64)) < 1e-6:
+        return None, "flat (all vertices in one plane or on one line)"
     edges = np.sort(mesh.edges, axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
     if (counts > 2).any():
@@ -130,7 +162,10 @@ def scan_mesh_folder(spec: str | Path, check: bool = True) -> list[dict]:
         return items
     good = []
     for it in items:
-        _, reason = check_mesh(it["file"])
+        try:
+            _, reason = check_mesh(it["file"])
+        except FileNotFoundError:  # e.g. a pybullet_data file this pybullet version does not ship
+            reason = "missing file"
         if reason is None:
             good.append(it)
         else:

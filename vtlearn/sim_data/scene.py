@@ -16,6 +16,7 @@ import pybullet as p
 import trimesh
 
 from vtlearn.geometry import matrix_to_quat
+from vtlearn.validation import as_points, as_transform
 
 # Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
 # the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
@@ -98,14 +99,34 @@ class Scene:
 
         A fixed object gets an exact concave triangle-mesh collider (what the taxel rays hit). A free
         object gets its convex hull as collider, because Bullet only simulates convex dynamic meshes.
+
+        Raises ``ValueError`` naming the argument for a mesh without faces, with NaN/inf vertices or zero
+        total area (e.g. all vertices collinear); a non-positive or non-finite ``scale``; a
+        ``T_world_object`` that is not a finite rigid (4, 4) transform; ``rgba`` other than 4 finite
+        numbers; or, for a free object, a ``mass`` that is not positive and finite.
         """
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError("mesh: need a non-empty trimesh.Trimesh")
-        if not (np.isfinite(scale) and scale > 0):
-            raise ValueError(f"scale: need a positive finite value, got {scale}")
+        if not np.isfinite(np.asarray(mesh.vertices, dtype=np.float64)).all():
+            raise ValueError("mesh: vertices contain NaN or inf")
+        if not (np.isfinite(mesh.area) and mesh.area > 0):
+            raise ValueError(f"mesh: degenerate (total face area {mesh.area}); need a surface with area > 0")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float, np.number)) or not (
+            np.isfinite(scale) and scale > 0
+        ):
+            raise ValueError(f"scale: need a positive finite value, got {scale!r}")
         T = np.eye(4) if T_world_object is None else np.asarray(T_world_object, dtype=np.float64)
         if T.shape != (4, 4):
             raise ValueError(f"T_world_object: need shape (4, 4), got {T.shape}")
+        T = as_transform(T, "T_world_object")
+        try:
+            rgba_arr = np.asarray(rgba, dtype=np.float64)
+        except (TypeError, ValueError):
+            rgba_arr = np.zeros(0)
+        if rgba_arr.shape != (4,) or not np.isfinite(rgba_arr).all():
+            raise ValueError(f"rgba: need 4 finite numbers (r, g, b, a), got {rgba!r}")
+        if not fixed and not (np.isfinite(mass) and mass > 0):
+            raise ValueError(f"mass: a free object needs a positive finite mass in kg, got {mass!r}")
         mesh_m = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=False)
         v = mesh_m.vertices.astype(np.float64).tolist()
         idx = mesh_m.faces.astype(np.int32).ravel().tolist()
@@ -122,7 +143,7 @@ class Scene:
             p.GEOM_MESH,
             vertices=v,
             indices=idx,
-            rgbaColor=list(rgba),
+            rgbaColor=rgba_arr.tolist(),
             normals=mesh_m.vertex_normals.tolist(),
             **kw,
         )
@@ -163,8 +184,13 @@ class Scene:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Batched ray casts. Returns (body ids (R,), hit fractions (R,), hit points (R, 3), normals (R, 3)).
 
-        Missed rays have body id -1 and fraction 1.
+        Missed rays have body id -1 and fraction 1. ``starts`` and ``ends`` must be finite (R, 3) arrays of
+        the same length (``ValueError`` naming the argument otherwise).
         """
+        starts = as_points(starts, "starts", min_points=0)
+        ends = as_points(ends, "ends", min_points=0)
+        if len(starts) != len(ends):
+            raise ValueError(f"starts/ends: need the same number of rays, got {len(starts)} and {len(ends)}")
         out = []
         # pybullet caps one batch at MAX_RAY_INTERSECTION_BATCH_SIZE (16k) rays.
         for i in range(0, len(starts), 16000):

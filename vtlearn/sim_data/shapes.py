@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from vtlearn.validation import as_int
+
 log = logging.getLogger(__name__)
 
 CATEGORIES: tuple[str, ...] = (
@@ -392,11 +394,33 @@ _BUILDERS: dict[str, Callable] = {
 
 
 # --------------------------------------------------------------------------- public API
+def check_out_dir(out_dir, name: str = "out_dir") -> Path:
+    """``out_dir`` as a Path; a ``ValueError`` naming ``name`` if it exists but is not a directory (or has a
+    non-directory ancestor), before any work is done."""
+    out = Path(out_dir)
+    for q in (out, *out.parents):
+        if q.exists():
+            if not q.is_dir():
+                raise ValueError(f"{name}: {q} exists and is not a directory")
+            break
+    return out
+
+
 def normalize_mesh(mesh_m: trimesh.Trimesh) -> tuple[trimesh.Trimesh, float]:
     """Centre the bounding box at the origin and scale the largest extent to 1 (ShapeNet-style).
 
-    Returns the canonical mesh and ``scale_m`` (metres per canonical unit).
+    Returns the canonical mesh and ``scale_m`` (metres per canonical unit). ``mesh_m`` must be a
+    ``trimesh.Trimesh`` with at least one face, finite vertices and a positive surface area (``ValueError``
+    naming ``mesh_m`` otherwise).
     """
+    if not isinstance(mesh_m, trimesh.Trimesh):
+        raise ValueError(f"mesh_m: need a trimesh.Trimesh, got {type(mesh_m).__name__}")
+    if len(mesh_m.faces) == 0:
+        raise ValueError("mesh_m: has no faces")
+    if not np.isfinite(np.asarray(mesh_m.vertices, dtype=np.float64)).all():
+        raise ValueError("mesh_m: vertices contain NaN or inf")
+    if not mesh_m.area > 0:
+        raise ValueError("mesh_m: degenerate (zero surface area)")
     lo, hi = mesh_m.bounds
     scale = float(np.max(hi - lo))
     if not np.isfinite(scale) or scale <= 0:
@@ -411,12 +435,18 @@ def generate_shape(category: str, seed: int, sections: int = 48) -> tuple[trimes
     Args:
         category: one of :data:`CATEGORIES`.
         seed: instance seed; the same (category, seed, sections) always gives the same mesh.
-        sections: angular resolution of revolved parts (more sections, more faces).
+        sections: angular resolution of revolved parts (more sections, more faces), an integer >= 8.
+
+    Raises ``ValueError`` naming the argument for an unknown category, a negative or non-integer seed, or
+    bad ``sections``.
     """
-    if category not in _BUILDERS:
+    if not isinstance(category, str) or category not in _BUILDERS:
         raise ValueError(f"category: unknown {category!r}, expected one of {CATEGORIES}")
-    if int(sections) < 8:
-        raise ValueError(f"sections: need at least 8, got {sections}")
+    try:
+        sections = as_int(sections, "sections", 8)
+    except ValueError:
+        raise ValueError(f"sections: need at least 8, got {sections!r}") from None
+    seed = as_int(seed, "seed", 0)
     rng = np.random.default_rng([int(seed), CATEGORIES.index(category)])
     mesh_m, params = _BUILDERS[category](rng, int(sections))
     transparent = bool(rng.uniform() < TRANSPARENT_PROB.get(category, 0.0))
@@ -435,8 +465,16 @@ def generate_shape(category: str, seed: int, sections: int = 48) -> tuple[trimes
 
 
 def instance_seed(seed: int, category: str, index: int) -> int:
-    """The per-instance seed used by gen-shapes and gen-data, derived from (seed, category, index)."""
-    ss = np.random.SeedSequence([int(seed), CATEGORIES.index(category), int(index)])
+    """The per-instance seed used by gen-shapes and gen-data, derived from (seed, category, index).
+
+    ``seed`` and ``index`` are non-negative integers and ``category`` one of :data:`CATEGORIES`
+    (``ValueError`` naming the argument otherwise).
+    """
+    if not isinstance(category, str) or category not in CATEGORIES:
+        raise ValueError(f"category: unknown {category!r}, expected one of {CATEGORIES}")
+    seed = as_int(seed, "seed", 0)
+    index = as_int(index, "index", 0)
+    ss = np.random.SeedSequence([seed, CATEGORIES.index(category), index])
     return int(ss.generate_state(1, dtype=np.uint32)[0])
 
 
@@ -448,15 +486,26 @@ def write_shapes(
     sections: int = 48,
     progress: bool = True,
 ) -> list[dict]:
-    """Write ``<out>/<category>/<category>_<i>.obj`` + ``.json`` for each instance; returns the records."""
+    """Write ``<out>/<category>/<category>_<i>.obj`` + ``.json`` for each instance; returns the records.
+
+    ``out_dir`` must be (or become) a directory, ``categories`` a non-empty list of known categories and
+    ``seed`` a non-negative integer (``ValueError`` naming the argument otherwise).
+    """
     from tqdm import tqdm
 
     if per_category < 1:
         raise ValueError(f"per_category: need >= 1, got {per_category}")
+    if len(categories) == 0:
+        raise ValueError(f"categories: need at least one of {CATEGORIES}, got none")
     for c in categories:
         if c not in _BUILDERS:
             raise ValueError(f"categories: unknown {c!r}, expected some of {CATEGORIES}")
-    out = Path(out_dir)
+    as_int(seed, "seed", 0)
+    try:
+        as_int(sections, "sections", 8)
+    except ValueError:
+        raise ValueError(f"sections: need at least 8, got {sections!r}") from None
+    out = check_out_dir(out_dir)
     jobs = [(c, i) for c in categories for i in range(per_category)]
     records = []
     for c, i in tqdm(jobs, desc="gen-shapes", disable=not progress):

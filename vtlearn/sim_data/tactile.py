@@ -139,7 +139,10 @@ class TouchResult:
 
 
 def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
-    """T_world_pad with origin ``start`` and z-axis ``direction``; ``roll`` (rad) turns the grid about z."""
+    """T_world_pad with origin ``start`` and z-axis ``direction``; ``roll`` (rad) turns the grid about z.
+
+    ``start`` is a finite (3,) point, ``direction`` a finite non-zero (3,) vector and ``roll`` finite.
+    """
     start = np.asarray(start, dtype=np.float64)
     d = np.asarray(direction, dtype=np.float64)
     if start.shape != (3,) or not np.all(np.isfinite(start)):
@@ -147,6 +150,12 @@ def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
     n = np.linalg.norm(d)
     if d.shape != (3,) or not np.isfinite(n) or n < 1e-12:
         raise ValueError(f"direction: need a finite non-zero (3,) vector, got {direction}")
+    try:
+        roll = float(roll)
+    except (TypeError, ValueError):
+        raise ValueError(f"roll: need a finite angle in radians, got {roll!r}") from None
+    if not np.isfinite(roll):
+        raise ValueError(f"roll: need a finite angle in radians, got {roll!r}")
     z = d / n
     ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(ref, z)
@@ -471,6 +480,33 @@ def bbox_faces(lo, hi):
     return faces
 
 
+def _check_box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """``lo``, ``hi`` as finite (3,) float arrays with ``lo <= hi``; ValueError naming the argument."""
+    out = []
+    for name, x in (("lo", lo), ("hi", hi)):
+        try:
+            a = np.asarray(x, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: need a finite (3,) box corner, got {x!r}") from None
+        if a.shape != (3,) or not np.isfinite(a).all():
+            raise ValueError(f"{name}: need a finite (3,) box corner, got {x!r}")
+        out.append(a)
+    if (out[0] > out[1]).any():
+        raise ValueError(f"lo/hi: need lo <= hi on every axis, got {out[0].tolist()} and {out[1].tolist()}")
+    return out[0], out[1]
+
+
+def _check_real(x, name: str, lo: float, hi: float = np.inf) -> float:
+    """``x`` as a finite float in [lo, hi]; ValueError naming ``name`` otherwise."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: need a finite number in [{lo}, {hi}], got {x!r}") from None
+    if not (np.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"{name}: need a finite number in [{lo}, {hi}], got {x!r}")
+    return v
+
+
 def sample_touches(
     lo,
     hi,
@@ -485,15 +521,23 @@ def sample_touches(
     ``mode="random"`` picks faces with probability proportional to area and points uniformly on them
     (Monte-Carlo sampling, thesis 7.2.4); ``mode="grid"`` spreads ``n`` touches as regular grids over
     the five faces. Starts lie ``standoff`` metres outside the face; directions point inward.
+
+    ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi`` and a positive surface area, ``standoff`` is
+    finite and >= 0, ``margin`` (the fraction of each face used) lies in [0, 1].
     """
     if n < 1:
         raise ValueError(f"n: need >= 1, got {n}")
     if mode not in ("random", "grid"):
         raise ValueError(f"mode: expected 'random' or 'grid', got {mode!r}")
+    lo, hi = _check_box(lo, hi)
+    standoff = _check_real(standoff, "standoff", 0.0)
+    margin = _check_real(margin, "margin", 0.0, 1.0)
     faces = bbox_faces(lo, hi)
     out = []
     if mode == "random":
         area = np.array([np.linalg.norm(u) * np.linalg.norm(v) for _, _, u, v in faces])
+        if not area.sum() > 0:
+            raise ValueError(f"lo/hi: the box {lo.tolist()} - {hi.tolist()} has no face area to touch")
         choice = rng.choice(len(faces), size=n, p=area / area.sum())
         ab = rng.uniform(-margin, margin, size=(n, 2))
         for f, (a, b) in zip(choice, ab, strict=True):
@@ -511,12 +555,19 @@ def sample_touches(
 
 
 def sample_pinches(lo, hi, n: int, rng: np.random.Generator, clearance: float = 0.03):
-    """Pinch actions from above: (centre, axis angle, width) with the centre inside the footprint."""
+    """Pinch actions from above: (centre, axis angle, width) with the centre inside the footprint.
+
+    ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi``; ``clearance`` is finite and >= 0, and the
+    resulting finger opening must be positive.
+    """
     if n < 1:
         raise ValueError(f"n: need >= 1, got {n}")
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    lo, hi = _check_box(lo, hi)
+    clearance = _check_real(clearance, "clearance", 0.0)
     c, h = (lo + hi) / 2, (hi - lo) / 2
     width = 2 * np.linalg.norm(h[:2]) + 2 * clearance
+    if not width > 0:
+        raise ValueError("lo/hi/clearance: zero footprint and zero clearance give a zero pinch width")
     out = []
     for _ in range(n):
         xy = c[:2] + rng.uniform(-0.3, 0.3, size=2) * h[:2]

@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.io import atomic_write_npz
-from vtlearn.sim_data.shapes import CATEGORIES, generate_shape, instance_seed
+from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
+from vtlearn.validation import as_int
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,14 @@ KINDS = ("reconstruction", "crossmodal")
 
 @dataclass
 class GenConfig:
-    """Everything that determines a dataset's bytes (saved as config.json)."""
+    """Everything that determines a dataset's bytes (saved as config.json).
+
+    Field checks run on construction (``ValueError`` naming the field): counts ``per_category``,
+    ``shard_size``, ``dense_points``, ``touches``, ``views``, ``visual_points``, ``image_width``,
+    ``image_height``, ``tactile_clouds`` are integers >= 1, ``pinches`` and ``seed`` integers >= 0,
+    ``sections`` >= 8. :meth:`validate` (called by :func:`generate_dataset`) also checks ``sensor`` and
+    that ``mesh_source`` is ``"procedural"``, ``"pybullet_data"`` or an existing directory.
+    """
 
     kind: str = "reconstruction"
     categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
@@ -80,7 +88,26 @@ class GenConfig:
     tactile_max_points: int = 120
     mesh_source: str = "procedural"  # or a directory of meshes, one subfolder per category
 
+    def __post_init__(self):
+        self._check_fields()
+
     def validate(self) -> None:
+        """All field checks plus ``sensor`` and ``mesh_source`` (ValueError / FileNotFoundError)."""
+        self._check_fields()
+        from vtlearn.sim_data.sensors import get_sensor
+
+        try:
+            get_sensor(self.sensor)
+        except ValueError as exc:
+            raise ValueError(f"sensor: {exc}") from None
+        if not isinstance(self.mesh_source, str | Path) or not str(self.mesh_source):
+            raise ValueError(f"mesh_source: need 'procedural', 'pybullet_data' or a directory, got "
+                             f"{self.mesh_source!r}")
+        src = str(self.mesh_source)
+        if src not in ("procedural", "pybullet_data") and not Path(src).is_dir():
+            raise FileNotFoundError(f"mesh_source: no such mesh directory {self.mesh_source}")
+
+    def _check_fields(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
         if self.mesh_source == "procedural":
@@ -89,6 +116,15 @@ class GenConfig:
                 raise ValueError(f"categories: unknown {bad} or empty; expected some of {CATEGORIES}")
         if self.per_category < 1:
             raise ValueError(f"per_category: need >= 1, got {self.per_category}")
+        for name in ("per_category", "shard_size", "dense_points", "touches", "views", "visual_points",
+                     "image_width", "image_height", "tactile_clouds"):
+            as_int(getattr(self, name), name, 1)
+        for name in ("pinches", "seed"):
+            as_int(getattr(self, name), name, 0)
+        try:
+            as_int(self.sections, "sections", 8)
+        except ValueError:
+            raise ValueError(f"sections: need at least 8, got {self.sections!r}") from None
         f = np.asarray(self.split_fractions, dtype=float)
         if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
@@ -200,6 +236,7 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
     ``old_defaults`` fills keys that older config files lack, so their datasets still resume. Leftover
     ``*.tmp*`` files of a killed run are removed; their shards are redone.
     """
+    out = check_out_dir(out)
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
     if cfg_path.exists():
@@ -282,9 +319,20 @@ def crop_to_box(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: floa
     bounding box): a transparent object's see-through returns land on or below the table, far behind
     the object, and are discarded, so its visual cloud is sparse rather than a cloud of background.
 
+    ``lo``/``hi`` are finite (3,) corners with ``lo <= hi``, ``margin`` None or finite and >= 0, ``points``
+    a finite (N, 3) array (``ValueError`` naming the argument otherwise).
+
     Shapes:
         points (N, 3), lo (3,), hi (3,) -> (M, 3) with M <= N
     """
+    from vtlearn.sim_data.tactile import _check_box
+    from vtlearn.validation import as_points
+
+    as_points(points, "points", min_points=0)
+    points = np.asarray(points)
+    lo, hi = _check_box(lo, hi)
+    if margin is not None and not (np.isfinite(margin) and margin >= 0):
+        raise ValueError(f"margin: need None or a finite value >= 0, got {margin}")
     if margin is None or len(points) == 0:
         return points
     pad = margin * float(np.max(np.asarray(hi) - np.asarray(lo)))
@@ -435,16 +483,32 @@ def generate_dataset(
     progress: bool = True,
     max_shards: int | None = None,
 ) -> dict:
-    """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests)."""
+    """Generate (or resume) a dataset; returns the manifest. ``max_shards`` stops early (for tests).
+
+    ``out_dir`` must be a directory or not exist yet, ``workers`` an integer >= 1 and ``max_shards`` None or
+    an integer >= 0 (``ValueError`` naming the argument, before anything is written).
+    """
     cfg.validate()
-    out = Path(out_dir)
+    out = check_out_dir(out_dir)
+    as_int(workers, "workers", 1)
+    if max_shards is not None:
+        as_int(max_shards, "max_shards", 0)
     cfg_dict = asdict(cfg)
     claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
     mesh_items = None
     if cfg.mesh_source != "procedural":
         from vtlearn.sim_data.loaders import scan_mesh_folder
 
-        mesh_items = [m for m in scan_mesh_folder(cfg.mesh_source) if m["category"] in cfg.categories]
+        try:
+            scanned = scan_mesh_folder(cfg.mesh_source)
+        except ValueError as exc:
+            raise ValueError(f"mesh_source: {exc}") from None
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"mesh_source: {exc}") from None
+        mesh_items = [m for m in scanned if m["category"] in cfg.categories]
+        missing = sorted(set(cfg.categories) - {m["category"] for m in mesh_items})
+        if missing:
+            raise ValueError(f"categories: no usable meshes of {missing} in mesh_source {cfg.mesh_source}")
     jobs = plan_shards(cfg, plan_instances(cfg, mesh_items))
     shards = run_shard_jobs(out, jobs, _run_job, (cfg_dict,), workers, max_shards,
                             desc=f"gen-data {cfg.kind}", progress=progress)
