@@ -244,6 +244,11 @@ def test_class_names_come_from_the_xavtnet_checkpoint(tiny_models):
     names = json.loads((tiny_models / "data" / "crossmodal" / "manifest.json").read_text())["class_names"]
     with TwoArmRuntime.from_checkpoints(None, tiny_models / "xavtnet.ckpt", seed=0) as rt:
         assert rt.class_names == names
+    # a checkpoint error names the runtime's argument: the ACTOR checkpoint given as the xAVTNet one
+    with pytest.raises(ValueError, match="^xavtnet_ckpt: "):
+        TwoArmRuntime.from_checkpoints(None, tiny_models / "actor.ckpt")
+    with pytest.raises(FileNotFoundError, match="^actor_ckpt: "):
+        TwoArmRuntime.from_checkpoints(tiny_models / "none.ckpt", None)
 
 
 def test_cli_runtime_explores_without_models(tmp_path, tiny_models, capsys):

@@ -267,3 +267,13 @@ def test_touch_cloud_checks_margin_and_budget():
         touch_cloud(pts, 10, rng, 0.01, margin=np.nan)
     with pytest.raises(ValueError, match="margin"):
         touch_cloud(pts, 10, rng, 0.01, margin=-1.0)
+
+
+def test_pinch_names_a_non_finite_axis_angle():
+    from vtlearn.sim_data.scene import Scene
+    from vtlearn.sim_data.tactile import TactileSimulator
+
+    with Scene() as scene:
+        sim = TactileSimulator(scene)
+        with pytest.raises(ValueError, match="axis_angle"):
+            sim.pinch([0.0, 0.0, 0.05], float("nan"), 0.1)

@@ -328,6 +328,17 @@ class RuntimeReport:
         }
 
 
+def _named(load, path, name: str):
+    """``load(path)``, with a checkpoint error re-raised under the runtime's argument ``name`` (the loaders
+    say ``ckpt``)."""
+    try:
+        return load(path)
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{name}: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{name}: {exc}") from exc
+
+
 class TwoArmRuntime:
     """Two Pandas, a table, a camera and a taxel pad in pybullet, with the models that perceive.
 
@@ -410,8 +421,8 @@ class TwoArmRuntime:
                 class_names = json.loads(path.read_text())["class_names"]
             except (json.JSONDecodeError, KeyError) as exc:
                 raise ValueError(f"class_names: {path} has no 'class_names' list") from exc
-        actor = None if actor_ckpt is None else load_actor(actor_ckpt)
-        xav = None if xavtnet_ckpt is None else load_xavtnet(xavtnet_ckpt)
+        actor = None if actor_ckpt is None else _named(load_actor, actor_ckpt, "actor_ckpt")
+        xav = None if xavtnet_ckpt is None else _named(load_xavtnet, xavtnet_ckpt, "xavtnet_ckpt")
         return cls(actor, xav, class_names, **kwargs)
 
     # ------------------------------------------------------------------ lifecycle

@@ -435,6 +435,8 @@ class TactileSimulator:
             raise ValueError(f"center: need a finite (3,) point, got {center}")
         if not (width > 0 and approach_height > 0):
             raise ValueError(f"width/approach_height: need > 0, got {width}, {approach_height}")
+        if not np.isfinite(axis_angle):
+            raise ValueError(f"axis_angle: need a finite angle (rad), got {axis_angle}")
         u = np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0])
         fingers = []
         for sign in (1.0, -1.0):
