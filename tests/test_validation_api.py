@@ -230,3 +230,19 @@ def test_sensor_frame_takes_a_horizontal_direction_of_two_or_three_components():
     for bad in ([1.0], [1.0, 0.0, 0.0, 0.0], [[1.0, 0.0, 0.0]], [0.0, 0.0, 1.0], [np.nan, 1.0]):
         with pytest.raises(ValueError, match="d: need a finite direction"):
             sensor_frame([0.0, 0.0, 0.0], bad)
+
+
+def test_as_real_and_as_vector_state_the_bound_and_refuse_strings_bools_and_nan():
+    from vtlearn.validation import as_real, as_vector
+
+    assert as_real(2, "x", low=0.0) == 2.0 and as_real(np.float32(0.5), "p", low=0.0, high=1.0) == 0.5
+    for bad, kw, msg in [(0.0, dict(low=0.0, open_low=True), "x: need a finite number > 0"),
+                         (1.5, dict(low=0.0, high=1.0), r"x: need a finite number in \[0, 1\]"),
+                         (np.nan, {}, "x: need a finite number, got nan"),
+                         ("3", {}, "x: need a finite number"), (True, {}, "x: need a finite number")]:
+        with pytest.raises(ValueError, match=msg):
+            as_real(bad, "x", **kw)
+    np.testing.assert_array_equal(as_vector([1, 2, 3], "v", 3), [1.0, 2.0, 3.0])
+    for bad in ([1, 2], [1, 2, np.inf], "abc", [[1, 2, 3]]):
+        with pytest.raises(ValueError, match="v: need 3 finite numbers"):
+            as_vector(bad, "v", 3)

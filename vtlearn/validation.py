@@ -6,12 +6,13 @@ argument and says what was wrong, instead of a traceback from deep inside numpy,
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_transform", "check_class_scores",
-           "check_not_collinear", "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_transform", "as_vector",
+           "check_class_scores", "check_not_collinear", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -28,6 +29,41 @@ def as_int(value: Any, name: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"{name}: need an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math.inf,
+            open_low: bool = False) -> float:
+    """``value`` as a finite float in ``[low, high]`` (``(low, high]`` with ``open_low``); a ``ValueError``
+    naming ``name`` otherwise, and for a bool or a string."""
+    v = math.nan
+    if not isinstance(value, (bool, str, bytes)):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            pass
+    if not (math.isfinite(v) and (v > low if open_low else v >= low) and v <= high):
+        lo = "" if low == -math.inf else f"{'(' if open_low else '['}{low:g}, "
+        hi = "" if high == math.inf else f"{high:g}]"
+        bound = (f" in {lo}{hi}" if lo and hi else f" {'>' if open_low else '>='} {low:g}" if lo
+                 else f" <= {high:g}" if hi else "")
+        raise ValueError(f"{name}: need a finite number{bound}, got {value!r}")
+    return v
+
+
+def as_vector(x: Any, name: str, n: int, what: str | None = None) -> np.ndarray:
+    """``x`` as a finite ``(n,)`` float64 array; a ``ValueError`` ``"{name}: need {what}, got {x!r}"``
+    otherwise (``what`` defaults to ``"n finite numbers"``).
+
+    Shapes:
+        x: (n,) -> (n,)
+    """
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError(f"{name}: need {what or f'{n} finite numbers'}, got {x!r}")
+    return a
 
 
 def as_pair(x: Any, name: str, what: str = "a (low, high) pair of numbers") -> tuple[float, float]:

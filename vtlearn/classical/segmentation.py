@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
-from vtlearn.validation import as_int, as_points
+from vtlearn.validation import as_int, as_points, as_real
 
 __all__ = [
     "SegmentationResult",
@@ -42,20 +42,6 @@ __all__ = [
 # Open3D's PCA normal and covariance estimation falls back to a default normal and an identity covariance
 # when a point has fewer than 3 neighbours, and a KNN search of 0 neighbours crashes the process.
 _MIN_KNN = 3
-
-
-def _check_real(
-    value: Any, name: str, *, low: float, high: float = math.inf, open_low: bool = False
-) -> float:
-    """``value`` as a float if it is finite and in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: need a real number, got {value!r}") from None
-    if not (math.isfinite(v) and (v > low if open_low else v >= low) and v <= high):
-        bound = f"{'>' if open_low else '>='} {low:g}" + (f" and <= {high:g}" if math.isfinite(high) else "")
-        raise ValueError(f"{name}: need a finite value {bound}, got {value!r}")
-    return v
 
 
 def _colors(colors: Any, n: int, name: str = "colors") -> np.ndarray | None:
@@ -101,7 +87,7 @@ def remove_plane(
     """
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
-    distance_threshold = _check_real(distance_threshold, "distance_threshold", low=0.0, open_low=True)
+    distance_threshold = as_real(distance_threshold, "distance_threshold", low=0.0, open_low=True)
     num_iterations = as_int(num_iterations, "num_iterations", 1)
     if seed is not None:
         o3d.utility.random.seed(int(seed))
@@ -126,7 +112,7 @@ def remove_statistical_outliers(
     pts = as_points(points, "points", min_points=1)
     col = _colors(colors, len(pts))
     nb_neighbors = as_int(nb_neighbors, "nb_neighbors", 1)
-    std_ratio = _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
+    std_ratio = as_real(std_ratio, "std_ratio", low=0.0, open_low=True)
     if len(pts) <= nb_neighbors:
         return pts, col
     _, idx = _pcd(pts).remove_statistical_outlier(nb_neighbors, std_ratio)
@@ -200,10 +186,10 @@ def region_growing(
         raise ValueError(f"colour_space must be 'chromaticity' or 'rgb', got {colour_space!r}")
     knn = as_int(knn, "knn", _MIN_KNN)
     min_region_size = as_int(min_region_size, "min_region_size", 1)
-    angle_threshold = _check_real(angle_threshold, "angle_threshold", low=0.0, high=math.pi, open_low=True)
-    colour_threshold = _check_real(colour_threshold, "colour_threshold", low=0.0)
-    curvature_threshold = _check_real(curvature_threshold, "curvature_threshold", low=0.0)
-    merge_colour_threshold = _check_real(merge_colour_threshold, "merge_colour_threshold", low=0.0)
+    angle_threshold = as_real(angle_threshold, "angle_threshold", low=0.0, high=math.pi, open_low=True)
+    colour_threshold = as_real(colour_threshold, "colour_threshold", low=0.0)
+    curvature_threshold = as_real(curvature_threshold, "curvature_threshold", low=0.0)
+    merge_colour_threshold = as_real(merge_colour_threshold, "merge_colour_threshold", low=0.0)
     if col is not None and colour_space == "chromaticity":
         col = 3.0 * col / np.maximum(col.sum(1, keepdims=True), 1e-3)
     n = len(pts)
@@ -328,9 +314,9 @@ def segment_parts(
     """
     pts = as_points(points, "points", min_points=3)
     col = _colors(colors, len(pts))
-    min_region_fraction = _check_real(min_region_fraction, "min_region_fraction", low=0.0, high=1.0)
+    min_region_fraction = as_real(min_region_fraction, "min_region_fraction", low=0.0, high=1.0)
     as_int(nb_neighbors, "nb_neighbors", 1)
-    _check_real(std_ratio, "std_ratio", low=0.0, open_low=True)
+    as_real(std_ratio, "std_ratio", low=0.0, open_low=True)
     if "knn" in region_growing_kwargs:  # checked here too: a bad knn must not depend on the cloud
         as_int(region_growing_kwargs["knn"], "knn", _MIN_KNN)
     if "min_region_size" in region_growing_kwargs:

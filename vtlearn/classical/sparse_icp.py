@@ -14,26 +14,12 @@ frame; metres.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vtlearn.validation import as_int, as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 __all__ = ["kabsch", "shrink_lp", "sparse_icp"]
-
-
-def _check_mu(mu) -> float:
-    if not (isinstance(mu, (int, float, np.integer, np.floating)) and math.isfinite(mu) and mu > 0):
-        raise ValueError(f"mu: must be finite and > 0, got {mu}")
-    return float(mu)
-
-
-def _check_p(p) -> float:
-    if not (isinstance(p, (int, float, np.integer, np.floating)) and 0 < p <= 1):
-        raise ValueError(f"p: must lie in (0, 1], got {p}")
-    return float(p)
 
 
 def kabsch(x, y) -> np.ndarray:
@@ -82,7 +68,9 @@ def shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.
         h: ``(N, 3)`` -> ``(N, 3)``.
     """
     h = as_points(h, "h", min_points=0)
-    return _shrink_lp(h, _check_mu(mu), _check_p(p), as_int(n_fixed_point, "n_fixed_point"))
+    mu = as_real(mu, "mu", low=0.0, open_low=True)
+    p = as_real(p, "p", low=0.0, high=1.0, open_low=True)
+    return _shrink_lp(h, mu, p, as_int(n_fixed_point, "n_fixed_point"))
 
 
 def _shrink_lp(h: np.ndarray, mu: float, p: float, n_fixed_point: int = 3) -> np.ndarray:
@@ -134,8 +122,8 @@ def sparse_icp(
     """
     X = as_points(source, "source", min_points=3)
     Y = as_points(target, "target", min_points=3)
-    p = _check_p(p)
-    mu = _check_mu(mu)
+    p = as_real(p, "p", low=0.0, high=1.0, open_low=True)
+    mu = as_real(mu, "mu", low=0.0, open_low=True)
     max_icp = as_int(max_icp, "max_icp")
     max_admm = as_int(max_admm, "max_admm")
     T = np.eye(4) if T_init is None else as_transform(T_init, "T_init")

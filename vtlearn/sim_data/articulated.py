@@ -41,6 +41,7 @@ import trimesh
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.sim_data.camera import DepthNoise, RGBDCamera
 from vtlearn.sim_data.scene import Scene, pose_to_matrix
+from vtlearn.validation import as_vector
 
 __all__ = [
     "CATEGORIES",
@@ -74,15 +75,9 @@ class Box:
 
     def __post_init__(self):
         for name in ("half", "xyz", "rpy"):
-            v = getattr(self, name)
-            try:
-                a = np.asarray(v, dtype=np.float64)
-            except (TypeError, ValueError):
-                a = np.zeros(0)
-            if a.shape != (3,) or not np.isfinite(a).all():
-                raise ValueError(f"{name}: need 3 finite numbers, got {v!r}")
+            a = as_vector(getattr(self, name), name, 3)
             if name == "half" and not (a > 0).all():
-                raise ValueError(f"half: need positive half extents, got {v!r}")
+                raise ValueError(f"half: need positive half extents, got {self.half!r}")
 
     def mesh(self) -> trimesh.Trimesh:
         m = trimesh.creation.box(extents=2 * np.asarray(self.half))

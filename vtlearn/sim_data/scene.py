@@ -16,7 +16,7 @@ import pybullet as p
 import trimesh
 
 from vtlearn.geometry import matrix_to_quat
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_points, as_transform, as_vector
 
 # Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
 # the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
@@ -119,12 +119,7 @@ class Scene:
         if T.shape != (4, 4):
             raise ValueError(f"T_world_object: need shape (4, 4), got {T.shape}")
         T = as_transform(T, "T_world_object")
-        try:
-            rgba_arr = np.asarray(rgba, dtype=np.float64)
-        except (TypeError, ValueError):
-            rgba_arr = np.zeros(0)
-        if rgba_arr.shape != (4,) or not np.isfinite(rgba_arr).all():
-            raise ValueError(f"rgba: need 4 finite numbers (r, g, b, a), got {rgba!r}")
+        rgba_arr = as_vector(rgba, "rgba", 4, "4 finite numbers (r, g, b, a)")
         if not fixed and not (np.isfinite(mass) and mass > 0):
             raise ValueError(f"mass: a free object needs a positive finite mass in kg, got {mass!r}")
         mesh_m = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=False)

@@ -57,6 +57,7 @@ import pybullet as p
 
 from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
 from vtlearn.sim_data.sensors import TaxelSensor, get_sensor
+from vtlearn.validation import as_real, as_vector
 
 
 @dataclass
@@ -150,12 +151,7 @@ def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
     n = np.linalg.norm(d)
     if d.shape != (3,) or not np.isfinite(n) or n < 1e-12:
         raise ValueError(f"direction: need a finite non-zero (3,) vector, got {direction}")
-    try:
-        roll = float(roll)
-    except (TypeError, ValueError):
-        raise ValueError(f"roll: need a finite angle in radians, got {roll!r}") from None
-    if not np.isfinite(roll):
-        raise ValueError(f"roll: need a finite angle in radians, got {roll!r}")
+    roll = as_real(roll, "roll")
     z = d / n
     ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(ref, z)
@@ -435,8 +431,7 @@ class TactileSimulator:
             raise ValueError(f"center: need a finite (3,) point, got {center}")
         if not (width > 0 and approach_height > 0):
             raise ValueError(f"width/approach_height: need > 0, got {width}, {approach_height}")
-        if not np.isfinite(axis_angle):
-            raise ValueError(f"axis_angle: need a finite angle (rad), got {axis_angle}")
+        axis_angle = as_real(axis_angle, "axis_angle")
         u = np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0])
         fingers = []
         for sign in (1.0, -1.0):
@@ -484,29 +479,10 @@ def bbox_faces(lo, hi):
 
 def _check_box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     """``lo``, ``hi`` as finite (3,) float arrays with ``lo <= hi``; ValueError naming the argument."""
-    out = []
-    for name, x in (("lo", lo), ("hi", hi)):
-        try:
-            a = np.asarray(x, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name}: need a finite (3,) box corner, got {x!r}") from None
-        if a.shape != (3,) or not np.isfinite(a).all():
-            raise ValueError(f"{name}: need a finite (3,) box corner, got {x!r}")
-        out.append(a)
+    out = [as_vector(x, name, 3, "a finite (3,) box corner") for name, x in (("lo", lo), ("hi", hi))]
     if (out[0] > out[1]).any():
         raise ValueError(f"lo/hi: need lo <= hi on every axis, got {out[0].tolist()} and {out[1].tolist()}")
     return out[0], out[1]
-
-
-def _check_real(x, name: str, lo: float, hi: float = np.inf) -> float:
-    """``x`` as a finite float in [lo, hi]; ValueError naming ``name`` otherwise."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: need a finite number in [{lo}, {hi}], got {x!r}") from None
-    if not (np.isfinite(v) and lo <= v <= hi):
-        raise ValueError(f"{name}: need a finite number in [{lo}, {hi}], got {x!r}")
-    return v
 
 
 def sample_touches(
@@ -532,8 +508,8 @@ def sample_touches(
     if mode not in ("random", "grid"):
         raise ValueError(f"mode: expected 'random' or 'grid', got {mode!r}")
     lo, hi = _check_box(lo, hi)
-    standoff = _check_real(standoff, "standoff", 0.0)
-    margin = _check_real(margin, "margin", 0.0, 1.0)
+    standoff = as_real(standoff, "standoff", low=0.0)
+    margin = as_real(margin, "margin", low=0.0, high=1.0)
     faces = bbox_faces(lo, hi)
     out = []
     if mode == "random":
@@ -565,7 +541,7 @@ def sample_pinches(lo, hi, n: int, rng: np.random.Generator, clearance: float = 
     if n < 1:
         raise ValueError(f"n: need >= 1, got {n}")
     lo, hi = _check_box(lo, hi)
-    clearance = _check_real(clearance, "clearance", 0.0)
+    clearance = as_real(clearance, "clearance", low=0.0)
     c, h = (lo + hi) / 2, (hi - lo) / 2
     width = 2 * np.linalg.norm(h[:2]) + 2 * clearance
     if not width > 0:
