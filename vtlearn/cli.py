@@ -29,10 +29,8 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
-# distribution name -> module, for the packages `vtlearn info` also tries to import
-INFO_IMPORTS = {"numpy": "numpy", "scipy": "scipy", "lightning": "lightning",
-                "torch_geometric": "torch_geometric", "open3d": "open3d", "trimesh": "trimesh",
-                "pybullet": "pybullet", "pytorch-kinematics": "pytorch_kinematics", "wandb": "wandb"}
+# the distributions whose module name differs from theirs, for the imports `vtlearn info` tries
+MODULE_NAMES = {"pytorch-kinematics": "pytorch_kinematics", "scikit-learn": "sklearn"}
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -44,11 +42,11 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
     info = machine_info(extra_packages=("pytorch-kinematics", "wandb"))
     errors = {}
-    for dist, mod in INFO_IMPORTS.items():
-        if info["packages"].get(dist) is None:
+    for dist, version in info["packages"].items():
+        if version is None:
             continue
         try:
-            importlib.import_module(mod)
+            importlib.import_module(MODULE_NAMES.get(dist, dist))
         except Exception as exc:  # noqa: BLE001 - report, never crash, an info command
             errors[dist] = f"{type(exc).__name__}: {exc}"
     info["import_errors"] = errors
