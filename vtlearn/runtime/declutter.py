@@ -59,7 +59,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from vtlearn.validation import as_points, to_numpy
+from vtlearn.validation import as_points, as_real, to_numpy
 
 __all__ = [
     "DeclutterAction",
@@ -97,26 +97,6 @@ _MAX_CELLS = 4_000_000
 
 
 # ----------------------------------------------------------------------------------------------- checks
-def _positive(x: Any, name: str) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: need a positive finite number, got {x!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name}: need a positive finite number, got {x!r}")
-    return v
-
-
-def _finite(x: Any, name: str) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: need a finite number, got {x!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name}: need a finite number, got {x!r}")
-    return v
-
-
 def _fingertip(fingertip: Any) -> tuple[float, float]:
     try:
         w, d = (float(v) for v in fingertip)
@@ -393,8 +373,8 @@ def occupancy_masks(
         clouds ``{id: (N_k, 3)}`` -> (:class:`TableGrid`, ``{id: (nx, ny) bool}``).
     """
     pts = _check_clouds(clouds)
-    cell = _positive(cell, "cell")
-    margin = _finite(margin, "margin")
+    cell = as_real(cell, "cell", low=0.0, open_low=True)
+    margin = as_real(margin, "margin")
     if margin < 0:
         raise ValueError(f"margin: need >= 0, got {margin}")
     if isinstance(closing, bool) or not isinstance(closing, (int, np.integer)) or closing < 0:
@@ -448,7 +428,7 @@ def edge_weight(
     Shapes:
         scalars -> (float, "overlap" | "proximity" | None).
     """
-    iou = _finite(iou, "iou")
+    iou = as_real(iou, "iou")
     if not 0 <= iou <= 1:
         raise ValueError(f"iou: need a value in [0, 1], got {iou}")
     try:
@@ -457,7 +437,9 @@ def edge_weight(
         raise ValueError(f"distance: need a number, got {distance!r}") from None
     if math.isnan(distance) or distance < 0:
         raise ValueError(f"distance: need a non-negative distance in metres, got {distance}")
-    mu_o, mu_d, d_floor = _finite(mu_o, "mu_o"), _positive(mu_d, "mu_d"), _positive(d_floor, "d_floor")
+    mu_o = as_real(mu_o, "mu_o")
+    mu_d = as_real(mu_d, "mu_d", low=0.0, open_low=True)
+    d_floor = as_real(d_floor, "d_floor", low=0.0, open_low=True)
     if iou > mu_o:
         return iou, "overlap"
     if distance < mu_d:
@@ -467,7 +449,7 @@ def edge_weight(
 
 def action_kind(quality: float, mu_q: float = MU_Q) -> str:
     """Eq. 5.2: ``"grasp"`` when the grasp quality ``q >= mu_q``, else ``"push"``."""
-    return "grasp" if _finite(quality, "quality") >= _finite(mu_q, "mu_q") else "push"
+    return "grasp" if as_real(quality, "quality") >= as_real(mu_q, "mu_q") else "push"
 
 
 # --------------------------------------------------------------------------------------------- actions
@@ -584,7 +566,8 @@ def grasp_quality(
     if isinstance(others, Mapping) or isinstance(others, np.ndarray) and others.ndim == 2:
         raise ValueError("others: need a sequence of (M, 3) clouds, one per other object")
     clouds = {0: points, **{i + 1: o for i, o in enumerate(others)}}
-    max_opening, fingertip = _positive(max_opening, "max_opening"), _fingertip(fingertip)
+    max_opening = as_real(max_opening, "max_opening", low=0.0, open_low=True)
+    fingertip = _fingertip(fingertip)
     try:
         grid, masks = occupancy_masks(clouds, cell=cell, margin=0.0)
     except ValueError as exc:  # name the caller's argument
@@ -815,13 +798,14 @@ class DeclutterGraph:
         if isinstance(target, bool) or not isinstance(target, (int, np.integer)) or int(target) not in pts:
             raise ValueError(f"target: {target!r} is not an object id of clouds ({sorted(pts)})")
         target = int(target)
-        mu_o, mu_d, mu_q = _finite(mu_o, "mu_o"), _positive(mu_d, "mu_d"), _finite(mu_q, "mu_q")
+        mu_o, mu_d = as_real(mu_o, "mu_o"), as_real(mu_d, "mu_d", low=0.0, open_low=True)
+        mu_q = as_real(mu_q, "mu_q")
         if not 0 <= mu_o < 1:
             raise ValueError(f"mu_o: need an IoU threshold in [0, 1), got {mu_o}")
-        cell = _positive(cell, "cell")
-        push_distance = _positive(push_distance, "push_distance")
+        cell = as_real(cell, "cell", low=0.0, open_low=True)
+        push_distance = as_real(push_distance, "push_distance", low=0.0, open_low=True)
         fingertip = _fingertip(fingertip)
-        max_opening = _positive(max_opening, "max_opening")
+        max_opening = as_real(max_opening, "max_opening", low=0.0, open_low=True)
         if isinstance(n_push_samples, bool) or not isinstance(n_push_samples, (int, np.integer)):
             raise ValueError(f"n_push_samples: need an integer >= 4, got {n_push_samples!r}")
         if n_push_samples < 4:
@@ -1214,7 +1198,7 @@ def _quality(source: QualitySource, k: int, pts, rect, grid, others, max_opening
         q = source[k]
     else:
         q = source(k, pts)
-    return _finite(q, f"grasp_quality[{k}]")
+    return as_real(q, f"grasp_quality[{k}]")
 
 
 # --------------------------------------------------------------------------------- segmented clouds
