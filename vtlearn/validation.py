@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_transform", "as_vector",
-           "check_class_scores", "check_not_collinear", "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_surface_mesh",
+           "as_transform", "as_vector", "check_class_scores", "check_not_collinear", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -48,6 +48,22 @@ def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math
                  else f" <= {high:g}" if hi else "")
         raise ValueError(f"{name}: need a finite number{bound}, got {value!r}")
     return v
+
+
+def as_surface_mesh(mesh: Any, name: str):
+    """``mesh`` if it is a ``trimesh.Trimesh`` with faces, finite vertices and a positive total area; a
+    ``ValueError`` naming ``name`` otherwise (open and non-manifold surfaces are allowed)."""
+    import trimesh
+
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise ValueError(f"{name}: need a trimesh.Trimesh, got {type(mesh).__name__}")
+    if len(mesh.faces) == 0:
+        raise ValueError(f"{name}: has no faces")
+    if not np.isfinite(np.asarray(mesh.vertices, dtype=np.float64)).all():
+        raise ValueError(f"{name}: vertices contain NaN or inf")
+    if not (np.isfinite(mesh.area) and mesh.area > 0):
+        raise ValueError(f"{name}: degenerate (total face area {mesh.area}); need a surface with area > 0")
+    return mesh
 
 
 def as_vector(x: Any, name: str, n: int, what: str | None = None) -> np.ndarray:

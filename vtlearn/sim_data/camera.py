@@ -31,7 +31,7 @@ import numpy as np
 import pybullet as p
 
 from vtlearn.sim_data.scene import Scene
-from vtlearn.validation import as_int, as_transform
+from vtlearn.validation import as_int, as_real, as_transform, as_vector
 
 
 @dataclass
@@ -55,15 +55,8 @@ class DepthNoise:
 
     def __post_init__(self):
         for name in ("axial_a", "axial_b", "axial_z0", "lateral_px", "min_range", "max_range"):
-            v = getattr(self, name)
-            try:
-                ok = bool(np.isfinite(float(v)))
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise ValueError(f"{name}: need a finite number, got {v!r}")
-            if name in ("axial_a", "axial_b", "lateral_px") and v < 0:
-                raise ValueError(f"{name}: need >= 0, got {v!r}")
+            non_negative = name in ("axial_a", "axial_b", "lateral_px")
+            as_real(getattr(self, name), name, low=0.0 if non_negative else -np.inf)
         if not 0 <= self.min_range < self.max_range:
             raise ValueError(
                 "min_range/max_range: need 0 <= min_range < max_range, "
@@ -281,8 +274,7 @@ def backproject(
     T = as_transform(T_world_camera, "T_world_camera")
     if mask is not None and np.shape(mask) != depth.shape:
         raise ValueError(f"mask: need the shape of depth {depth.shape}, got {np.shape(mask)}")
-    if not (np.isfinite(lateral_px) and lateral_px >= 0):
-        raise ValueError(f"lateral_px: need a finite value >= 0, got {lateral_px}")
+    lateral_px = as_real(lateral_px, "lateral_px", low=0.0)
     valid = depth > 0 if mask is None else (np.asarray(mask, bool) & (depth > 0))
     v, u = np.nonzero(valid)
     z = depth[v, u]
@@ -305,11 +297,8 @@ def viewpoint_rotation(p_view: np.ndarray, o_centroid: np.ndarray) -> np.ndarray
     which must look along -h, is R_world_camera = R_v^T Rx(pi). Straight above (h = Z), e is
     undefined and R_v = I. ``p_view`` and ``o_centroid`` are distinct finite (3,) points.
     """
-    for name, x in (("p_view", p_view), ("o_centroid", o_centroid)):
-        a = np.asarray(x, dtype=np.float64)
-        if a.shape != (3,) or not np.isfinite(a).all():
-            raise ValueError(f"{name}: need a finite (3,) point, got {x!r}")
-    h = np.asarray(p_view, float) - np.asarray(o_centroid, float)
+    h = as_vector(p_view, "p_view", 3, "a finite (3,) point") - as_vector(
+        o_centroid, "o_centroid", 3, "a finite (3,) point")
     nh = np.linalg.norm(h)
     if nh < 1e-12:
         raise ValueError("p_view: coincides with o_centroid")
@@ -345,13 +334,10 @@ def sample_hemisphere_views(
     """
     if n < 1:
         raise ValueError(f"n: need >= 1 views, got {n}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: need a positive finite distance, got {radius}")
+    radius = as_real(radius, "radius", low=0.0, open_low=True)
     if not (np.isfinite(min_elevation_deg) and min_elevation_deg < 90):
         raise ValueError(f"min_elevation_deg: need a finite angle < 90, got {min_elevation_deg}")
-    o = np.asarray(o_centroid, dtype=np.float64)
-    if o.shape != (3,) or not np.isfinite(o).all():
-        raise ValueError(f"o_centroid: need a finite (3,) point, got {o_centroid!r}")
+    o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) point")
     out = []
     min_z = np.sin(np.deg2rad(min_elevation_deg))
     while len(out) < n:

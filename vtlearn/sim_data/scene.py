@@ -16,7 +16,7 @@ import pybullet as p
 import trimesh
 
 from vtlearn.geometry import matrix_to_quat
-from vtlearn.validation import as_points, as_transform, as_vector
+from vtlearn.validation import as_points, as_surface_mesh, as_transform, as_vector
 
 # Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
 # the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
@@ -105,12 +105,7 @@ class Scene:
         ``T_world_object`` that is not a finite rigid (4, 4) transform; ``rgba`` other than 4 finite
         numbers; or, for a free object, a ``mass`` that is not positive and finite.
         """
-        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-            raise ValueError("mesh: need a non-empty trimesh.Trimesh")
-        if not np.isfinite(np.asarray(mesh.vertices, dtype=np.float64)).all():
-            raise ValueError("mesh: vertices contain NaN or inf")
-        if not (np.isfinite(mesh.area) and mesh.area > 0):
-            raise ValueError(f"mesh: degenerate (total face area {mesh.area}); need a surface with area > 0")
+        as_surface_mesh(mesh, "mesh")
         if isinstance(scale, bool) or not isinstance(scale, (int, float, np.number)) or not (
             np.isfinite(scale) and scale > 0
         ):

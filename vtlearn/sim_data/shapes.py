@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from vtlearn.validation import as_int
+from vtlearn.validation import as_int, as_surface_mesh
 
 log = logging.getLogger(__name__)
 
@@ -413,14 +413,7 @@ def normalize_mesh(mesh_m: trimesh.Trimesh) -> tuple[trimesh.Trimesh, float]:
     ``trimesh.Trimesh`` with at least one face, finite vertices and a positive surface area (``ValueError``
     naming ``mesh_m`` otherwise).
     """
-    if not isinstance(mesh_m, trimesh.Trimesh):
-        raise ValueError(f"mesh_m: need a trimesh.Trimesh, got {type(mesh_m).__name__}")
-    if len(mesh_m.faces) == 0:
-        raise ValueError("mesh_m: has no faces")
-    if not np.isfinite(np.asarray(mesh_m.vertices, dtype=np.float64)).all():
-        raise ValueError("mesh_m: vertices contain NaN or inf")
-    if not mesh_m.area > 0:
-        raise ValueError("mesh_m: degenerate (zero surface area)")
+    as_surface_mesh(mesh_m, "mesh_m")
     lo, hi = mesh_m.bounds
     scale = float(np.max(hi - lo))
     if not np.isfinite(scale) or scale <= 0:
@@ -442,10 +435,7 @@ def generate_shape(category: str, seed: int, sections: int = 48) -> tuple[trimes
     """
     if not isinstance(category, str) or category not in _BUILDERS:
         raise ValueError(f"category: unknown {category!r}, expected one of {CATEGORIES}")
-    try:
-        sections = as_int(sections, "sections", 8)
-    except ValueError:
-        raise ValueError(f"sections: need at least 8, got {sections!r}") from None
+    sections = as_int(sections, "sections", 8)
     seed = as_int(seed, "seed", 0)
     rng = np.random.default_rng([int(seed), CATEGORIES.index(category)])
     mesh_m, params = _BUILDERS[category](rng, int(sections))
@@ -501,10 +491,7 @@ def write_shapes(
         if c not in _BUILDERS:
             raise ValueError(f"categories: unknown {c!r}, expected some of {CATEGORIES}")
     as_int(seed, "seed", 0)
-    try:
-        as_int(sections, "sections", 8)
-    except ValueError:
-        raise ValueError(f"sections: need at least 8, got {sections!r}") from None
+    as_int(sections, "sections", 8)
     out = check_out_dir(out_dir)
     jobs = [(c, i) for c in categories for i in range(per_category)]
     records = []
