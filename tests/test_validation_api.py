@@ -60,7 +60,7 @@ def test_reconstruct_valid_still_works(actor):
 @pytest.mark.parametrize("k", [0, -1, 1.5])
 def test_knn_bad_k(k):
     x = torch.rand(1, 20, 3)
-    with pytest.raises(ValueError, match="k: must be an integer >= 1"):
+    with pytest.raises(ValueError, match="k: need an integer >= 1"):
         knn(x, x, k=k)
 
 
@@ -206,7 +206,7 @@ def test_scale_error_nonpositive(arg, bad):
 
 @pytest.mark.parametrize("n", [0, -1])
 def test_marsaglia_sphere_bad_n(n):
-    with pytest.raises(ValueError, match="n: must be an integer >= 1"):
+    with pytest.raises(ValueError, match="n: need an integer >= 1"):
         marsaglia_sphere(n, np.random.default_rng(0))
 
 

@@ -277,3 +277,26 @@ def test_pinch_names_a_non_finite_axis_angle():
         sim = TactileSimulator(scene)
         with pytest.raises(ValueError, match="axis_angle"):
             sim.pinch([0.0, 0.0, 0.05], float("nan"), 0.1)
+
+
+def test_sensor_tactile_and_scene_numbers_are_checked(scene):
+    from vtlearn.sim_data.sensors import TaxelSensor
+    from vtlearn.sim_data.tactile import TactileConfig, TactileSimulator
+
+    with pytest.raises(ValueError, match="rows: need an integer >= 1"):
+        TaxelSensor(name="s", rows=2.5, cols=4, pitch=0.005)
+    with pytest.raises(ValueError, match="pitch: need a finite number > 0"):
+        TaxelSensor(name="s", rows=4, cols=4, pitch="0.005")
+    with pytest.raises(ValueError, match="stiffness: need a finite number > 0"):
+        TactileConfig(stiffness="stiff")
+    with pytest.raises(ValueError, match="min_contacts: need an integer >= 1"):
+        TactileConfig(min_contacts=0)
+    with pytest.raises(ValueError, match="scale: need a finite number > 0"):
+        scene.add_mesh(BOX, scale="2")
+    shear = np.eye(4)
+    shear[0, 1] = 0.3
+    with pytest.raises(ValueError, match="T_world_camera: the 3x3 block is not a proper rotation"):
+        RGBDCamera(width=32, height=24).render(scene, shear)
+    sim = TactileSimulator(scene)
+    with pytest.raises(ValueError, match="T_world_pad: the 3x3 block is not a proper rotation"):
+        sim.touch_from(shear)

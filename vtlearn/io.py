@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.validation import as_points
+from vtlearn.validation import as_int, as_points
 
 __all__ = [
     "CLOUD_SUFFIXES",
@@ -203,8 +203,7 @@ def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarra
             returned with all their points (not subsampled); it is still validated.
         seed: seed of the mesh surface sampling.
     """
-    if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or n_points < 1:
-        raise ValueError(f"n_points: must be an integer >= 1, got {n_points!r}")
+    n_points = as_int(n_points, "n_points")
     p = _existing(path)
     suffix = p.suffix.lower()
     is_mesh = suffix in (".obj", ".stl", ".off")

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_transform
 
 __all__ = [
     "ActionSet",
@@ -274,8 +274,7 @@ def marsaglia_sphere(n: int, rng: np.random.Generator) -> np.ndarray:
     Args:
         n: number of points, an integer ``>= 1``.
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"n: must be an integer >= 1, got {n!r}")
+    n = as_int(n, "n")
     out = np.empty((0, 2))
     while out.shape[0] < n:
         x = rng.uniform(-1, 1, (2 * (n - out.shape[0]) + 8, 2))

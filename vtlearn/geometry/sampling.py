@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from vtlearn.validation import as_points
+from vtlearn.validation import as_int, as_points
 
 __all__ = [
     "sample_surface",
@@ -117,8 +117,7 @@ def lengths_mask(lengths: torch.Tensor, n_max: int) -> torch.Tensor:
     if not isinstance(lengths, torch.Tensor) or lengths.dim() != 1:
         got = tuple(lengths.shape) if isinstance(lengths, torch.Tensor) else type(lengths).__name__
         raise ValueError(f"lengths: expected a 1-D tensor of shape (B,), got {got}")
-    if not isinstance(n_max, (int, np.integer)) or isinstance(n_max, bool) or n_max < 0:
-        raise ValueError(f"n_max: must be an integer >= 0, got {n_max!r}")
+    n_max = as_int(n_max, "n_max", minimum=0)
     return torch.arange(n_max, device=lengths.device)[None, :] < lengths[:, None]
 
 
@@ -162,8 +161,7 @@ def knn(
     """
     if x.dim() != 3 or y.dim() != 3 or x.shape[-1] != y.shape[-1] or x.shape[0] != y.shape[0]:
         raise ValueError(f"x, y: expected (B, N, D) and (B, M, D), got {tuple(x.shape)} and {tuple(y.shape)}")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ValueError(f"k: must be an integer >= 1, got {k!r}")
+    k = as_int(k, "k")
     m = y.shape[1]
     if y_lengths is None:
         y_lengths = torch.full((y.shape[0],), m, dtype=torch.int64, device=y.device)

@@ -51,7 +51,7 @@ import numpy as np
 
 from vtlearn.geometry import rotation_error_deg, se3_inverse, so3_exp, so3_log, translation_error
 from vtlearn.runtime.obb import oriented_bounding_box
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_points, as_real, as_transform
 
 __all__ = [
     "RelativeMotion",
@@ -376,10 +376,8 @@ def push_action(
         others = [i for i in range(n) if i != part]
         other = min(others, key=lambda i: np.linalg.norm(C[i].mean(0) - C[part].mean(0)))
     part, other = _pair((part, other), n, "part, other")
-    if not (np.isfinite(zeta) and zeta >= 0):
-        raise ValueError(f"zeta: need a finite value >= 0, got {zeta}")
-    if not (np.isfinite(distance) and distance > 0):
-        raise ValueError(f"distance: need a positive finite value, got {distance}")
+    zeta = as_real(zeta, "zeta", low=0.0)
+    distance = as_real(distance, "distance", low=0.0, open_low=True)
     obb = oriented_bounding_box(C[part], planar=True)
     away = obb.centre - C[other].mean(0)
     vy, vx = obb.V_y, obb.V_x
@@ -414,10 +412,8 @@ def hold_pull_action(
     """
     C = _clouds(clouds)
     h, p = _pair((hold, pull), len(C), "hold, pull")
-    if not (np.isfinite(zeta) and zeta >= 0):
-        raise ValueError(f"zeta: need a finite value >= 0, got {zeta}")
-    if not (np.isfinite(distance) and distance > 0):
-        raise ValueError(f"distance: need a positive finite value, got {distance}")
+    zeta = as_real(zeta, "zeta", low=0.0)
+    distance = as_real(distance, "distance", low=0.0, open_low=True)
     ob_h, ob_p = oriented_bounding_box(C[h]), oriented_bounding_box(C[p])
     sep = _unit(C[p].mean(0) - C[h].mean(0))
     # hold

@@ -49,6 +49,7 @@ import numpy as np
 
 from vtlearn.bench_utils import csv_list
 from vtlearn.cli_args import count
+from vtlearn.validation import as_int, as_real
 
 __all__ = [
     "PUSH_METHODS",
@@ -114,19 +115,6 @@ THESIS_ARTICULATION = {
     "not_reported": "no accuracy, action count or axis error; the detections are shown qualitatively",
     "actions": {"push_m": 0.10, "pull_m": 0.05, "hold_force_N": 8.0},
 }
-
-
-def _check_int(value: Any, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name}: need an integer >= {low}, got {value!r}")
-    return int(value)
-
-
-def _check_float(value: Any, name: str, positive: bool = False) -> float:
-    v = float(value)
-    if not np.isfinite(v) or v < 0 or (positive and v == 0):
-        raise ValueError(f"{name}: need a finite value {'> 0' if positive else '>= 0'}, got {value!r}")
-    return v
 
 
 def _summary_stats(values) -> tuple[float, float]:
@@ -223,9 +211,9 @@ def run_pushing_benchmark(
 
     from vtlearn.sim_data.shapes import CATEGORIES
 
-    trials = _check_int(trials, "trials", 1)
-    max_pushes = _check_int(max_pushes, "max_pushes", 1)
-    tolerance = _check_float(tolerance, "tolerance", positive=True)
+    trials = as_int(trials, "trials")
+    max_pushes = as_int(max_pushes, "max_pushes")
+    tolerance = as_real(tolerance, "tolerance", low=0.0, open_low=True)
     methods, objects = list(methods), tuple(objects)
     if not methods or any(m not in PUSH_METHODS for m in methods):
         raise ValueError(f"methods: need some of {list(PUSH_METHODS)}, got {methods}")
@@ -344,7 +332,7 @@ def heuristic_articulation(observe, execute, parts=(0, 1), max_actions: int = 12
 
     if not (callable(observe) and callable(execute)):
         raise ValueError("observe, execute: need two callables")
-    max_actions = _check_int(max_actions, "max_actions", 1)
+    max_actions = as_int(max_actions, "max_actions")
     belief = ArticulationBelief(parts, patience)
     a, b = belief.parts
     clouds, T0 = observe()
@@ -434,9 +422,9 @@ def run_articulation_benchmark(
     from vtlearn.sim_data.articulated import ArticulatedObject
     from vtlearn.sim_data.scene import Scene
 
-    trials = _check_int(trials, "trials", 1)
-    noise_mm = _check_float(noise_mm, "noise_mm")
-    noise_deg = _check_float(noise_deg, "noise_deg")
+    trials = as_int(trials, "trials")
+    noise_mm = as_real(noise_mm, "noise_mm", low=0.0)
+    noise_deg = as_real(noise_deg, "noise_deg", low=0.0)
     categories = list(categories)
     if not categories or any(c not in ARTICULATION_CATEGORIES for c in categories):
         raise ValueError(f"categories: need some of {ARTICULATION_CATEGORIES}, got {categories}")

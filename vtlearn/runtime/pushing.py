@@ -54,7 +54,7 @@ import pybullet as p
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.runtime.obb import OBB, oriented_bounding_box
 from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 __all__ = [
     "bearing_angle",
@@ -153,11 +153,8 @@ class PushPID:
         self.prev_error: float | None = None
 
     def __call__(self, error: float, dt: float = 1.0) -> float:
-        error, dt = float(error), float(dt)
-        if not np.isfinite(error):
-            raise ValueError(f"error: need a finite value, got {error}")
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt: need a positive finite time step, got {dt}")
+        error = as_real(error, "error")
+        dt = as_real(dt, "dt", low=0.0, open_low=True)
         self.integral += error * dt
         deriv = 0.0 if self.prev_error is None else (error - self.prev_error) / dt
         self.prev_error = error
@@ -182,9 +179,7 @@ def shift_sensor(T_W_S, c: float) -> np.ndarray:
         T_W_S: (4, 4) -> T_W_S': (4, 4).
     """
     T = as_transform(T_W_S, "T_W_S")
-    c = float(c)
-    if not np.isfinite(c):
-        raise ValueError(f"c: need a finite shift, got {c}")
+    c = as_real(c, "c")
     T_S_Sp = np.eye(4)
     T_S_Sp[0, 3] = c
     return T @ T_S_Sp
@@ -263,11 +258,8 @@ def push_pose(
     t = _xy(target_xy, "target_xy")
     if face not in ("y", "best"):
         raise ValueError(f"face: must be 'y' or 'best', got {face!r}")
-    offset = float(offset)
-    if not np.isfinite(offset):
-        raise ValueError(f"offset: need a finite shift, got {offset}")
-    if not (np.isfinite(margin) and margin >= 0):
-        raise ValueError(f"margin: need a finite value >= 0, got {margin}")
+    offset = as_real(offset, "offset")
+    margin = as_real(margin, "margin", low=0.0)
     obb = oriented_bounding_box(pts, planar=True)
     d, along, across = _face(obb, t, face)
     point = np.append(obb.centre[:2] - along * d, obb.centre[2])
@@ -417,14 +409,10 @@ class GoalPusher:
             ("standoff", standoff),
             ("pad_max_force", pad_max_force),
         ):
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: need a positive finite value, got {v}")
-        if max_pushes < 1:
-            raise ValueError(f"max_pushes: need >= 1, got {max_pushes}")
-        if lost_steps < 1:
-            raise ValueError(f"lost_steps: need >= 1, got {lost_steps}")
-        if settle_steps < 0:
-            raise ValueError(f"settle_steps: need >= 0, got {settle_steps}")
+            as_real(v, name, low=0.0, open_low=True)
+        as_int(max_pushes, "max_pushes")
+        as_int(lost_steps, "lost_steps")
+        as_int(settle_steps, "settle_steps", minimum=0)
         pad = np.asarray(pad_size, dtype=np.float64)
         if pad.shape != (3,) or not (np.isfinite(pad).all() and (pad > 0).all()):
             raise ValueError(f"pad_size: need 3 positive sizes (m), got {pad_size}")

@@ -151,9 +151,7 @@ class RGBDCamera:
         (see :meth:`_draw_table`), which is exact for the flat top and saves TinyRenderer's shading of
         most of the image. Arrays stay float32 as TinyRenderer returns them.
         """
-        T = np.asarray(T_world_camera, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValueError(f"T_world_camera: need a finite (4, 4) transform, got shape {T.shape}")
+        T = as_transform(T_world_camera, "T_world_camera")
         rng = rng if rng is not None else np.random.default_rng()
         # OpenGL looks down -z with y up: T_world_gl = T_world_camera @ diag(1, -1, -1, 1).
         view = np.linalg.inv(T @ np.diag([1.0, -1.0, -1.0, 1.0]))

@@ -16,7 +16,7 @@ import pybullet as p
 import trimesh
 
 from vtlearn.geometry import matrix_to_quat
-from vtlearn.validation import as_points, as_surface_mesh, as_transform, as_vector
+from vtlearn.validation import as_points, as_real, as_surface_mesh, as_transform, as_vector
 
 # Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
 # the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
@@ -106,10 +106,7 @@ class Scene:
         numbers; or, for a free object, a ``mass`` that is not positive and finite.
         """
         as_surface_mesh(mesh, "mesh")
-        if isinstance(scale, bool) or not isinstance(scale, (int, float, np.number)) or not (
-            np.isfinite(scale) and scale > 0
-        ):
-            raise ValueError(f"scale: need a positive finite value, got {scale!r}")
+        scale = as_real(scale, "scale", low=0.0, open_low=True)
         T = np.eye(4) if T_world_object is None else np.asarray(T_world_object, dtype=np.float64)
         if T.shape != (4, 4):
             raise ValueError(f"T_world_object: need shape (4, 4), got {T.shape}")

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vtlearn.validation import as_int, as_real
+
 
 @dataclass(frozen=True)
 class TaxelSensor:
@@ -27,10 +29,9 @@ class TaxelSensor:
     pitch: float
 
     def __post_init__(self):
-        if self.rows < 1 or self.cols < 1:
-            raise ValueError(f"rows/cols: need >= 1, got {self.rows}x{self.cols}")
-        if not (np.isfinite(self.pitch) and self.pitch > 0):
-            raise ValueError(f"pitch: need a positive finite value in metres, got {self.pitch}")
+        as_int(self.rows, "rows")
+        as_int(self.cols, "cols")
+        as_real(self.pitch, "pitch", low=0.0, open_low=True)
 
     @property
     def num_taxels(self) -> int:

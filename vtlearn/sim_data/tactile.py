@@ -57,7 +57,7 @@ import pybullet as p
 
 from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
 from vtlearn.sim_data.sensors import TaxelSensor, get_sensor
-from vtlearn.validation import as_real, as_vector
+from vtlearn.validation import as_int, as_real, as_transform, as_vector
 
 
 @dataclass
@@ -83,8 +83,7 @@ class TactileConfig:
     pad_max_force: float = 50.0  # N, strength of the constraint that drags the pad
 
     def __post_init__(self):
-        if self.settle_steps < 0:
-            raise ValueError(f"settle_steps: need >= 0, got {self.settle_steps}")
+        as_int(self.settle_steps, "settle_steps", minimum=0)
         for name in (
             "stiffness",
             "force_threshold",
@@ -94,17 +93,14 @@ class TactileConfig:
             "pad_mass",
             "pad_max_force",
         ):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: need a positive finite value, got {v}")
+            as_real(getattr(self, name), name, low=0.0, open_low=True)
         if not (0 <= self.min_force < self.force_threshold):
             raise ValueError(f"min_force: need 0 <= min_force < force_threshold, got {self.min_force}")
         if not (self.position_noise >= 0 and np.isfinite(self.position_noise)):
             raise ValueError(f"position_noise: need >= 0, got {self.position_noise}")
         if not (0 <= self.dropout < 1):
             raise ValueError(f"dropout: need 0 <= dropout < 1, got {self.dropout}")
-        if self.min_contacts < 1:
-            raise ValueError(f"min_contacts: need >= 1, got {self.min_contacts}")
+        as_int(self.min_contacts, "min_contacts")
 
 
 @dataclass
@@ -161,16 +157,6 @@ def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
     x, y = c * x + s * y, -s * x + c * y
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, start
-    return T
-
-
-def _check_pose(T, name: str) -> np.ndarray:
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{name}: need a finite (4, 4) transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise ValueError(f"{name}: its rotation block is not a rotation matrix")
     return T
 
 
@@ -234,7 +220,7 @@ class TactileSimulator:
 
     def touch_from(self, T_world_pad: np.ndarray, rng: np.random.Generator | None = None) -> TouchResult:
         """Guarded motion of the pad along its own z-axis from the pose ``T_world_pad`` (4, 4)."""
-        T_world_pad = _check_pose(T_world_pad, "T_world_pad")
+        T_world_pad = as_transform(T_world_pad, "T_world_pad")
         if self.physical:
             return self._physical_touches([T_world_pad], rng)[0]
         cfg = self.config
