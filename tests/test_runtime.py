@@ -289,6 +289,11 @@ def test_bad_input(scene_objects):
             rt.explore(fixed, 2, gain_mode="box_fit")
         with pytest.raises(ValueError, match="max_actions"):
             rt.declutter(free, max_actions=-1)
+        for bad in ((np.nan, 0.0), (0.1,), "xy"):
+            with pytest.raises(ValueError, match="center_xy: need an \\(x, y\\) pair"):
+                rt.observe(center_xy=bad)
+        with pytest.raises(ValueError, match="omega: need a finite number in \\(0, 1\\]"):
+            rt.observe(omega=0.0)
 
 
 def test_bench_runtime_smoke(tmp_path, tiny_models, capsys):

@@ -64,7 +64,7 @@ from vtlearn.runtime.pushing import GoalPusher, sensor_frame
 from vtlearn.sim_data.arm import PandaArm
 from vtlearn.sim_data.camera import RGBDCamera, RGBDFrame, backproject
 from vtlearn.sim_data.scene import Scene
-from vtlearn.validation import as_transform
+from vtlearn.validation import as_real, as_transform, as_vector
 
 log = logging.getLogger(__name__)
 
@@ -456,10 +456,13 @@ class TwoArmRuntime:
 
     # ------------------------------------------------------------------ perception
     def overview_pose(self, center_xy=(0.0, 0.0)) -> np.ndarray:
-        """The top-down camera pose ``camera_height`` above ``center_xy`` (optical axis straight down)."""
+        """The top-down camera pose ``camera_height`` above ``center_xy`` (optical axis straight down).
+
+        Raises ``ValueError`` naming ``center_xy`` unless it is two finite numbers (world x, y in metres).
+        """
         T = np.eye(4)
         T[:3, :3] = np.diag([1.0, -1.0, -1.0])
-        T[:2, 3] = np.asarray(center_xy, dtype=np.float64)[:2]
+        T[:2, 3] = as_vector(center_xy, "center_xy", 2, "an (x, y) pair of finite numbers in metres")
         T[2, 3] = self.camera_height
         return T
 
@@ -476,8 +479,10 @@ class TwoArmRuntime:
         object's cloud is its RGB mask back-projected onto the table plane."""
         from vtlearn.active.selection import box_iou_2d, mask_box, pixel_box_to_plane
 
+        omega = as_real(omega, "omega", low=0.0, high=1.0, open_low=True)
+        T_world_view = self.overview_pose(center_xy)
         self.tactile_arm.set_joints(self._home["tactile"])
-        q, ok, pos, ang = self.view_feasibility.solve(self.overview_pose(center_xy))
+        q, ok, pos, ang = self.view_feasibility.solve(T_world_view)
         if not ok:
             raise ValueError(
                 f"camera_height: the vision arm cannot reach the overview pose "
