@@ -244,3 +244,16 @@ def test_map_location_is_checked(ckpts):
     with pytest.raises(ValueError, match="map_location: expected a torch device"):
         load_recognition(ckpts["xavtnet"], map_location=3.5)
     assert isinstance(load_actor(ckpts["actor"], map_location=torch.device("cpu")), ACTOR)
+
+
+@pytest.mark.parametrize("kind", ["actor", "xavtnet"])
+def test_checkpoint_with_non_finite_weights_is_refused(ckpts, tmp_path, kind):
+    d = torch.load(ckpts[kind], weights_only=True)
+    key = next(k for k, v in d["state_dict"].items() if v.is_floating_point() and v.numel() > 1)
+    d["state_dict"][key] = d["state_dict"][key].clone()
+    d["state_dict"][key].view(-1)[0] = float("nan")
+    torch.save(d, tmp_path / "nan.ckpt")
+    load = load_actor if kind == "actor" else load_xavtnet
+    with pytest.raises(ValueError, match=f"ckpt: .* NaN or inf weights in 1 tensor\\(s\\), first '{key}'"):
+        load(tmp_path / "nan.ckpt")
+    load(ckpts[kind])  # the finite original still loads

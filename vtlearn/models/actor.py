@@ -372,7 +372,9 @@ class ACTOR(L.LightningModule):
 
 # -------------------------------------------------------------------- checkpoint inference API
 def read_lightning_checkpoint(ckpt: str | Path) -> dict[str, Any]:
-    """``torch.load(weights_only=True)`` with clear errors for missing, corrupted or non-Lightning files."""
+    """``torch.load(weights_only=True)`` with clear errors for missing, corrupted or non-Lightning files, and
+    for a checkpoint whose weights hold NaN or inf (a diverged training), which would otherwise give NaN
+    reconstructions and class scores downstream."""
     path = Path(ckpt)
     if not path.is_file():
         raise FileNotFoundError(f"ckpt: no such file: {path}")
@@ -386,6 +388,13 @@ def read_lightning_checkpoint(ckpt: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict) or "state_dict" not in data or "hyper_parameters" not in data:
         raise ValueError(
             f"ckpt: {path} is not a Lightning checkpoint (needs 'state_dict' and 'hyper_parameters')"
+        )
+    bad = [k for k, v in data["state_dict"].items()
+           if isinstance(v, torch.Tensor) and v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise ValueError(
+            f"ckpt: {path} has NaN or inf weights in {len(bad)} tensor(s), first {bad[0]!r}; the training "
+            f"that wrote it diverged (use an earlier checkpoint)"
         )
     return data
 
