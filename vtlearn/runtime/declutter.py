@@ -59,7 +59,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from vtlearn.validation import as_points, as_real, to_numpy
+from vtlearn.validation import as_int, as_points, as_real, to_numpy
 
 __all__ = [
     "DeclutterAction",
@@ -377,8 +377,7 @@ def occupancy_masks(
     margin = as_real(margin, "margin")
     if margin < 0:
         raise ValueError(f"margin: need >= 0, got {margin}")
-    if isinstance(closing, bool) or not isinstance(closing, (int, np.integer)) or closing < 0:
-        raise ValueError(f"closing: need a non-negative integer, got {closing!r}")
+    closing = as_int(closing, "closing", minimum=0)
     # the closing must not reach the border, or it would erode footprints touching it
     grid = TableGrid.around(
         np.concatenate([p[:, :2] for p in pts.values()]), cell, margin + (closing + 1) * cell
@@ -806,10 +805,7 @@ class DeclutterGraph:
         push_distance = as_real(push_distance, "push_distance", low=0.0, open_low=True)
         fingertip = _fingertip(fingertip)
         max_opening = as_real(max_opening, "max_opening", low=0.0, open_low=True)
-        if isinstance(n_push_samples, bool) or not isinstance(n_push_samples, (int, np.integer)):
-            raise ValueError(f"n_push_samples: need an integer >= 4, got {n_push_samples!r}")
-        if n_push_samples < 4:
-            raise ValueError(f"n_push_samples: need an integer >= 4, got {n_push_samples!r}")
+        n_push_samples = as_int(n_push_samples, "n_push_samples", minimum=4)
         if (
             grasp_quality is not None
             and not isinstance(grasp_quality, Mapping)
@@ -1243,8 +1239,7 @@ def instance_clouds_from_rgbd(
         raise ValueError(f"seg_ids: need shape ({len(pts)},) to match points_world, got {ids.shape}")
     if ids.size and not np.issubdtype(ids.dtype, np.integer):
         raise ValueError(f"seg_ids: need integer ids, got dtype {ids.dtype}")
-    if isinstance(min_points, bool) or not isinstance(min_points, (int, np.integer)) or min_points < 3:
-        raise ValueError(f"min_points: need an integer >= 3, got {min_points!r}")
+    min_points = as_int(min_points, "min_points", minimum=3)
     try:
         drop = np.asarray(list(exclude), dtype=np.int64)
     except (TypeError, ValueError):
