@@ -136,11 +136,33 @@ def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
     }
 
 
+def check_output_path(path, name: str, what: str, folder: bool = False) -> Path:
+    """``path`` as a place a command can write a ``what`` file (or, with ``folder``, a folder) into later; a
+    ``ValueError`` naming ``name`` when it is a folder where a file goes (``--json runs/`` instead of
+    ``--json runs/x.json``), a file where a folder goes, or below a file. Nothing is created, so a command
+    checks its output paths before a long run instead of failing at its end."""
+    p = Path(path)
+    if not folder and p.is_dir():
+        raise ValueError(f"{name}: {p} is a folder; give a file name for the {what} inside it")
+    if folder and p.exists() and not p.is_dir():
+        raise ValueError(f"{name}: {p} is a file; need a folder for the {what}")
+    bad = next((q for q in p.parents if q.exists() and not q.is_dir()), None)
+    if bad is not None:
+        raise ValueError(f"{name}: cannot write the {what} to {p}, {bad} is a file, not a folder")
+    return p
+
+
+def _output_file(path, what: str) -> Path:
+    """``path`` checked by :func:`check_output_path`, its parent folders created."""
+    p = check_output_path(path, "path", what)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    return p
+
+
 def write_json(path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON (numpy converted), creating parent folders. The text goes to a
     temporary file beside ``path`` first and is renamed over it, so a killed run never leaves half a file."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
+    p = _output_file(path, "JSON")
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
     try:
         tmp.write_text(json.dumps(to_jsonable(obj), indent=2))
@@ -154,8 +176,7 @@ def save_figure(fig, path, dpi: int = 120) -> Path:
     """Save a matplotlib figure as ``path`` (parent folders created) and close it; returns the path."""
     import matplotlib.pyplot as plt
 
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
+    p = _output_file(path, "figure")
     fig.savefig(p, dpi=dpi)
     plt.close(fig)
     return p

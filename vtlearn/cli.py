@@ -137,6 +137,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# output options whose meaning is the same in every command: (flag, what is written, is it a folder)
+_OUTPUT_OPTIONS = (("json", "JSON", False), ("figure", "figure", False), ("plot", "plot", False),
+                   ("plots", "plots", True), ("out_dir", "figures", True))
+
+
+def _check_output_options(args: argparse.Namespace) -> None:
+    """Refuse a ``--json`` that is a folder (and the like) before the command runs, not after a long bench."""
+    from vtlearn.bench_utils import check_output_path
+
+    for attr, what, folder in _OUTPUT_OPTIONS:
+        value = getattr(args, attr, None)
+        if isinstance(value, str) and value:
+            check_output_path(value, "--" + attr.replace("_", "-"), what, folder=folder)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -150,9 +165,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _check_output_options(args)
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:
         print(f"vtlearn: error: {exc}", file=sys.stderr)
+        return 2
+    except (FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
+        # a path argument that names the wrong kind of thing (a file where a folder goes, or the reverse)
+        reason = (exc.strerror or str(exc)).lower()
+        print(f"vtlearn: error: cannot use {exc.filename}: {reason}", file=sys.stderr)
         return 2
 
 

@@ -446,6 +446,8 @@ def run_quickstart(
     if stop_after is not None and stop_after not in steps:
         raise ValueError(f"stop_after: expected one of {steps}, got {stop_after!r}")
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out: {out} is a file; the quickstart needs a folder to write into")
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "quickstart_config.json"
     cfg_json = json.loads(json.dumps(asdict(cfg)))
