@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_surface_mesh",
-           "as_transform", "as_vector", "check_class_scores", "check_not_collinear", "to_numpy"]
+           "as_transform", "as_vector", "check_class_scores", "check_not_collinear", "load_named", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -94,6 +94,17 @@ def as_pair(x: Any, name: str, what: str = "a (low, high) pair of numbers") -> t
     except (TypeError, ValueError):
         raise ValueError(f"{name}: expected {what}, got {x!r}") from None
     return a, b
+
+
+def load_named(load, path: Any, name: str):
+    """``load(path)``, with a ``FileNotFoundError`` or ``ValueError`` re-raised under ``name``, the caller's
+    argument or command-line flag (``actor_ckpt``, ``--actor``), in place of the loader's own ``ckpt:``."""
+    try:
+        return load(path)
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{name}: {str(exc).removeprefix('ckpt: ')}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{name}: {str(exc).removeprefix('ckpt: ')}") from exc
 
 
 def to_numpy(x: Any, dtype=np.float64) -> np.ndarray:

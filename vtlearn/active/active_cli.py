@@ -16,7 +16,6 @@ import time
 
 import numpy as np
 
-from vtlearn.bench_utils import csv_list
 from vtlearn.cli_args import count
 
 __all__ = ["register_bench", "run_occupancy_bench"]
@@ -255,9 +254,9 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
         ("random", "raycast"),
         ("uniform", "raycast"),
     ]
-    categories = csv_list(args.objects)
-    if not categories:
-        raise ValueError("objects: give at least one sim_data category")
+    from vtlearn.active.experiments_cli import category_list
+
+    categories = category_list(args.objects, "--objects")
     curves: dict[str, dict[str, list]] = {}
     t0 = time.perf_counter()
     for strategy, mode in variants:
@@ -359,6 +358,8 @@ def _plot_exploration(curves: dict, touches: int, path: str) -> None:
 
 
 def register_bench(sub) -> None:
+    from vtlearn.active.experiments_cli import real
+
     p = sub.add_parser(
         "occupancy",
         help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap",
@@ -385,11 +386,12 @@ def register_bench(sub) -> None:
         "--objects", default="bottle,mug,spray_bottle,wineglass", help="comma-separated sim_data categories"
     )
     p.add_argument("--seeds", type=count(1), default=3, help="instances per category (default 3)")
-    p.add_argument("--touches", type=count(1), default=20,
-                   help="touch budget (default 20, as in thesis Fig. 8.7)")
+    p.add_argument("--touches", type=count(2), default=20,
+                   help="touch budget, the first 2 random (default 20, as in thesis Fig. 8.7)")
     p.add_argument("--candidates", type=count(1), default=100, help="Monte-Carlo NBT candidates per step")
     p.add_argument("--cells", type=count(1), default=40, help="grid cells per axis (default 40)")
-    p.add_argument("--coverage-radius", type=float, default=0.005, help="metres (default 0.005)")
+    p.add_argument("--coverage-radius", type=real(0.0, open_low=True), default=0.005,
+                   help="metres, > 0 (default 0.005)")
     p.add_argument(
         "--pinch",
         action="store_true",

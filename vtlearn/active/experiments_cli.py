@@ -32,13 +32,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, wilcoxon_p
 from vtlearn.cli_args import count
+from vtlearn.validation import as_real, load_named
 
 THESIS = {
     "active-reconstruction": {
@@ -53,6 +56,49 @@ THESIS = {
 }
 
 
+def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False) -> Callable[[str], float]:
+    """An argparse ``type``: a finite float in ``[low, high]`` (``(low, high]`` with ``open_low``), checked by
+    :func:`~vtlearn.validation.as_real`, so that argparse refuses NaN, inf or a value out of range with the
+    flag's name (``argument --coverage-radius: need a finite number > 0, got -1.0``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        try:
+            return as_real(value, "value", low=low, high=high, open_low=open_low)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
+
+    parse.__name__ = "number"
+    return parse
+
+
+def category_list(
+    text: str, flag: str, *, transparent: bool | None = None, empty_ok: bool = False
+) -> list[str]:
+    """The sim_data categories of a comma-separated ``flag`` value; a ``ValueError`` naming ``flag`` for an
+    unknown category, for an empty list (unless ``empty_ok``) and, with ``transparent`` True (False), for a
+    category that has no transparent (opaque) instances."""
+    from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
+
+    cats = csv_list(text)
+    if not cats and not empty_ok:
+        raise ValueError(f"{flag}: no category given; expected comma-separated categories of {CATEGORIES}")
+    unknown = [c for c in cats if c not in CATEGORIES]
+    if unknown:
+        raise ValueError(f"{flag}: unknown {unknown}, expected some of {CATEGORIES}")
+    if transparent is not None:
+        kind = "transparent" if transparent else "opaque"
+        has = [c for c in CATEGORIES if (TRANSPARENT_PROB.get(c, 0.0) > 0 if transparent
+                                         else TRANSPARENT_PROB.get(c, 0.0) < 1)]
+        bad = [c for c in cats if c not in has]
+        if bad:
+            raise ValueError(f"{flag}: {bad} have no {kind} instances; categories with some: {has}")
+    return cats
+
+
 def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     """(label, strategy, gain mode) rows; ``--gain-mode both`` adds the thesis criterion as its own row.
     ``random_pinch`` is allowed only where the episodes have pinches and no views (``pinches``)."""
@@ -61,9 +107,12 @@ def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:
     allowed = STRATEGIES if pinches else TOUCH_STRATEGIES
     modes = ["probabilistic", "raycast"] if args.gain_mode == "both" else [args.gain_mode]
     rows = []
-    for s in csv_list(args.strategies):
+    names = csv_list(args.strategies)
+    if not names:
+        raise ValueError(f"--strategies: no strategy given; expected some of {allowed}")
+    for s in names:
         if s not in allowed:
-            raise ValueError(f"strategies: unknown {s!r} here, expected some of {allowed}")
+            raise ValueError(f"--strategies: unknown {s!r} here, expected some of {allowed}")
         if s == "active":
             rows += [("active" if i == 0 else f"active_{m}", s, m) for i, m in enumerate(modes)]
         else:
@@ -76,7 +125,7 @@ def _setup(args):
 
     torch.set_num_threads(max(1, int(args.threads)))
     if args.objects_per_category < 1:
-        raise ValueError(f"objects-per-category: need >= 1, got {args.objects_per_category}")
+        raise ValueError(f"--objects-per-category: need >= 1, got {args.objects_per_category}")
 
 
 def _write(args, name: str, result: dict, plot) -> None:
@@ -135,11 +184,10 @@ def run_active_reconstruction(args: argparse.Namespace) -> int:
     from vtlearn.models.actor import load_actor
 
     _setup(args)
-    model = load_actor(args.ckpt)
-    objs = held_out_objects(
-        csv_list(args.categories), args.objects_per_category, transparent=True, **_objects_from(args)
-    )
+    categories = category_list(args.categories, "--categories", transparent=True)
     rows = _strategies(args, pinches=not args.no_pinch)
+    model = load_named(load_actor, args.ckpt, "--ckpt")
+    objs = held_out_objects(categories, args.objects_per_category, transparent=True, **_objects_from(args))
     reconstructor = None
     if any(mode == "box_fit" for _, _, mode in rows):
         from vtlearn.active.reconstruction_nbt import ExpectedBoxFitGain
@@ -264,20 +312,22 @@ def run_active_recognition(args: argparse.Namespace) -> int:
 
     _setup(args)
     if not 0 < args.zeta <= 1:
-        raise ValueError(f"zeta: need a confidence in (0, 1], got {args.zeta}")
+        raise ValueError(f"--zeta: need a confidence in (0, 1], got {args.zeta}")
     if args.min_points < 1:
         raise ValueError(f"--min-points: need >= 1, got {args.min_points}")
     if args.max_actions < 10:
         raise ValueError(f"--max-actions: need >= 10 (the table reads the accuracy at 10 actions), "
                          f"got {args.max_actions}")
-    model = load_xavtnet(args.ckpt)
-    class_names = _class_names(args, int(model.hparams.num_classes))
-    cats = csv_list(args.categories) if args.categories else class_names
+    cats = category_list(args.categories, "--categories") if args.categories else None
+    rows = _strategies(args)
+    data_names = None if args.data is None else _manifest_class_names(args.data)
+    model = load_named(load_xavtnet, args.ckpt, "--ckpt")
+    class_names = _class_names(data_names, int(model.hparams.num_classes))
+    cats = cats or class_names
     unknown = [c for c in cats if c not in class_names]
     if unknown:
-        raise ValueError(f"categories: {unknown} are not classes of the checkpoint ({class_names})")
+        raise ValueError(f"--categories: {unknown} are not classes of the checkpoint ({class_names})")
     objs = held_out_objects(cats, args.objects_per_category, transparent=None, **_objects_from(args))
-    rows = _strategies(args)
     recognizers = {}
     if args.recognition_gain:
         from vtlearn.active.recognition_nbt import ExpectedClassEntropyGain
@@ -394,20 +444,27 @@ def run_active_recognition(args: argparse.Namespace) -> int:
     return 0
 
 
-def _class_names(args, num_classes: int) -> list[str]:
+def _manifest_class_names(data: str) -> list[str]:
+    """The class names in the ``manifest.json`` of the crossmodal dataset ``--data``."""
+    from vtlearn.datamodules.shards import load_manifest
+
+    return list(load_manifest(data, "--data")["class_names"])
+
+
+def _class_names(data_names: list[str] | None, num_classes: int) -> list[str]:
     from vtlearn.sim_data.shapes import CATEGORIES
 
-    if args.data:
-        names = json.loads((Path(args.data) / "manifest.json").read_text())["class_names"]
+    if data_names is not None:
+        names = data_names
     elif num_classes == len(CATEGORIES):
         names = list(CATEGORIES)
     else:
         raise ValueError(
-            f"data: the checkpoint has {num_classes} classes; pass --data with the crossmodal "
+            f"--data: the checkpoint has {num_classes} classes; pass --data with the crossmodal "
             "dataset it was trained on (for its class names)"
         )
     if len(names) != num_classes:
-        raise ValueError(f"data: {len(names)} class names but the checkpoint has {num_classes} classes")
+        raise ValueError(f"--data: {len(names)} class names but the checkpoint has {num_classes} classes")
     return list(names)
 
 
@@ -454,14 +511,19 @@ def run_shared_exploration(args: argparse.Namespace) -> int:
     from vtlearn.models.actor import load_actor
 
     _setup(args)
-    model = load_actor(args.ckpt)
+    opaque_cats = category_list(args.opaque, "--opaque", transparent=False, empty_ok=True)
+    transparent_cats = category_list(args.transparent, "--transparent", transparent=True, empty_ok=True)
+    if not opaque_cats and not transparent_cats:
+        raise ValueError("--opaque, --transparent: both empty, so there is no object to explore; "
+                         "give at least one category")
+    rows = _strategies(args)
+    model = load_named(load_actor, args.ckpt, "--ckpt")
     opaque = held_out_objects(
-        csv_list(args.opaque), args.objects_per_category, transparent=False, **_objects_from(args)
+        opaque_cats, args.objects_per_category, transparent=False, **_objects_from(args)
     )
     transparent = held_out_objects(
-        csv_list(args.transparent), args.objects_per_category, transparent=True, **_objects_from(args)
+        transparent_cats, args.objects_per_category, transparent=True, **_objects_from(args)
     )
-    rows = _strategies(args)
     reconstructor = None
     if args.transparent_gain == "box_fit":
         from vtlearn.active.reconstruction_nbt import ExpectedBoxFitGain
@@ -709,8 +771,9 @@ def register_bench(sub) -> None:
 
     p = sub.add_parser("shared-exploration", help="views + touches, touch gain, S-TIQF ADI (Fig. 5.13, 5.18)")
     p.add_argument("--ckpt", required=True, help="ACTOR Lightning checkpoint")
-    p.add_argument("--opaque", default="mug,can", help="opaque categories")
-    p.add_argument("--transparent", default="wineglass", help="categories with transparent instances")
+    p.add_argument("--opaque", default="mug,can", help="opaque categories ('' for none)")
+    p.add_argument("--transparent", default="wineglass",
+                   help="categories with transparent instances ('' for none; not both empty)")
     p.add_argument("--views", type=count(1), default=3)
     p.add_argument("--touches-opaque", type=count(0), default=5)
     p.add_argument("--touches-transparent", type=count(0), default=20)

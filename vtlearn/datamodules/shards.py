@@ -66,6 +66,25 @@ def load_manifest(data_dir: str | Path, name: str = "data_dir") -> dict:
     return manifest
 
 
+def read_class_names(manifest_json: str | Path, name: str = "class_names") -> list[str]:
+    """The ``class_names`` of a crossmodal dataset's ``manifest.json`` file (an xAVTNet's class names).
+
+    Raises:
+        FileNotFoundError (naming ``name``): no such file.
+        ValueError (naming ``name``): not JSON, or no non-empty ``class_names`` list of strings.
+    """
+    path = Path(manifest_json)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: no manifest at {path}")
+    try:
+        names = json.loads(path.read_text())["class_names"]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
+        names = None
+    if not isinstance(names, list) or not names or not all(isinstance(c, str) for c in names):
+        raise ValueError(f"{name}: {path} has no 'class_names' list (a crossmodal manifest.json)")
+    return list(names)
+
+
 def load_split(
     data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir"
 ) -> dict[str, np.ndarray]:

@@ -1034,13 +1034,9 @@ def run_recognize(args: argparse.Namespace) -> int:
     override = None
     if args.class_names:
         if args.class_names.endswith(".json"):
-            manifest = Path(args.class_names)
-            if not manifest.is_file():
-                raise FileNotFoundError(f"--class-names: no manifest at {manifest}")
-            try:
-                override = list(json.loads(manifest.read_text())["class_names"])
-            except (json.JSONDecodeError, KeyError, TypeError) as exc:
-                raise ValueError(f"--class-names: {manifest} has no 'class_names' list") from exc
+            from vtlearn.datamodules.shards import read_class_names
+
+            override = read_class_names(args.class_names, "--class-names")
         else:
             override = [s.strip() for s in args.class_names.split(",")]
     truth = None

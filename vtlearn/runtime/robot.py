@@ -49,7 +49,6 @@ Shapes:
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -64,7 +63,7 @@ from vtlearn.runtime.pushing import GoalPusher, sensor_frame
 from vtlearn.sim_data.arm import PandaArm
 from vtlearn.sim_data.camera import RGBDCamera, RGBDFrame, backproject
 from vtlearn.sim_data.scene import Scene
-from vtlearn.validation import as_real, as_transform, as_vector
+from vtlearn.validation import as_real, as_transform, as_vector, load_named
 
 log = logging.getLogger(__name__)
 
@@ -328,17 +327,6 @@ class RuntimeReport:
         }
 
 
-def _named(load, path, name: str):
-    """``load(path)``, with a checkpoint error re-raised under the runtime's argument ``name`` (the loaders
-    say ``ckpt``)."""
-    try:
-        return load(path)
-    except FileNotFoundError as exc:
-        raise FileNotFoundError(f"{name}: {exc}") from exc
-    except ValueError as exc:
-        raise ValueError(f"{name}: {exc}") from exc
-
-
 class TwoArmRuntime:
     """Two Pandas, a table, a camera and a taxel pad in pybullet, with the models that perceive.
 
@@ -411,18 +399,13 @@ class TwoArmRuntime:
         :func:`~vtlearn.active.closed_loop.load_xavtnet`); ``class_names`` may be a list, or the path of
         a crossmodal dataset's ``manifest.json`` (its ``class_names``)."""
         from vtlearn.active.closed_loop import load_xavtnet
+        from vtlearn.datamodules.shards import read_class_names
         from vtlearn.models.actor import load_actor
 
         if isinstance(class_names, (str, Path)):
-            path = Path(class_names)
-            if not path.is_file():
-                raise FileNotFoundError(f"class_names: no manifest at {path}")
-            try:
-                class_names = json.loads(path.read_text())["class_names"]
-            except (json.JSONDecodeError, KeyError) as exc:
-                raise ValueError(f"class_names: {path} has no 'class_names' list") from exc
-        actor = None if actor_ckpt is None else _named(load_actor, actor_ckpt, "actor_ckpt")
-        xav = None if xavtnet_ckpt is None else _named(load_xavtnet, xavtnet_ckpt, "xavtnet_ckpt")
+            class_names = read_class_names(class_names, "class_names")
+        actor = None if actor_ckpt is None else load_named(load_actor, actor_ckpt, "actor_ckpt")
+        xav = None if xavtnet_ckpt is None else load_named(load_xavtnet, xavtnet_ckpt, "xavtnet_ckpt")
         return cls(actor, xav, class_names, **kwargs)
 
     # ------------------------------------------------------------------ lifecycle
@@ -886,11 +869,16 @@ def clutter_scene(
     from vtlearn.sim_data.shapes import CATEGORIES
 
     cats = [str(c) for c in clutter_categories]
-    unknown = [c for c in [target_category, *cats] if c not in CATEGORIES]
+    if target_category not in CATEGORIES:
+        raise ValueError(f"target_category: unknown {target_category!r}, expected one of {CATEGORIES}")
+    unknown = [c for c in cats if c not in CATEGORIES]
     if unknown:
         raise ValueError(f"clutter_categories: unknown {unknown}, expected some of {CATEGORIES}")
     if target_category in cats:
-        raise ValueError("clutter_categories: must differ from the target category (thesis 5.2.2)")
+        raise ValueError(
+            f"clutter_categories: hold the target category {target_category!r}; the clutter must differ "
+            "from the target (thesis 5.2.2)"
+        )
     if not (np.isfinite(gap) and gap >= 0):
         raise ValueError(f"gap: need a non-negative distance in metres, got {gap}")
     target = held_out_objects([target_category], 1, transparent=transparent, sections=sections)[0]

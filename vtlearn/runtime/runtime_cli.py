@@ -20,30 +20,105 @@ from vtlearn.cli_args import count
 __all__ = ["register", "register_bench"]
 
 
-def _model_paths(args) -> tuple[Path | None, Path | None, Path | None]:
+# the files a `vtlearn quickstart --out` directory (``--models``) supplies, and the flag that overrides each
+_MODEL_FILES = (("actor", "actor.ckpt", "--actor"), ("xavtnet", "xavtnet.ckpt", "--xavtnet"),
+                ("class_names", "data/crossmodal/manifest.json", "--class-names"))
+
+
+def _model_paths(args) -> tuple[tuple[Path, str] | None, ...]:
+    """``(path, flag it came from)`` of the ACTOR checkpoint, the xAVTNet checkpoint and the class-names
+    manifest, each None when not given.
+
+    ``--actor``, ``--xavtnet`` and ``--class-names`` take precedence over the files of ``--models``; an
+    explicit ``--xavtnet`` also takes its class names from its checkpoint (or ``--class-names``), not from
+    ``--models``. Every path is checked here, before any model is loaded, and an error names the flag that
+    gave it.
+    """
+    given = {key: getattr(args, key) for key, _, _ in _MODEL_FILES}
+    out = {
+        key: (Path(given[key]), flag) for key, _, flag in _MODEL_FILES if given[key] is not None
+    }
     if args.models is not None:
         d = Path(args.models)
         if not d.is_dir():
             raise FileNotFoundError(f"--models: no directory {d}")
-        actor, xav, names = d / "actor.ckpt", d / "xavtnet.ckpt", d / "data" / "crossmodal" / "manifest.json"
-        for path, what in (
-            (actor, "actor.ckpt"),
-            (xav, "xavtnet.ckpt"),
-            (names, "data/crossmodal/manifest.json"),
-        ):
-            if not path.is_file():
-                raise FileNotFoundError(f"--models: {d} has no {what} (run `vtlearn quickstart --out {d}`)")
-        return actor, xav, names
-    if (args.actor is None) != (args.xavtnet is None):
+        for key, rel, flag in _MODEL_FILES:
+            if key in out or (key == "class_names" and given["xavtnet"] is not None):
+                continue
+            if not (d / rel).is_file():
+                raise FileNotFoundError(
+                    f"--models: {d} has no {rel} (run `vtlearn quickstart --out {d}`, or pass {flag})"
+                )
+            out[key] = (d / rel, "--models")
+    elif (args.actor is None) != (args.xavtnet is None):
         raise ValueError(
             "--actor, --xavtnet: give both (and --class-names unless the xAVTNet checkpoint records them), "
             "or --models, or none (explore only)"
         )
-    return (
-        None if args.actor is None else Path(args.actor),
-        None if args.xavtnet is None else Path(args.xavtnet),
-        None if args.class_names is None else Path(args.class_names),
-    )
+    for path, flag in out.values():
+        if flag != "--models" and not path.is_file():
+            raise FileNotFoundError(f"{flag}: no file {path}")
+    return out.get("actor"), out.get("xavtnet"), out.get("class_names")
+
+
+def _load_models(paths) -> tuple:
+    """The ACTOR model, the xAVTNet model and its class names of :func:`_model_paths` (None where not given);
+    a bad checkpoint or manifest is reported under the flag that gave it."""
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.datamodules.shards import read_class_names
+    from vtlearn.models.actor import load_actor
+    from vtlearn.validation import load_named
+
+    actor_path, xav_path, names_path = paths
+    actor = None if actor_path is None else load_named(load_actor, *actor_path)
+    xav = None if xav_path is None else load_named(load_xavtnet, *xav_path)
+    if xav is None:
+        return actor, None, None
+    hp = dict(getattr(xav, "hparams", {}))
+    if names_path is None:
+        names, flag = hp.get("class_names"), xav_path[1]
+        if not names:
+            raise ValueError(
+                "--class-names: the xAVTNet checkpoint records no class names; pass the crossmodal dataset's "
+                "manifest.json"
+            )
+    else:
+        path, flag = names_path
+        names = read_class_names(path, flag)
+    names = [str(c) for c in names]
+    n_classes = hp.get("num_classes")
+    if n_classes is not None and len(names) != int(n_classes):
+        raise ValueError(
+            f"{flag}: {len(names)} class names but the xAVTNet checkpoint has {n_classes} classes"
+        )
+    return actor, xav, names
+
+
+def _scene_categories(args) -> tuple[str, list[str], bool | None]:
+    """``--target``, ``--clutter`` and ``--target-kind`` checked against the procedural categories, before
+    anything is loaded: the target category, the clutter categories and the target's transparency."""
+    from vtlearn.active.experiments_cli import category_list
+    from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
+
+    transparent = {"transparent": True, "opaque": False, "any": None}[args.target_kind]
+    if args.target not in CATEGORIES:
+        raise ValueError(f"--target: unknown category {args.target!r}, expected one of {CATEGORIES}")
+    clutter = category_list(args.clutter, "--clutter", transparent=False, empty_ok=True)  # clutter is opaque
+    if args.target in clutter:
+        rest = ",".join(c for c in clutter if c != args.target)
+        raise ValueError(
+            f"--clutter: holds the target category {args.target!r} (--target), and the clutter must differ "
+            f"from the target (thesis 5.2.2); pass a --clutter without it"
+            + (f", e.g. --clutter {rest}" if rest else "")
+        )
+    p = TRANSPARENT_PROB.get(args.target, 0.0)
+    if (transparent is True and p == 0.0) or (transparent is False and p == 1.0):
+        raise ValueError(
+            f"--target {args.target} --target-kind {args.target_kind}: {args.target} has no "
+            f"{args.target_kind} instances; pass --target-kind {'opaque' if transparent else 'transparent'} "
+            "or any, or another --target"
+        )
+    return args.target, clutter, transparent
 
 
 def _scene_figure(path: Path, before, after, titles: tuple[str, str]) -> None:
@@ -68,14 +143,13 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
     from vtlearn.pipeline import summary_figure
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
 
-    actor, xav, names = _model_paths(args)
-    clutter_cats = csv_list(args.clutter)
-    transparent = {"transparent": True, "opaque": False, "any": None}[args.target_kind]
-    target_obj, clutter = clutter_scene(args.target, clutter_cats, transparent=transparent, seed=args.seed)
+    target_cat, clutter_cats, transparent = _scene_categories(args)
+    actor, xav, names = _load_models(_model_paths(args))
+    target_obj, clutter = clutter_scene(target_cat, clutter_cats, transparent=transparent, seed=args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with TwoArmRuntime.from_checkpoints(actor, xav, names, seed=args.seed) as rt:
+    with TwoArmRuntime(actor, xav, names, seed=args.seed) as rt:
         target = rt.add_object(target_obj, fixed=True)
         for c in clutter:
             rt.add_object(c)
@@ -142,25 +216,29 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.active.closed_loop import TOUCH_STRATEGIES
     from vtlearn.bench_utils import machine_info, print_table, save_figure, write_json
-    from vtlearn.models.actor import load_actor
     from vtlearn.runtime.runtime_bench import run_runtime_benchmark
+    from vtlearn.sim_data.shapes import CATEGORIES
 
-    actor_path, xav_path, names_path = _model_paths(args)
-    if actor_path is None:
+    strategies = csv_list(args.strategies)
+    bad = [x for x in strategies if x not in TOUCH_STRATEGIES]  # the tactile arm has no pinch
+    if not strategies or bad:
+        raise ValueError(f"--strategies: expected some of {TOUCH_STRATEGIES}, got {strategies}")
+    paths = _model_paths(args)
+    if paths[0] is None:
         raise ValueError(
             "--models: the benchmark perceives, so it needs models (or --actor/--xavtnet/--class-names)"
         )
-    xav = load_xavtnet(xav_path)
-    names = json.loads(Path(names_path).read_text())["class_names"] if names_path else xav.hparams.class_names
-    if not names:
-        raise ValueError("--class-names: the xAVTNet checkpoint records no class names; pass manifest.json")
-    strategies = csv_list(args.strategies)
+    actor, xav, names = _load_models(paths)
+    unknown = [c for c in names if c not in CATEGORIES]
+    if unknown:
+        flag = (paths[2] or paths[1])[1]
+        raise ValueError(f"{flag}: class names {unknown} are not procedural categories {CATEGORIES}")
     bar = tqdm(total=args.scenes * len(strategies), desc="scenes x strategies")
     t0 = time.perf_counter()
     result = run_runtime_benchmark(
-        load_actor(actor_path),
+        actor,
         xav,
         names,
         scenes=args.scenes,
@@ -236,9 +314,16 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.runtime.robot import DECLUTTER_POLICIES
     from vtlearn.runtime.runtime_bench import run_declutter_benchmark
+    from vtlearn.sim_data.shapes import CATEGORIES
 
+    most = len(CATEGORIES) - 2  # categories other than the target's, less the always transparent wineglass
+    if not 1 <= args.clutter <= most:
+        raise ValueError(f"--clutter: need 1..{most} clutter objects per scene, got {args.clutter}")
     policies = csv_list(args.policies)
+    if not policies or any(x not in DECLUTTER_POLICIES for x in policies):
+        raise ValueError(f"--policies: expected some of {DECLUTTER_POLICIES}, got {policies}")
     bar = tqdm(total=args.scenes * len(policies), desc="scenes x policies")
     t0 = time.perf_counter()
     result = run_declutter_benchmark(
@@ -281,13 +366,19 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
 
 def _add_model_args(p) -> None:
     """The model sources that :func:`_model_paths` reads: ``--models DIR``, or the three files."""
-    p.add_argument("--models", default=None, help="a `vtlearn quickstart --out` directory (its checkpoints)")
+    p.add_argument(
+        "--models",
+        default=None,
+        help="a `vtlearn quickstart --out` directory (its checkpoints and class names); --actor, --xavtnet "
+        "and --class-names given with it replace its files",
+    )
     p.add_argument("--actor", default=None, help="ACTOR checkpoint (.ckpt)")
     p.add_argument("--xavtnet", default=None, help="xAVTNet checkpoint (.ckpt)")
     p.add_argument(
         "--class-names",
         default=None,
-        help="crossmodal dataset manifest.json (xAVTNet class names; default: those the checkpoint records)",
+        help="crossmodal dataset manifest.json (xAVTNet class names; default: those the checkpoint records, "
+        "or with --models and no --xavtnet, its data/crossmodal/manifest.json)",
     )
 
 
@@ -296,8 +387,8 @@ def register_bench(bench_subparsers) -> None:
         "declutter", help="the declutter graph against nearest-first and random orders on the same scenes"
     )
     p.add_argument("--scenes", type=count(1), default=10, help="cluttered scenes (default %(default)s)")
-    p.add_argument("--clutter", type=count(0), default=4,
-                   help="clutter objects per scene (default %(default)s)")
+    p.add_argument("--clutter", type=count(1), default=4,
+                   help="clutter objects per scene, at most 10 (default %(default)s)")
     p.add_argument(
         "--policies", default="graph,nearest,random", help="declutter policies (default %(default)s)"
     )
@@ -338,7 +429,9 @@ def register(sub) -> None:
         help="draw a transparent, opaque or any held-out instance (default %(default)s)",
     )
     p.add_argument(
-        "--clutter", default="can,box,bowl", help="comma-separated clutter categories (default %(default)s)"
+        "--clutter",
+        default="can,box,bowl",
+        help="comma-separated clutter categories, other than --target's ('' for none; default %(default)s)",
     )
     p.add_argument("--n-touches", type=count(1), default=20, help="touch budget (default %(default)s)")
     p.add_argument(
