@@ -154,7 +154,7 @@ def test_active_exploration_touches_and_objects(tmp_path, capsys):
 def test_real_type():
     import argparse
 
-    from vtlearn.active.experiments_cli import real
+    from vtlearn.cli_args import real
 
     assert real(0.0, open_low=True)("0.5") == 0.5 and real(0.0, 1.0)("0") == 0.0
     for bad in ("0", "-1", "nan", "inf", "x"):

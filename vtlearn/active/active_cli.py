@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from vtlearn.cli_args import count
+from vtlearn.cli_args import count, real
 
 __all__ = ["register_bench", "run_occupancy_bench"]
 
@@ -254,7 +254,7 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
         ("random", "raycast"),
         ("uniform", "raycast"),
     ]
-    from vtlearn.active.experiments_cli import category_list
+    from vtlearn.cli_args import category_list
 
     categories = category_list(args.objects, "--objects")
     curves: dict[str, dict[str, list]] = {}
@@ -358,8 +358,6 @@ def _plot_exploration(curves: dict, touches: int, path: str) -> None:
 
 
 def register_bench(sub) -> None:
-    from vtlearn.active.experiments_cli import real
-
     p = sub.add_parser(
         "occupancy",
         help="expected information gain of 500 touches on a 64^3 grid (eq. 5.8); dense vs OctoMap",

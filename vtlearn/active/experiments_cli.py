@@ -32,16 +32,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, wilcoxon_p
-from vtlearn.cli_args import count
-from vtlearn.validation import as_real, load_named
+from vtlearn.cli_args import category_list, count
+from vtlearn.validation import load_named
 
 THESIS = {
     "active-reconstruction": {
@@ -54,49 +52,6 @@ THESIS = {
     },
     "shared-exploration": {"touch_gain_percent": 17.0, "figure": "5.13, 5.18"},
 }
-
-
-def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False) -> Callable[[str], float]:
-    """An argparse ``type``: a finite float in ``[low, high]`` (``(low, high]`` with ``open_low``), checked by
-    :func:`~vtlearn.validation.as_real`, so that argparse refuses NaN, inf or a value out of range with the
-    flag's name (``argument --coverage-radius: need a finite number > 0, got -1.0``)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        try:
-            return as_real(value, "value", low=low, high=high, open_low=open_low)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
-
-    parse.__name__ = "number"
-    return parse
-
-
-def category_list(
-    text: str, flag: str, *, transparent: bool | None = None, empty_ok: bool = False
-) -> list[str]:
-    """The sim_data categories of a comma-separated ``flag`` value; a ``ValueError`` naming ``flag`` for an
-    unknown category, for an empty list (unless ``empty_ok``) and, with ``transparent`` True (False), for a
-    category that has no transparent (opaque) instances."""
-    from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
-
-    cats = csv_list(text)
-    if not cats and not empty_ok:
-        raise ValueError(f"{flag}: no category given; expected comma-separated categories of {CATEGORIES}")
-    unknown = [c for c in cats if c not in CATEGORIES]
-    if unknown:
-        raise ValueError(f"{flag}: unknown {unknown}, expected some of {CATEGORIES}")
-    if transparent is not None:
-        kind = "transparent" if transparent else "opaque"
-        has = [c for c in CATEGORIES if (TRANSPARENT_PROB.get(c, 0.0) > 0 if transparent
-                                         else TRANSPARENT_PROB.get(c, 0.0) < 1)]
-        bad = [c for c in cats if c not in has]
-        if bad:
-            raise ValueError(f"{flag}: {bad} have no {kind} instances; categories with some: {has}")
-    return cats
 
 
 def _strategies(args, pinches: bool = False) -> list[tuple[str, str, str]]:

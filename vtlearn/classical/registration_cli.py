@@ -9,9 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from vtlearn.bench_utils import csv_list
-from vtlearn.cli_args import count
+from vtlearn.cli_args import count, counts
 
 __all__ = ["register", "register_bench"]
+
+# the fewest scene points a registration takes: register() needs 3 non-collinear points (S-TIQF, RANSAC, ...)
+MIN_SCENE_POINTS = 3
+# the fewest faces of the look-ahead timing mesh: a closed surface (tetrahedron); 1 decimates to no faces
+MIN_FACES = 4
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
@@ -40,34 +45,82 @@ def _cmd_register(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_poses(path: str, name: str):
+def _read_array(path: str, name: str):
+    """The numbers in ``path`` (``.npy``, or whitespace-separated text) as a float64 array; a
+    ``FileNotFoundError`` or ``ValueError`` naming ``name``, the command-line flag, otherwise."""
+    import warnings
+
     import numpy as np
 
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"{name}: no file at {p}")
-    if p.suffix == ".npy":
-        arr = np.load(p, allow_pickle=False)
-    else:
-        arr = np.loadtxt(p)
-    arr = np.asarray(arr, dtype=np.float64)
+    try:
+        if p.suffix == ".npy":
+            arr = np.load(p, allow_pickle=False)
+        else:
+            with warnings.catch_warnings():  # an empty file: numpy warns, then the shape check below refuses
+                warnings.simplefilter("ignore", UserWarning)
+                arr = np.loadtxt(p)
+        arr = np.asarray(arr, dtype=np.float64)
+    except (ValueError, TypeError, OSError) as exc:
+        raise ValueError(f"{name}: cannot read {p} as {'a .npy array' if p.suffix == '.npy' else 'numbers'} "
+                         f"({exc})") from None
+    if arr.size == 0:
+        raise ValueError(f"{name}: {p} holds no numbers")
+    return arr
+
+
+def _read_poses(path: str, name: str):
+    """``(V, 4, 4)`` rigid poses from a ``.npy`` or a text file of 4x4 blocks stacked; errors name
+    ``name``."""
+    from vtlearn.validation import as_transform
+
+    arr = _read_array(path, name)
     if arr.ndim == 2 and arr.shape[1] == 4 and arr.shape[0] % 4 == 0:
         arr = arr.reshape(-1, 4, 4)  # text files: 4x4 blocks stacked
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
         raise ValueError(f"{name}: expected (V, 4, 4) poses (.npy, or 4V x 4 text), got shape {arr.shape}")
+    for i, T in enumerate(arr):
+        as_transform(T, f"{name} (pose {i})")
     return arr
+
+
+def _read_transform(path: str, name: str):
+    """One ``(4, 4)`` rigid transform from a ``.npy`` or a 4 x 4 text file; errors name ``name``."""
+    from vtlearn.validation import as_transform
+
+    arr = _read_array(path, name)
+    if arr.shape == (1, 4, 4):
+        arr = arr[0]
+    if arr.shape != (4, 4):
+        raise ValueError(f"{name}: expected one (4, 4) transform (.npy, or 4 x 4 text), "
+                         f"got shape {arr.shape}")
+    return as_transform(arr, name)
 
 
 def _cmd_hand_eye(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import to_jsonable
-    from vtlearn.classical.hand_eye import in_situ_hand_eye
+    from vtlearn.classical.hand_eye import LOCAL_METHODS, in_situ_hand_eye
     from vtlearn.io import read_geometry
+    from vtlearn.validation import as_points, check_not_collinear
 
-    visual = [read_geometry(v, n_points=args.visual_points, seed=args.seed + i)
-              for i, v in enumerate(args.visual)]
-    tactile = read_geometry(args.tactile, n_points=args.tactile_points, seed=args.seed)
+    if args.init is None and args.method in LOCAL_METHODS:
+        raise ValueError(f"--init: method {args.method} needs an initial T_E_C guess (.npy (4, 4) or 4 x 4 "
+                         "text); a global method such as stiqf needs none")
     poses = _read_poses(args.poses, "--poses")
-    init = _read_poses(args.init, "--init")[0] if args.init else None
+    if len(poses) != len(args.visual):
+        raise ValueError(f"--poses: need one T_W_E per --visual file ({len(args.visual)}), got {len(poses)}")
+    init = _read_transform(args.init, "--init") if args.init else None
+    visual = []
+    for i, v in enumerate(args.visual):
+        cloud = as_points(read_geometry(v, n_points=args.visual_points, seed=args.seed + i), f"--visual {v}",
+                          min_points=3)
+        check_not_collinear(cloud, f"--visual {v}")
+        visual.append(cloud)
+    tactile = read_geometry(args.tactile, n_points=args.tactile_points, seed=args.seed)
+    tactile = as_points(tactile, "--tactile", min_points=3)
+    check_not_collinear(tactile, "--tactile")
     res = in_situ_hand_eye(visual, tactile, poses, method=args.method, T_E_C_init=init, seed=args.seed)
     out = {"T_E_C": res.T_E_C, "T_W_C": res.T_W_C, "T_E_C_views": res.T_E_C_views, "rmse_m": res.rmse,
            "spread_m": res.spread_m, "spread_deg": res.spread_deg, "method": args.method,
@@ -133,11 +186,10 @@ def _cmd_bench_registration(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import print_table, write_json
     from vtlearn.classical.registration_bench import bar_plot, markdown_report, run_registration_benchmark
 
-    sizes = [int(s) for s in csv_list(args.sizes)]
     methods = csv_list(args.methods) if args.methods else None
     result = run_registration_benchmark(
         args.meshes,
-        sizes=sizes,
+        sizes=args.sizes,
         trials=args.trials,
         methods=methods,
         seed=args.seed,
@@ -187,8 +239,8 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
     from vtlearn.classical.active_touch import run_active_touch_benchmark
 
     result = run_active_touch_benchmark(
-        candidates=[int(c) for c in args.candidates.split(",")],
-        faces=[int(f) for f in args.faces.split(",")],
+        candidates=args.candidates,
+        faces=args.faces,
         repeats=args.repeats,
         trials=args.trials,
         touches=args.touches,
@@ -285,7 +337,9 @@ def register_bench(bench_subparsers: Any) -> None:
         default=10,
         help="trials per mesh and scene size (3 meshes x 10 = the thesis's 30)",
     )
-    p.add_argument("--sizes", default="20,40,80,120", help="scene sizes, comma separated")
+    p.add_argument("--sizes", type=counts(MIN_SCENE_POINTS), default=[20, 40, 80, 120],
+                   help=f"scene sizes in points, comma separated, each >= {MIN_SCENE_POINTS} "
+                        "(default 20,40,80,120)")
     p.add_argument("--methods", default=None, help="comma-separated subset of methods")
     p.add_argument("--scale-trials", type=count(0), default=4,
                    help="trials per mesh of the scale run (0: skip)")
@@ -311,8 +365,11 @@ def register_bench(bench_subparsers: Any) -> None:
     p.set_defaults(func=_cmd_bench_hand_eye)
 
     p = bench_subparsers.add_parser("active-touch", help="active touch look-ahead time and active vs random")
-    p.add_argument("--candidates", default="10,100,1000")
-    p.add_argument("--faces", default="1000,5000")
+    p.add_argument("--candidates", type=counts(1), default=[10, 100, 1000],
+                   help="candidate actions per look-ahead, comma separated (default 10,100,1000)")
+    p.add_argument("--faces", type=counts(MIN_FACES), default=[1000, 5000],
+                   help=f"face counts the mesh is decimated to, comma separated, each >= {MIN_FACES} (a "
+                        "tetrahedron; default 1000,5000)")
     p.add_argument("--repeats", type=count(1), default=5, help="timing repeats per configuration")
     p.add_argument("--trials", type=count(1), default=10, help="active-vs-random trials")
     p.add_argument("--touches", type=count(1), default=25, help="touches per trial")

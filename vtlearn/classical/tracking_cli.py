@@ -52,6 +52,59 @@ def _trackers() -> dict[str, Any]:
 TRACKERS = ("artreg", "pf", "icp", "filterreg")
 
 
+def _require_trackers(methods: list[str], flag: str) -> dict[str, Any]:
+    """The tracker classes (``_trackers()``); a ``ValueError`` naming ``flag`` when one of ``methods`` is
+    listed in :data:`TRACKERS` but its backend, an optional extra, is not installed."""
+    trackers = _trackers()
+    for m in methods:
+        if m not in trackers:
+            raise ValueError(f"{flag}: {m!r} needs the optional probreg extra (pip install -e .[probreg])")
+    return trackers
+
+
+def _read_init_poses(path: str, n_models: int) -> np.ndarray:
+    """``--init-poses``: one ``T_world_object`` per model from a ``.npy`` or a JSON nested list, as
+    ``(N, 4, 4)``; a ``ValueError`` (``FileNotFoundError``) naming the flag for anything else."""
+    import json
+
+    from vtlearn.validation import as_transform
+
+    expected = (f"expected one 4x4 T_world_object per --models file, shape ({n_models}, 4, 4), as .npy or "
+                "a JSON nested list")
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"--init-poses: no file at {p} ({expected})")
+    try:
+        if p.suffix.lower() == ".npy":
+            T0 = np.load(p, allow_pickle=False)
+        else:
+            T0 = json.loads(p.read_text())
+        T0 = np.asarray(T0, dtype=np.float64)
+    except (ValueError, TypeError, OSError) as exc:  # json.JSONDecodeError is a ValueError
+        raise ValueError(f"--init-poses: cannot read {p} ({exc}); {expected}") from None
+    if T0.shape == (4, 4):
+        T0 = T0[None]
+    if T0.shape != (n_models, 4, 4):
+        raise ValueError(f"--init-poses: {expected}, got shape {T0.shape}")
+    return np.stack([as_transform(T, f"--init-poses (pose {i})") for i, T in enumerate(T0)])
+
+
+def _tactile_files(tactile: str | None, frames: list[Path]) -> dict[str, Path]:
+    """``--tactile``: the tactile cloud of each frame that has one, by frame file name (frames without
+    contact have none); a ``ValueError`` naming the flag when the folder is missing or matches no frame."""
+    if tactile is None:
+        return {}
+    d = Path(tactile)
+    if not d.is_dir():
+        raise ValueError(f"--tactile: {tactile} is not a directory; need a directory of tactile clouds "
+                         "named like the --frames files")
+    found = {f.name: d / f.name for f in frames if (d / f.name).is_file()}
+    if not found:
+        raise ValueError(f"--tactile: no file in {tactile} has the name of a --frames file (e.g. "
+                         f"{frames[0].name}); tactile clouds share the frame names")
+    return found
+
+
 def run_tracker(
     cls: Any,
     models: list[np.ndarray],
@@ -83,10 +136,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
     if 0 < args.max_points < 3:
         raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
-    trackers = _trackers()
-    if args.method not in trackers:  # listed by --method, but its backend is an optional extra
-        raise ValueError(f"--method: {args.method!r} needs the optional probreg extra "
-                         "(pip install -e .[probreg])")
+    trackers = _require_trackers([args.method], "--method")
     models = [read_cloud(m) for m in args.models]
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
@@ -98,13 +148,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
     )
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
+    tactile_files = _tactile_files(args.tactile, files)
     if args.init_poses:
-        T0 = (
-            np.load(args.init_poses, allow_pickle=False)
-            if args.init_poses.endswith(".npy")
-            else np.asarray(json.loads(Path(args.init_poses).read_text()), dtype=np.float64)
-        )
-        T0 = T0.reshape(-1, 4, 4)
+        T0 = _read_init_poses(args.init_poses, len(models))
     else:
         T0 = np.repeat(np.eye(4)[None], len(models), 0)  # models are the t = 0 segmented clouds
     cls = trackers[args.method]
@@ -122,10 +168,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     t_total = 0.0
     for f in tqdm(files, desc="track", unit="frame"):
         scene = read_cloud(f) if f.stat().st_size > 0 else np.zeros((0, 3))
-        tactile = None
-        if args.tactile:
-            cand = Path(args.tactile) / f.name
-            tactile = read_cloud(cand) if cand.exists() else None
+        tactile = read_cloud(tactile_files[f.name]) if f.name in tactile_files else None
         t0 = time.perf_counter()
         poses = tracker.step(scene, tactile)
         t_total += time.perf_counter() - t0
@@ -231,14 +274,18 @@ def _summary(vals: np.ndarray) -> dict:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.methods is None:  # default: every tracker whose backend is installed
+        available = _trackers()
+        methods = [m for m in TRACKERS if m in available]
+        skipped = [m for m in TRACKERS if m not in available]
+    else:  # asked for by name: refused up front when its optional extra is missing
+        available = _require_trackers(args.methods, "--methods")
+        methods, skipped = list(dict.fromkeys(args.methods)), []
+
     from tqdm import tqdm
 
     from vtlearn.bench_utils import machine_info, print_table, write_json
     from vtlearn.sim_data.articulated import CATEGORIES, articulation_sequence, motion_sequence
-
-    available = _trackers()
-    methods = [m for m in args.methods if m in available]
-    skipped = [m for m in args.methods if m not in available]
     res: dict[str, Any] = {
         "machine": machine_info(),
         "methods": methods,
@@ -426,7 +473,9 @@ def register_bench(bench_subparsers: Any) -> None:
     )
     sp.add_argument("--json", default=None, help="write results here")
     sp.add_argument("--plots", default=None, help="directory for the violin and trajectory plots")
-    sp.add_argument("--methods", nargs="+", default=list(TRACKERS), choices=list(TRACKERS))
+    sp.add_argument("--methods", nargs="+", default=None, choices=list(TRACKERS),
+                    help="trackers to compare (default: all whose backend is installed; filterreg needs "
+                         "the optional probreg extra)")
     sp.add_argument("--trials", type=count(1), default=10,
                     help="articulated trials per category (thesis: 10)")
     sp.add_argument("--frames", type=count(1), default=20, help="frames per articulated trial")

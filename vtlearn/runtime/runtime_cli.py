@@ -97,7 +97,7 @@ def _load_models(paths) -> tuple:
 def _scene_categories(args) -> tuple[str, list[str], bool | None]:
     """``--target``, ``--clutter`` and ``--target-kind`` checked against the procedural categories, before
     anything is loaded: the target category, the clutter categories and the target's transparency."""
-    from vtlearn.active.experiments_cli import category_list
+    from vtlearn.cli_args import category_list
     from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
 
     transparent = {"transparent": True, "opaque": False, "any": None}[args.target_kind]

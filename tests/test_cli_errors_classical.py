@@ -1,0 +1,173 @@
+"""Bad input to the classical commands (track, bench tracking / registration / active-touch, hand-eye) is
+refused up front with one ``vtlearn: error:`` line (or an argparse error) that names the flag, exit code 2."""
+
+import argparse
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from vtlearn.cli import main
+from vtlearn.io import write_cloud
+
+RNG = np.random.default_rng(0)
+CLOUD = RNG.normal(scale=0.05, size=(40, 3))
+
+
+@pytest.fixture
+def track_inputs(tmp_path):
+    """A one-part model and a folder of two frames (its cloud, slightly moved)."""
+    model = write_cloud(tmp_path / "part0.xyz", CLOUD)
+    frames = tmp_path / "frames"
+    for i in range(2):
+        write_cloud(frames / f"f{i}.xyz", CLOUD + 0.001 * i)
+    return tmp_path, ["track", "--models", str(model), "--frames", str(frames)]
+
+
+@pytest.fixture
+def hand_eye_inputs(tmp_path):
+    """One visual view, its end-effector pose and a tactile cloud: a hand-eye call's files."""
+    write_cloud(tmp_path / "v.xyz", CLOUD)
+    write_cloud(tmp_path / "t.xyz", CLOUD[:20])
+    np.savetxt(tmp_path / "poses.txt", np.eye(4))
+    return tmp_path, ["hand-eye", "--visual", str(tmp_path / "v.xyz"), "--poses", str(tmp_path / "poses.txt"),
+                      "--tactile", str(tmp_path / "t.xyz")]
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("vtlearn: error: ") and "Traceback" not in err
+    return err
+
+
+# ---------------------------------------------------------------------------------- 1. bench tracking
+def test_bench_tracking_refuses_a_method_whose_extra_is_missing(tmp_path, capsys, monkeypatch):
+    import vtlearn.classical.tracking_baselines as baselines
+
+    monkeypatch.setattr(baselines, "HAS_PROBREG", False)
+    js = tmp_path / "x.json"
+    assert main(["bench", "tracking", "--methods", "artreg", "filterreg", "--trials", "1", "--frames", "3",
+                 "--seq-trials", "1", "--seq-frames", "3", "--json", str(js)]) == 2
+    assert "--methods: 'filterreg' needs the optional probreg extra" in _error(capsys)
+    assert not js.exists()
+
+
+# ---------------------------------------------------------------------------------- 2. track --tactile
+def test_track_refuses_a_missing_tactile_folder(track_inputs, capsys):
+    tmp, argv = track_inputs
+    assert main([*argv, "--tactile", str(tmp / "nodir")]) == 2
+    err = _error(capsys)
+    assert "--tactile:" in err and "not a directory" in err
+
+
+def test_track_refuses_a_tactile_folder_that_matches_no_frame(track_inputs, capsys):
+    tmp, argv = track_inputs
+    write_cloud(tmp / "tactile" / "other.xyz", CLOUD[:5])
+    assert main([*argv, "--tactile", str(tmp / "tactile")]) == 2
+    err = _error(capsys)
+    assert "--tactile:" in err and "frame names" in err
+
+
+def test_track_takes_tactile_clouds_for_some_frames(track_inputs, capsys):
+    """Contact is intermittent: a frame without a tactile cloud is tracked from vision alone."""
+    tmp, argv = track_inputs
+    write_cloud(tmp / "tactile" / "f1.xyz", CLOUD[:5] + 0.001)
+    assert main([*argv, "--tactile", str(tmp / "tactile"), "--method", "icp"]) == 0
+    assert "2 frames" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------------- 3. integer lists
+@pytest.mark.parametrize("argv, flag, what", [
+    (["bench", "registration", "--sizes", "20,abc"], "--sizes", "expected an integer, got 'abc'"),
+    (["bench", "registration", "--sizes", "0"], "--sizes", "must be >= 3, got 0"),
+    (["bench", "registration", "--sizes", "20,2"], "--sizes", "must be >= 3, got 2"),
+    (["bench", "registration", "--sizes", ","], "--sizes", "comma-separated list of integers >= 3"),
+    (["bench", "active-touch", "--faces", "abc"], "--faces", "expected an integer, got 'abc'"),
+    (["bench", "active-touch", "--faces", "1"], "--faces", "must be >= 4, got 1"),
+    (["bench", "active-touch", "--candidates", "10,0"], "--candidates", "must be >= 1, got 0"),
+])
+def test_an_integer_list_is_checked_by_argparse(argv, flag, what, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}:" in err and what in err
+
+
+def test_counts_type_parses_and_bounds():
+    from vtlearn.cli_args import counts
+
+    assert counts(3)("20, 40,80,") == [20, 40, 80] and counts(1).minimum == 1
+    for bad in ("", ",", "2", "20,x", "1.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            counts(3)(bad)
+
+
+# ---------------------------------------------------------------------------------- 4. track --init-poses
+@pytest.mark.parametrize("name, content, what", [
+    ("bad.json", "{bad", "cannot read"),
+    ("missing.npy", None, "no file at"),
+    ("t24.json", json.dumps(np.eye(4)[:2].tolist()), "got shape (2, 4)"),
+    ("two.json", json.dumps([np.eye(4).tolist()] * 2), "got shape (2, 4, 4)"),  # one model, two poses
+    ("scaled.json", json.dumps(np.diag([2.0, 2.0, 2.0, 1.0]).tolist()), "not a proper rotation"),
+])
+def test_track_init_poses_errors_name_the_flag(track_inputs, capsys, name, content, what):
+    tmp, argv = track_inputs
+    if content is not None:
+        (tmp / name).write_text(content)
+    assert main([*argv, "--init-poses", str(tmp / name)]) == 2
+    err = _error(capsys)
+    assert "--init-poses" in err and what in err
+
+
+def test_track_reads_init_poses_as_npy(track_inputs, capsys):
+    tmp, argv = track_inputs
+    np.save(tmp / "T0.npy", np.eye(4)[None])
+    assert main([*argv, "--init-poses", str(tmp / "T0.npy"), "--method", "icp"]) == 0
+
+
+# ---------------------------------------------------------------------------------- 5. hand-eye
+def test_hand_eye_local_method_needs_init(hand_eye_inputs, capsys):
+    _, argv = hand_eye_inputs
+    assert main([*argv, "--method", "icp"]) == 2
+    err = _error(capsys)
+    assert "--init: method icp needs an initial T_E_C guess" in err and "T_E_C_init" not in err
+
+
+def test_hand_eye_init_must_be_one_4x4(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    np.save(tmp / "bad.npy", np.eye(3))
+    assert main([*argv, "--init", str(tmp / "bad.npy")]) == 2
+    err = _error(capsys)
+    assert "--init: expected one (4, 4) transform" in err and "(V, 4, 4)" not in err
+
+
+def test_hand_eye_names_a_degenerate_tactile_cloud(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    write_cloud(tmp / "col.xyz", np.c_[np.linspace(0, 1, 10), np.zeros(10), np.zeros(10)])
+    argv[argv.index("--tactile") + 1] = str(tmp / "col.xyz")
+    assert main(argv) == 2
+    err = _error(capsys)
+    assert "--tactile: points are degenerate" in err and "scene" not in err
+
+
+def test_hand_eye_needs_one_pose_per_view(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    np.savetxt(tmp / "poses2.txt", np.vstack([np.eye(4), np.eye(4)]))
+    argv[argv.index("--poses") + 1] = str(tmp / "poses2.txt")
+    assert main(argv) == 2
+    assert "--poses: need one T_W_E per --visual file (1), got 2" in _error(capsys)
+
+
+# ---------------------------------------------------------------------------------- 6. empty --poses
+def test_hand_eye_empty_poses_file_is_one_line_without_a_numpy_warning(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    (tmp / "empty.txt").write_text("")
+    argv[argv.index("--poses") + 1] = str(tmp / "empty.txt")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(argv) == 2
+    assert not [w for w in caught if "loadtxt" in str(w.message)]
+    err = _error(capsys)
+    assert err.count("\n") == 1 and "--poses:" in err and "holds no numbers" in err
