@@ -381,9 +381,10 @@ def read_lightning_checkpoint(ckpt: str | Path) -> dict[str, Any]:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # corrupted, truncated, or pickles that weights_only refuses
+        # torch's own text for a refused pickle advises weights_only=False, which would run the file's code
         raise ValueError(
-            f"ckpt: {path} is not a readable PyTorch checkpoint ({type(exc).__name__}: "
-            f"{str(exc).splitlines()[0] if str(exc) else ''})"
+            f"ckpt: {path} is not a readable PyTorch checkpoint ({type(exc).__name__}: corrupted, truncated, "
+            "or holding objects that a weights_only=True load refuses)"
         ) from exc
     if not isinstance(data, dict) or "state_dict" not in data or "hyper_parameters" not in data:
         raise ValueError(

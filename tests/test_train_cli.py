@@ -1,0 +1,77 @@
+"""train.py (LightningCLI) on bad input: a config it cannot parse, a --ckpt_path it cannot use, and
+validate/test with --ckpt_path last before any training end in one line naming the argument, exit code 2;
+and the quick xAVTNet config resumes from last.ckpt."""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK = f"--config={ROOT / 'configs/quick/xavtnet.yaml'}"
+TINY = ["--model.init_args.global_dim=32", "--model.init_args.fc_dims=[16, 8]",
+        "--data.init_args.batch_size=4", "--trainer.limit_train_batches=2", "--trainer.limit_val_batches=1",
+        "--trainer.enable_progress_bar=false", "--trainer.enable_model_summary=false",
+        "--trainer.logger=false"]
+
+
+@pytest.fixture
+def run(cross_dir, tmp_path, monkeypatch, capsys):
+    """``run(subcommand, *args) -> (exit code, last stderr line)`` of ``train.main`` with the quick xAVTNet
+    config on the tiny dataset, in ``tmp_path``."""
+    monkeypatch.syspath_prepend(str(ROOT))
+    monkeypatch.chdir(tmp_path)
+    from train import main
+
+    n = len(json.loads((Path(cross_dir) / "manifest.json").read_text())["class_names"])
+    data = [f"--data.init_args.data_dir={cross_dir}", f"--model.init_args.num_classes={n}"]
+
+    def call(sub, *args):
+        capsys.readouterr()
+        code = main([sub, QUICK, *data, *TINY, *args])
+        text = capsys.readouterr().err
+        # a logging handler of an earlier call may still write to a stream capsys has closed since; its
+        # "--- Logging error ---" report is pytest's artefact, not train.py's output
+        text = re.sub(r"--- Logging error ---.*?\nArguments:[^\n]*\n", "", text, flags=re.S)
+        err = [ln for ln in text.splitlines() if ln.strip()]
+        assert not any("Traceback" in ln or ln.startswith("usage:") for ln in err), "\n".join(err)
+        return code, (err[-1] if err else "")
+
+    return call
+
+
+def test_parse_errors_are_one_line(run):
+    code, err = run("fit", "--model.init_args.dropout=abc")
+    assert code == 2 and err.startswith("train.py: error: ") and 'Parser key "dropout"' in err
+    code, err = run("fit", "--model.init_args.num_clases=3")
+    assert code == 2 and "Option 'num_clases' is not accepted" in err
+
+
+def test_unusable_ckpt_path_is_named(run, tmp_path):
+    code, err = run("validate", f"--ckpt_path={tmp_path / 'none.ckpt'}")
+    assert (code, err) == (2, f"train.py: error: ckpt_path: no checkpoint file at {tmp_path / 'none.ckpt'}")
+    (tmp_path / "bad.ckpt").write_bytes(b"\x80not a checkpoint")
+    code, err = run("test", f"--ckpt_path={tmp_path / 'bad.ckpt'}")
+    assert code == 2 and "ckpt_path: " in err and "is not a readable PyTorch checkpoint" in err
+    assert "weights_only=False" not in err  # torch's advice to load untrusted pickles is not passed on
+    other = {"state_dict": {"w": torch.ones(2)}, "hyper_parameters": {"num_points": 64}}  # not an XAVTNet's
+    torch.save(other, tmp_path / "o.ckpt")
+    code, err = run("validate", f"--ckpt_path={tmp_path / 'o.ckpt'}")
+    assert code == 2 and "ckpt_path: the hyper-parameters of" in err
+    assert "do not fit the config's model" in err
+
+
+def test_last_before_training_is_refused_and_fit_resumes(run, tmp_path):
+    ckpts = tmp_path / "runs" / "xavtnet_quick" / "checkpoints"
+    for sub in ("validate", "test", "predict"):
+        code, err = run(sub, "--ckpt_path=last")
+        assert code == 2
+        assert f"ckpt_path: 'last' found no last.ckpt in {ckpts}; {sub} would score untrained" in err
+    assert run("fit", "--trainer.max_epochs=1") == (0, "")
+    last = ckpts / "last.ckpt"
+    assert torch.load(last, weights_only=True)["epoch"] == 0
+    assert run("fit", "--trainer.max_epochs=2", "--ckpt_path=last")[0] == 0
+    assert torch.load(last, weights_only=True)["epoch"] == 1  # resumed: the second epoch, not a new first one
+    assert run("validate", "--ckpt_path=last")[0] == 0
