@@ -169,8 +169,8 @@ def test_recognize_command_on_files_and_on_stored_clouds(tmp_path, tiny_crossmod
     assert (tmp_path / "f.png").stat().st_size > 0
 
     # the same cloud from a file in metres, with the object's extent, gives the same probabilities
-    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--mc-samples", "0",
-                 "--json", str(out)]) == 0
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--index", "0",
+                 "--mc-samples", "0", "--json", str(out)]) == 0
     stored = json.loads(out.read_text())["results"][0]
     assert "mutual_information_nats" not in stored
     f = tmp_path / "c.npy"
@@ -191,7 +191,7 @@ def test_recognize_command_on_files_and_on_stored_clouds(tmp_path, tiny_crossmod
     assert "--ckpt: no checkpoint" in capsys.readouterr().err
     assert main(["recognize", "--ckpt", str(ckpt), str(tmp_path / "missing.ply")]) == 2
     assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", "a,b"]) == 2
-    assert "class_names: 2 names" in capsys.readouterr().err
+    assert "--class-names: 2 names" in capsys.readouterr().err
     bad = tmp_path / "bad.json"
     bad.write_text("{}")
     assert main(["recognize", "--ckpt", str(ckpt), str(f), "--class-names", str(bad)]) == 2
@@ -308,8 +308,8 @@ def test_recognize_command_takes_the_object_box(tmp_path, tiny_crossmodal, capsy
     torch.save({"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}, ckpt)
     clouds, _, _ = modality_clouds(load_split(tiny_crossmodal, "test"), "tactile", False)
     out = tmp_path / "stored.json"
-    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--mc-samples", "0",
-                 "--json", str(out)]) == 0
+    assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--index", "0",
+                 "--mc-samples", "0", "--json", str(out)]) == 0
     stored = json.loads(out.read_text())["results"][0]
     f = tmp_path / "c.npy"
     write_cloud(f, clouds[0] * 0.25 + [0.4, 0.1, 0.7])

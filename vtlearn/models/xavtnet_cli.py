@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, save_figure
-from vtlearn.cli_args import count
+from vtlearn.cli_args import count, real
+from vtlearn.validation import as_int, as_real
 
 log = logging.getLogger(__name__)
 
@@ -143,10 +144,17 @@ THESIS_TABLE_7_2 = {"noda": 51.25, "mmd": 57.28, "coral": 58.34, "vtloss_fc1": 7
                     "vtloss": 81.25}
 
 
-def load_config(path: str | None) -> dict:
+# What a --config of each bench must build: its datamodule class and an example config.
+_BENCH_CONFIGS = {"crossmodal": ("CrossModalDataModule", "configs/quick/xavtnet.yaml"),
+                  "active-learning": ("ActivePoolDataModule", "configs/quick/active_learning.yaml")}
+
+
+def load_config(path: str | None, bench: str | None = None) -> dict:
     """``{"model", "data", "trainer", "active"}`` sections of a LightningCLI-style YAML.
 
     Read with ``yaml.safe_load``; ``active`` is the bench-only section of configs/active_learning.yaml.
+    ``bench`` (``"crossmodal"`` or ``"active-learning"``): also check, before any work, that the config is
+    one that bench can run (:func:`_check_bench_config`), a ValueError naming ``--config`` otherwise.
     """
     if path is None:
         return {"model": {}, "data": {}, "trainer": {}, "active": {}}
@@ -166,8 +174,53 @@ def load_config(path: str | None) -> dict:
         sec = raw.get(section) or {}
         return dict(sec.get("init_args", {}) or {}) if isinstance(sec, dict) else {}
 
-    return {"model": init_args("model"), "data": init_args("data"), "trainer": dict(raw.get("trainer") or {}),
-            "active": dict(raw.get("active") or {})}
+    cfg = {"model": init_args("model"), "data": init_args("data"), "trainer": dict(raw.get("trainer") or {}),
+           "active": dict(raw.get("active") or {})}
+    if bench is not None:
+        _check_bench_config(raw, cfg, path, bench)
+    return cfg
+
+
+def _check_bench_config(raw: dict, cfg: dict, path: str, bench: str) -> None:
+    """A ValueError naming ``--config`` unless ``raw`` is a config ``bench`` can run: its model an
+    ``XAVTNet`` and its datamodule the bench's (where the config names their ``class_path``), and every
+    ``init_args`` key an argument of those classes. Without it an ACTOR config fails inside the first
+    training as a ``TypeError`` about an unexpected keyword."""
+    import inspect
+
+    from vtlearn import datamodules
+    from vtlearn.models.xavtnet import XAVTNet
+
+    data_name, example = _BENCH_CONFIGS[bench]
+    needs = f"bench {bench} needs an xAVTNet config such as {example}"
+
+    def class_path(section: str) -> str | None:
+        sec = raw.get(section)
+        return str(sec["class_path"]) if isinstance(sec, dict) and sec.get("class_path") else None
+
+    model_path, data_path = class_path("model"), class_path("data")
+    if model_path is not None and model_path.rsplit(".", 1)[-1] != "XAVTNet":
+        kind = "an ACTOR config" if "actor" in model_path.lower() else "not an xAVTNet config"
+        raise ValueError(f"--config: {path} is {kind} (model {model_path}); {needs}")
+    if data_path is not None and data_path.rsplit(".", 1)[-1] != data_name:
+        kind = {"CrossModalDataModule": "a crossmodal config", "ActivePoolDataModule": "an active-learning "
+                "config"}.get(data_path.rsplit(".", 1)[-1], "not an xAVTNet bench config")
+        raise ValueError(f"--config: {path} is {kind} (data {data_path}); bench {bench} needs one whose "
+                         f"data is {data_name}, such as {example}")
+    for section, cls in (("model", XAVTNet), ("data", getattr(datamodules, data_name))):
+        accepted = set(inspect.signature(cls.__init__).parameters) - {"self"}
+        unknown = sorted(set(cfg[section]) - accepted)
+        if unknown:
+            raise ValueError(f"--config: {path}: {section}.init_args {unknown} are not arguments of "
+                             f"{cls.__name__}; {needs}")
+
+
+def _config_max_epochs(args: argparse.Namespace, cfg: dict, default: int) -> int:
+    """``--max-epochs``, else the config's ``trainer.max_epochs`` (checked: an integer >= 1), else
+    ``default``."""
+    if args.max_epochs:
+        return int(args.max_epochs)
+    return as_int(cfg["trainer"].get("max_epochs", default), "--config: trainer.max_epochs")
 
 
 def _data_kwargs(cfg: dict, data_dir: str | None) -> dict:
@@ -176,6 +229,37 @@ def _data_kwargs(cfg: dict, data_dir: str | None) -> dict:
     if "data_dir" not in kwargs:
         raise ValueError("--data: no dataset directory given (and none in --config)")
     return kwargs
+
+
+# The datamodule arguments that a bench flag sets, and the flag (errors name the flag the user typed).
+_DATA_FLAGS = {"data_dir": "--data", "batch_size": "--batch-size", "target_split": "--target-split",
+               "target_data_dir": "--target-data", "source_points": "--source-points",
+               "source_views": "--source-views", "source_touch": "--source-touch",
+               "source_splits": "--source-splits", "target_holdout": "--target-holdout",
+               "modality": "--modality"}
+
+
+def _given_flags(args: argparse.Namespace) -> dict[str, str]:
+    """The datamodule arguments of :data:`_DATA_FLAGS` that this command line sets -> their flags."""
+    return {k: flag for k, flag in _DATA_FLAGS.items()
+            if getattr(args, flag[2:].replace("-", "_"), None) not in (None, False)}
+
+
+def _check_up_front(build, given: dict[str, str], what: str):
+    """``build()``, a datamodule or model built before any training only to check the bench's arguments;
+    its ValueError (or FileNotFoundError) ``"key: ..."`` is re-raised naming the flag that set ``key``
+    (``given``: argument -> flag), else the config's ``what`` section (``--config: data.init_args.key:
+    ...``)."""
+    try:
+        return build()
+    except (ValueError, FileNotFoundError) as exc:
+        text = str(exc)
+        key = text.split(":", 1)[0].strip()
+        if key in given:
+            raise type(exc)(f"{given[key]}{text[len(key):]}") from exc
+        if not key.isidentifier():  # already a flag, or a message about no argument in particular
+            raise
+        raise type(exc)(f"--config: {what}.{text}") from exc
 
 
 def _quiet_lightning() -> None:
@@ -486,9 +570,9 @@ def _map_in_processes(fn, job_args: list[tuple], workers: int):
 def run_crossmodal_bench(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.bench_utils import check_output_path, machine_info, print_table, write_json
 
-    cfg = load_config(args.config)
+    cfg = load_config(args.config, "crossmodal")
     data_kwargs = _data_kwargs(cfg, args.data)
     if args.batch_size:
         data_kwargs["batch_size"] = args.batch_size
@@ -506,14 +590,31 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["source_splits"] = csv_list(args.source_splits)
     if args.target_holdout is not None:
         data_kwargs["target_holdout"] = args.target_holdout
-    max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 15))
+    max_epochs = _config_max_epochs(args, cfg, 15)
     variants = csv_list(args.variants)
     unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
-    if unknown:
-        raise ValueError(f"--variants: unknown {unknown}; choose from {[*VARIANTS, ORACLE]}")
+    if unknown or not variants:
+        raise ValueError(f"--variants: {f'unknown {unknown}' if unknown else 'no variant given'}; choose "
+                         f"from {[*VARIANTS, ORACLE]}")
     seeds = list(range(args.seed, args.seed + args.seeds))
     out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
+    if not args.no_figures:  # the default folder beside --json, checked before the trainings too
+        check_output_path(out_dir, "--out-dir", "figures", folder=True)
     base = {k: v for k, v in cfg["model"].items() if k not in VARIANTS["vtloss"] and k != "num_classes"}
+    # Build the datamodule and every row's model once before any training, so that a bad argument (a
+    # missing split, a holdout without the test target, a model setting out of range) is refused naming its
+    # flag or its place in the config instead of failing inside the first (or a spawned) training.
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet import XAVTNet
+
+    given = _given_flags(args)
+    dm = _check_up_front(lambda: CrossModalDataModule(**{**data_kwargs, "seed": seeds[0]}), given, "data")
+    if base.get("input_normalize") not in (None, dm.normalize):
+        raise ValueError(f"--config: model.input_normalize is {base['input_normalize']!r}, but the data's "
+                         f"normalize is {dm.normalize!r}; leave it unset (the bench records that)")
+    for variant in variants:
+        _check_up_front(lambda v=variant: XAVTNet(num_classes=dm.num_classes, **{
+            **base, **VARIANTS["noda" if v == ORACLE else v], "input_normalize": dm.normalize}), {}, "model")
 
     jobs = [(v, s) for v in variants for s in seeds]
     figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
@@ -663,17 +764,62 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
     return strategy, seed, (loop.history_dicts() if loop.run() else [])
 
 
+def _active_source(args: argparse.Namespace, key: str) -> str:
+    """Where the active-learning setting ``key`` came from: its flag, or the config's ``active`` section."""
+    flag = "--" + key.replace("_", "-")
+    return flag if getattr(args, key, None) is not None else f"--config: active.{key}"
+
+
+def _check_active_settings(args: argparse.Namespace, al: dict) -> None:
+    """The numbers of the active-learning protocol (flags over the config's ``active`` section over
+    :data:`AL_DEFAULTS`), checked before any work, each error naming where the bad value came from."""
+    for key, minimum in (("n0", 1), ("kappa", 1), ("rounds", 1), ("mc_passes", 1), ("min_steps", 0)):
+        al[key] = as_int(al[key], _active_source(args, key), minimum)
+    al["power_beta"] = as_real(al["power_beta"], _active_source(args, "power_beta"), low=0.0)
+    for key in ("warm_start", "equal_steps"):
+        if not isinstance(al[key], bool):
+            raise ValueError(f"{_active_source(args, key)}: need true or false, got {al[key]!r}")
+
+
+def _check_budget(args: argparse.Namespace, al: dict, pool: int, modality: str = "training") -> None:
+    """n0, kappa and rounds against the pool's ``pool`` (``modality``) clouds, before the full-pool
+    references train: n0 must leave clouds to query, and the rounds' queries must fit in what is left
+    (otherwise the loop stops early and the curves end before the asked-for budget)."""
+    n0, kappa, rounds = al["n0"], al["kappa"], al["rounds"]
+    where = f"the pool of {modality} training clouds"
+    if n0 >= pool:
+        raise ValueError(f"{_active_source(args, 'n0')}: {n0} initial labels, but {where} has only {pool} "
+                         f"clouds; need n0 < {pool} so that some are left to query")
+    left = pool - n0
+    if kappa > left:
+        raise ValueError(f"{_active_source(args, 'kappa')}: {kappa} queries per round, but only {left} of "
+                         f"the {pool} pool clouds are unlabelled after n0 = {n0}; need kappa <= {left}")
+    if n0 + rounds * kappa > pool:
+        raise ValueError(f"{_active_source(args, 'rounds')}: n0 + rounds x kappa = {n0} + {rounds} x "
+                         f"{kappa} = {n0 + rounds * kappa} labels, more than the pool's {pool} clouds; need "
+                         f"rounds <= {left // kappa} (or a smaller --kappa / --n0)")
+
+
+def _plot_path(args: argparse.Namespace) -> Path:
+    """``--plot``, by default beside ``--json`` with the suffix ``.png``."""
+    return Path(args.plot) if args.plot else Path(args.json).with_suffix(".png")
+
+
 def run_active_learning_bench(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
+    from vtlearn.bench_utils import check_output_path
     from vtlearn.datamodules import ActivePoolDataModule
+    from vtlearn.models.xavtnet import XAVTNet
 
+    # the plot's default place, beside --json, is checked before any work as --json itself is
+    check_output_path(_plot_path(args), "--plot", "plot")
     if getattr(args, "merge", None):
         meta, runs = merge_active_learning_runs(args.merge)
         print(f"merged {len(args.merge)} results: seeds {meta['seeds']}, strategies {list(runs)}")
         return _summarize_active_learning(args, meta, runs)
 
-    cfg = load_config(args.config)
+    cfg = load_config(args.config, "active-learning")
     data_kwargs = _data_kwargs(cfg, args.data)
     for key in ("initial_labels", "seed"):
         data_kwargs.pop(key, None)
@@ -685,19 +831,27 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     for key in AL_DEFAULTS:
         if getattr(args, key, None) is not None:
             al[key] = getattr(args, key)
-    max_epochs = args.max_epochs or int(cfg["trainer"].get("max_epochs", 10))
+    _check_active_settings(args, al)
+    max_epochs = _config_max_epochs(args, cfg, 10)
     strategies = al["strategies"]
     if isinstance(strategies, str):
         strategies = csv_list(strategies)
     from vtlearn.active.mc_dropout import QUERY_STRATEGIES
 
     unknown = [s for s in strategies if s not in QUERY_STRATEGIES]
-    if unknown or not strategies:
-        raise ValueError(f"strategies: expected a comma list of {QUERY_STRATEGIES}, got {al['strategies']!r}")
+    if unknown or not isinstance(strategies, list) or not strategies:
+        raise ValueError(f"{_active_source(args, 'strategies')}: expected a comma list of "
+                         f"{QUERY_STRATEGIES}, got {al['strategies']!r}")
     seeds = list(range(args.seed, args.seed + args.seeds))
     base = {k: v for k, v in cfg["model"].items() if k != "num_classes"}
     base.setdefault("da_method", "none")
-    pool = ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs).pool_size
+    # the pool and the model are built once before any training, so that a bad argument is refused naming
+    # its flag (or its place in the config), and n0, kappa and rounds are checked against the pool's size
+    pool_dm = _check_up_front(lambda: ActivePoolDataModule(initial_labels=0, seed=seeds[0], **data_kwargs),
+                              _given_flags(args), "data")
+    pool = pool_dm.pool_size
+    _check_up_front(lambda: XAVTNet(num_classes=pool_dm.num_classes, **base), {}, "model")
+    _check_budget(args, al, pool, pool_dm.modality)
     # Equal-budget protocol: every round trains as many optimiser steps as the full-pool reference
     # (max_epochs over the whole pool), so the relative error measures labels, not training length.
     train_steps = 0
@@ -754,25 +908,28 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     for path in paths:
         f = Path(path)
         if not f.is_file():
-            raise ValueError(f"merge: no such file {path}")
-        doc = json.loads(f.read_text())
-        if doc.get("bench") != "active-learning" or "curves" not in doc:
-            raise ValueError(f"merge: {path} is not a `bench active-learning` result")
+            raise ValueError(f"--merge: no such file {path}")
+        try:
+            doc = json.loads(f.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"--merge: {path} is not a JSON file ({exc})") from None
+        if not isinstance(doc, dict) or doc.get("bench") != "active-learning" or "curves" not in doc:
+            raise ValueError(f"--merge: {path} is not a `bench active-learning` result")
         docs.append(doc)
     first = docs[0]
     for path, doc in zip(paths[1:], docs[1:], strict=True):
         for key in _MERGE_KEYS:
             if doc.get(key) != first.get(key):
-                raise ValueError(f"merge: {path} has {key}={doc.get(key)!r}, "
+                raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, "
                                  f"{paths[0]} has {first.get(key)!r}")
         if "model" in doc and "model" in first and doc["model"] != first["model"]:
-            raise ValueError(f"merge: {path} and {paths[0]} trained different models")
+            raise ValueError(f"--merge: {path} and {paths[0]} trained different models")
         for key in _MERGE_ACTIVE_KEYS:
             if key == "min_steps" and first.get("train_steps"):
                 continue  # equal steps: every training runs train_steps, min_steps is not used
             if doc["active"].get(key) != first["active"].get(key):
-                raise ValueError(f"merge: {path} has active.{key}={doc['active'].get(key)!r}, {paths[0]} has "
-                                 f"{first['active'].get(key)!r}")
+                raise ValueError(f"--merge: {path} has active.{key}={doc['active'].get(key)!r}, {paths[0]} "
+                                 f"has {first['active'].get(key)!r}")
     groups: dict[tuple, dict] = {}  # seeds -> {"path", "full_acc", "curves"} joined over strategies
     for path, doc in zip(paths, docs, strict=True):
         key = tuple(doc["seeds"])
@@ -780,23 +937,23 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
         if group is None:
             shared = [s for k in groups for s in k if s in key]
             if shared:
-                raise ValueError(f"merge: {path} and another file repeat seeds {sorted(set(shared))} "
+                raise ValueError(f"--merge: {path} and another file repeat seeds {sorted(set(shared))} "
                                  "without having the same seeds; each seed may appear in one group of files")
             groups[key] = {"path": path, "full_acc": doc["full_acc"], "curves": dict(doc["curves"])}
             continue
         both = sorted(set(group["curves"]) & set(doc["curves"]))
         if both:
-            raise ValueError(f"merge: {path} and {group['path']} repeat seeds {list(key)} with the "
+            raise ValueError(f"--merge: {path} and {group['path']} repeat seeds {list(key)} with the "
                              f"strategies {both}; each (seed, strategy) may appear once")
         if doc["full_acc"] != group["full_acc"]:
-            raise ValueError(f"merge: {path} has the seeds of {group['path']} but other full-pool "
+            raise ValueError(f"--merge: {path} has the seeds of {group['path']} but other full-pool "
                              f"references ({doc['full_acc']} against {group['full_acc']}), so it is not the "
                              "same protocol")
         group["curves"].update(doc["curves"])
     strategies = [s for s in dict.fromkeys(s for g in groups.values() for s in g["curves"])
                   if all(s in g["curves"] for g in groups.values())]
     if not strategies:
-        raise ValueError("merge: the files have no strategy in common")
+        raise ValueError("--merge: the files have no strategy in common")
     runs = {s: [r for g in groups.values() for r in g["curves"][s]["runs"]] for s in strategies}
     seeds = [s for key in groups for s in key]
     meta = {key: first.get(key) for key in _MERGE_KEYS}
@@ -907,7 +1064,7 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                     ["strategy", "mean_diff", "ahead", "wilcoxon_p"],
                     "Paired against random over seeds and query rounds (accuracy points)")
     ratio = ratios.get("entropy")
-    plot = Path(args.plot) if args.plot else Path(args.json).with_suffix(".png")
+    plot = _plot_path(args)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -939,6 +1096,31 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     return 0
 
 
+def _read_xavtnet(ckpt_path: Path):
+    """``(checkpoint dict, XAVTNet in eval mode)`` of ``--ckpt`` (``weights_only=True``); an unreadable file
+    or a checkpoint of another model is a ValueError naming ``--ckpt``, before any data is read."""
+    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.models.actor import read_lightning_checkpoint
+    from vtlearn.validation import load_named
+
+    ckpt = load_named(read_lightning_checkpoint, ckpt_path, "--ckpt")
+    return ckpt, load_named(lambda p: load_xavtnet(p, ckpt), ckpt_path, "--ckpt")
+
+
+def _save_atomic(obj, out: Path) -> None:
+    """``torch.save(obj)`` to a temporary file beside ``out``, renamed over it: a killed or failed write
+    never leaves half a checkpoint at ``out``, and the temporary file is removed whatever happens."""
+    import torch
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def run_adapt_bn(args: argparse.Namespace) -> int:
     """``vtlearn adapt-bn``: AdaBN for a trained xAVTNet checkpoint (no labels, no weight changes).
 
@@ -949,25 +1131,21 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     with the new state dict and ``domain_bn: true``, so ``XAVTNet.load_from_checkpoint`` and the runtime
     load it as before and score tactile clouds with the new statistics.
     """
-    import os
-
     import lightning as L
-    import torch
 
-    from vtlearn.active.closed_loop import load_xavtnet
+    from vtlearn.bench_utils import check_output_path
     from vtlearn.datamodules import CrossModalDataModule
-    from vtlearn.models.actor import read_lightning_checkpoint
 
     _quiet_lightning()
     ckpt_path, out = Path(args.ckpt), Path(args.out)
     if not ckpt_path.is_file():
         raise FileNotFoundError(f"--ckpt: no checkpoint at {ckpt_path}")
+    check_output_path(out, "--out", "adapted checkpoint")  # a folder, or below a file: before any work
     if out.resolve() == ckpt_path.resolve():
         raise ValueError("--out: must differ from --ckpt (the input checkpoint is kept)")
     if args.passes < 1:
         raise ValueError(f"--passes: need >= 1, got {args.passes}")
-    ckpt = read_lightning_checkpoint(ckpt_path)  # weights_only=True; clear errors for other files
-    model = load_xavtnet(ckpt_path, ckpt)  # ValueError for a checkpoint of another model
+    ckpt, model = _read_xavtnet(ckpt_path)
     L.seed_everything(args.seed, verbose=False)
     from vtlearn.models.xavtnet_inference import checkpoint_normalize
 
@@ -993,10 +1171,7 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     ckpt["hyper_parameters"] = {**ckpt["hyper_parameters"], "domain_bn": True}
     ckpt.pop("optimizer_states", None)  # the new statistics are not a training state to resume
     ckpt.pop("lr_schedulers", None)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    torch.save(ckpt, tmp)
-    os.replace(tmp, out)
+    _save_atomic(ckpt, out)
     print(f"target statistics from {n} unlabelled tactile clouds x {args.passes} pass(es)")
     if has_test:
         print(f"tactile test accuracy: {before:.1f} % before, {after:.1f} % after")
@@ -1010,11 +1185,10 @@ def run_recognize(args: argparse.Namespace) -> int:
     ``weights_only=True`` (:mod:`vtlearn.models.xavtnet_inference`)."""
     import torch
 
-    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.bench_utils import write_json
     from vtlearn.io import read_cloud
-    from vtlearn.models.actor import read_lightning_checkpoint
     from vtlearn.models.xavtnet_inference import (
+        _check_box,
         checkpoint_class_names,
         recognition_figure,
         recognize_clouds,
@@ -1024,13 +1198,29 @@ def run_recognize(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     if bool(args.inputs) == (args.data is not None):
         raise ValueError("inputs: give cloud files, or --data DIR with --index, not both and not neither")
+    if args.data is not None:
+        for flag, value in (("--extent-m", args.extent_m), ("--units", args.units), ("--box-m", args.box_m)):
+            if value is not None:
+                raise ValueError(f"{flag}: only for cloud files in metres; stored clouds are in their "
+                                 "object's frame")
+        if args.index is None:
+            raise ValueError("--index: required with --data: the indices of the stored tactile clouds to "
+                             "recognise (e.g. --index 0 1 2)")
+    else:
+        for flag, value in (("--index", args.index), ("--split", args.split)):
+            if value is not None:
+                raise ValueError(f"{flag}: only with --data DIR (stored tactile clouds); cloud files are "
+                                 "recognised as given")
     if not 0 <= args.zeta < 1:
         raise ValueError(f"--zeta: need 0 <= zeta < 1, got {args.zeta}")
+    box = None if args.box_m is None else [args.box_m[:3], args.box_m[3:]]
+    if box is not None:
+        _check_box(box, "--box-m")
     ckpt_path = Path(args.ckpt)
     if not ckpt_path.is_file():
         raise FileNotFoundError(f"--ckpt: no checkpoint at {ckpt_path}")
-    ckpt = read_lightning_checkpoint(ckpt_path)
-    model = load_xavtnet(ckpt_path, ckpt)
+    _, model = _read_xavtnet(ckpt_path)
+    n_classes = int(model.hparams.num_classes)
     override = None
     if args.class_names:
         if args.class_names.endswith(".json"):
@@ -1039,30 +1229,38 @@ def run_recognize(args: argparse.Namespace) -> int:
             override = read_class_names(args.class_names, "--class-names")
         else:
             override = [s.strip() for s in args.class_names.split(",")]
+        try:  # one name per class, checked before any cloud is read
+            checkpoint_class_names(dict(model.hparams), override)
+        except ValueError as exc:
+            raise ValueError(f"--class-names: {str(exc).removeprefix('class_names: ')}") from None
     truth = None
     if args.data is not None:
         from vtlearn.datamodules.crossmodal import modality_clouds
         from vtlearn.datamodules.shards import load_manifest, load_split
 
-        manifest = load_manifest(args.data)
-        stored, labels, _ = modality_clouds(load_split(args.data, args.split, verify=True), "tactile", False)
+        split = args.split or "test"
+        manifest = load_manifest(args.data, name="--data")
+        if len(manifest["class_names"]) != n_classes:
+            raise ValueError(f"--data: {args.data} has {len(manifest['class_names'])} classes, the "
+                             f"checkpoint {n_classes}")
+        if split not in manifest["splits"]:
+            raise ValueError(f"--split: {args.data} has no {split!r} split (it has "
+                             f"{sorted(manifest['splits'])})")
+        stored, labels, _ = modality_clouds(load_split(args.data, split, verify=True), "tactile", False)
         bad = [i for i in args.index if not 0 <= i < len(stored)]
         if bad:
             raise ValueError(
-                f"--index: {bad} out of range; split {args.split!r} has {len(stored)} tactile clouds"
+                f"--index: {bad} out of range; split {split!r} has {len(stored)} tactile clouds"
             )
         clouds = [stored[i].astype(np.float64) for i in args.index]
-        titles = [f"{args.split}[{i}]" for i in args.index]
+        titles = [f"{split}[{i}]" for i in args.index]
         override = override or list(manifest["class_names"])
         truth = [override[int(labels[i])] for i in args.index]
         units, extent = "canonical", None  # stored clouds are in the canonical frame already
     else:
         clouds = [read_cloud(p) for p in args.inputs]
         titles = [Path(p).name for p in args.inputs]
-        units, extent = args.units, args.extent_m
-    box = None if args.box_m is None else [args.box_m[:3], args.box_m[3:]]
-    if box is not None and args.data is not None:
-        raise ValueError("--box-m: only for cloud files in metres; stored clouds are in their object's frame")
+        units, extent = args.units or "metres", args.extent_m
     names = checkpoint_class_names(dict(model.hparams), override)
     result = recognize_clouds(model, clouds, class_names=names, extent_m=extent, units=units,
                               mc_samples=args.mc_samples, domain=args.domain, seed=args.seed, box_m=box)
@@ -1098,14 +1296,16 @@ def register(sub) -> None:
     p.add_argument("--data", default=None,
                    help="instead of files: a crossmodal dataset dir; recognises its stored tactile clouds "
                         "--index of --split and prints their true classes")
-    p.add_argument("--split", default="test")
-    p.add_argument("--index", type=count(0), nargs="+", default=[0], help="--data: tactile cloud indices")
+    p.add_argument("--split", default=None, help="--data: the split of the stored clouds (default test)")
+    p.add_argument("--index", type=count(0), nargs="+", default=None,
+                   help="--data (required with it): the indices of its tactile clouds to recognise")
     p.add_argument("--class-names", default=None,
                    help="a crossmodal manifest.json or a comma list; default: the names in the checkpoint "
                         "(--data: its manifest), else class_0..")
-    p.add_argument("--units", choices=["metres", "canonical"], default="metres",
-                   help="files: metres (scaled by --extent-m into the canonical frame) or already canonical")
-    p.add_argument("--extent-m", type=float, default=None,
+    p.add_argument("--units", choices=["metres", "canonical"], default=None,
+                   help="files: metres (default; scaled by --extent-m into the canonical frame) or already "
+                        "canonical")
+    p.add_argument("--extent-m", type=real(0.0, open_low=True), default=None,
                    help="the object's largest bounding-box extent in metres (default: each cloud's own, an "
                         "underestimate for a few touches)")
     p.add_argument("--box-m", type=float, nargs=6, default=None,
@@ -1116,7 +1316,8 @@ def register(sub) -> None:
                    help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
     p.add_argument("--domain", choices=["target", "source"], default="target",
                    help="batch-norm statistics of a domain-BN model: target (tactile) or source (visual)")
-    p.add_argument("--zeta", type=float, default=0.8, help="confidence stop of thesis 7.2.4 (default 0.8)")
+    p.add_argument("--zeta", type=real(0.0, 1.0), default=0.8,
+                   help="confidence stop of thesis 7.2.4 (default 0.8)")
     p.add_argument("--top", type=count(1), default=3, help="classes to print")
     p.add_argument("--seed", type=count(0), default=0, help="dropout masks of the MC passes")
     p.add_argument("--threads", type=count(0), default=0, help="torch CPU threads (0: default)")
@@ -1158,7 +1359,8 @@ def register_bench(sub) -> None:
     p.add_argument("--target-split", choices=["train", "test", "train+test"], default=None,
                    help="unlabelled tactile clouds for adaptation: train instances (inductive), the "
                         "test instances themselves (transductive UDA protocol) or both in one stream "
-                        "(train+test); default from the config")
+                        "(train+test); default from the config (its data.init_args.target_split, else "
+                        "train)")
     p.add_argument("--source-points", nargs=2, type=count(1), default=None, metavar=("N_MIN", "N_MAX"),
                    help="thin every visual training cloud to N_MIN..N_MAX points (the tactile density; "
                         "CrossModalDataModule source_points); default from the config: dense")
@@ -1174,7 +1376,7 @@ def register_bench(sub) -> None:
                         "known-objects protocol (7.3.1): the test objects are seen, labelled, by vision and "
                         "recognised by touch; 'test' on a dataset with one test instance per class is its "
                         "twelve objects (configs/cpu/xavtnet_objects.yaml)")
-    p.add_argument("--target-holdout", type=float, default=None, metavar="F",
+    p.add_argument("--target-holdout", type=real(0.0, 1.0), default=None, metavar="F",
                    help="with --target-split test: hold this fraction of each test instance's tactile clouds "
                         "out of the target stream and score only those (the thesis's 900 + 300 split is "
                         "0.25; CrossModalDataModule target_holdout); default from the config: 0. The "
@@ -1215,7 +1417,7 @@ def register_bench(sub) -> None:
     q.add_argument("--strategies", default=None,
                    help="comma list of entropy, bald, random, power_entropy, power_bald (power_*: draw the "
                         "batch ∝ score^beta instead of the top kappa)")
-    q.add_argument("--power-beta", dest="power_beta", type=float, default=None,
+    q.add_argument("--power-beta", dest="power_beta", type=real(0.0), default=None,
                    help="beta of the power_* strategies (default 1)")
     q.add_argument("--n0", type=count(1), default=None, help="initial random labels")
     q.add_argument("--kappa", type=count(1), default=None, help="queries per round")
