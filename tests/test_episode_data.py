@@ -81,7 +81,7 @@ def test_episode_config_rejects_bad_input(cross_dir, tmp_path):
         with pytest.raises(ValueError, match=name):
             generate_episode_dataset(EpisodeDataConfig(source=str(cross_dir), **kwargs), tmp_path / "x",
                                      progress=False)
-    with pytest.raises(FileNotFoundError, match="data_dir"):
+    with pytest.raises(FileNotFoundError, match="source: no manifest.json in"):
         generate_episode_dataset(EpisodeDataConfig(source=str(tmp_path / "none")), tmp_path / "y",
                                  progress=False)
 

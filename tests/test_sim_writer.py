@@ -66,7 +66,7 @@ def test_shards_format_and_manifest(tmp_path):
     assert generate_dataset(_cfg(), tmp_path, progress=False) == m
     with pytest.raises(ValueError, match="out_dir"):
         generate_dataset(
-            GenConfig(kind="reconstruction", categories=["can"], per_category=2), tmp_path, progress=False
+            GenConfig(kind="reconstruction", categories=["can"], per_category=3), tmp_path, progress=False
         )
 
 

@@ -102,12 +102,12 @@ class EpisodeDataConfig:
 
 def _source_plan(cfg: EpisodeDataConfig) -> tuple[dict, list[dict]]:
     """The source manifest and the instances (category, seed, label, instance id) of ``cfg.split``."""
-    from vtlearn.datamodules.shards import load_manifest
+    from vtlearn.datamodules.shards import check_kind, check_split, load_manifest
     from vtlearn.sim_data.writer import GenConfig, plan_instances
 
-    manifest = load_manifest(cfg.source)
-    if manifest.get("kind") != "crossmodal":
-        raise ValueError(f"source: {cfg.source} is a {manifest.get('kind')!r} dataset, need 'crossmodal'")
+    manifest = load_manifest(cfg.source, "source")
+    check_kind(manifest, cfg.source, "crossmodal", "source")
+    check_split(manifest, cfg.source, cfg.split, "source")  # an empty split would give an empty episode set
     gen = GenConfig(**manifest["config"])
     if gen.mesh_source != "procedural":
         raise ValueError(

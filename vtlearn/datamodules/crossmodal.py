@@ -24,6 +24,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from vtlearn.datamodules.shards import (
     ShardedDataModule,
+    check_split,
     load_manifest,
     load_split,
     normalize_cloud,
@@ -312,6 +313,11 @@ class CrossModalDataModule(ShardedDataModule):
                     f"target_data_dir: no {missing[0]!r} split in {target_data_dir} "
                     f"(it has {sorted(other['splits'])}); set target_split to one of them"
                 )
+            for x in target_split.split("+") + (["train"] if train_on == "tactile" else []):
+                check_split(other, target_data_dir, x, "target_data_dir")
+        # the splits training reads, checked now rather than when the first batch is drawn
+        for x in self.source_splits + ([] if target_data_dir is not None else target_split.split("+")):
+            check_split(manifest, data_dir, x)
 
     def dataset(
         self, split: str, modality: str, with_label: bool = True, train: bool | None = None,

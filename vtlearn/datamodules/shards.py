@@ -85,26 +85,112 @@ def read_class_names(manifest_json: str | Path, name: str = "class_names") -> li
     return list(names)
 
 
+# the commands that make each dataset kind, for the messages that refuse a dataset of the wrong kind
+DATASET_MAKERS = {
+    "reconstruction": "`vtlearn gen-data reconstruction`",
+    "crossmodal": "`vtlearn gen-data crossmodal`",
+    "tactile-episodes": "`vtlearn gen-episodes`",
+}
+
+
+def check_kind(manifest: dict, data_dir, kind: str | tuple[str, ...] | list[str],
+               name: str = "data_dir") -> str:
+    """The dataset kind of ``manifest`` (its ``"kind"``), or a ValueError naming ``name`` (``data_dir``,
+    ``--data``) when it is not ``kind`` (one kind or several accepted ones), saying which was found, which
+    is needed and which command makes each: a ``gen-episodes`` folder has no dense clouds, a
+    ``gen-data reconstruction`` one no visual clouds."""
+    kinds = (kind,) if isinstance(kind, str) else tuple(kind)
+    found = manifest.get("kind")
+    if found not in kinds:
+        makers = [DATASET_MAKERS[k] for k in kinds if k in DATASET_MAKERS]
+        notes = [f"one made by {' or '.join(makers)}"] if makers else []
+        if found in DATASET_MAKERS:
+            notes.append(f"this one was made by {DATASET_MAKERS[found]}")
+        note = f" ({'; '.join(notes)})" if notes else ""
+        need = " or ".join(repr(k) for k in kinds)
+        raise ValueError(f"{name}: {data_dir} is a {found!r} dataset, need {need}{note}")
+    return found
+
+
+def _split_fraction(manifest: dict, split: str) -> float | None:
+    """The ``gen-data`` fraction of ``split`` recorded in the manifest's config (None when unknown)."""
+    from vtlearn.sim_data.writer import SPLITS
+
+    config = manifest.get("config")
+    fractions = config.get("split_fractions") if isinstance(config, dict) else None
+    try:
+        return float(fractions[SPLITS.index(split)])
+    except (TypeError, ValueError, IndexError, KeyError):
+        return None
+
+
+def split_is_empty(manifest: dict, split: str) -> bool:
+    """True when the manifest lists no shard of ``split``, or only shards that hold no instance (for a
+    ``tactile-episodes`` set: no tactile cloud), from the counts recorded with each shard."""
+    metas = [m for m in manifest["shards"] if m["split"] == split]
+    key = "tactile_clouds" if manifest.get("kind") == "tactile-episodes" else "instances"
+    counts = [m.get(key) for m in metas]
+    return not metas or all(isinstance(c, int) and c == 0 for c in counts)
+
+
+def empty_split_error(manifest: dict, data_dir, split: str, name: str = "data_dir") -> ValueError:
+    """The ValueError (naming ``name``) for a ``split`` of ``data_dir`` that holds no samples, with the cause
+    and the fix: for ``gen-data`` datasets, too few ``--per-category`` instances for the split fractions."""
+    config = manifest.get("config") if isinstance(manifest.get("config"), dict) else {}
+    per = config.get("per_category")
+    if manifest.get("kind") in ("reconstruction", "crossmodal") and isinstance(per, int):
+        fix = "regenerate with more --per-category"
+        try:
+            from vtlearn.sim_data.writer import min_per_category
+
+            fix += f" (at least {min_per_category([float(f) for f in config['split_fractions']])})"
+        except (KeyError, TypeError, ValueError):
+            pass
+        why = f"{per} instance(s) per category left none for it"
+    elif manifest.get("kind") == "tactile-episodes":
+        why = ("no episode gave a tactile cloud: its source split had no instances, or every prefix had "
+               "fewer than --min-points points")
+        fix = "regenerate it with `vtlearn gen-episodes` from a split with instances"
+    else:
+        why, fix = "its manifest lists no samples for it", "regenerate the dataset"
+    return ValueError(f"{name}: split {split!r} of {data_dir} is empty ({why}); {fix}")
+
+
+def check_split(manifest: dict, data_dir, split: str, name: str = "data_dir") -> None:
+    """A ValueError unless ``split`` is a split of the manifest (naming ``split``) that holds samples
+    (naming ``name``, see :func:`empty_split_error`). Reads only the manifest, so a command can check its
+    data before any long work."""
+    if not isinstance(split, str) or split not in manifest["splits"]:
+        raise ValueError(f"split: {split!r} not in {sorted(manifest['splits'])}")
+    if split_is_empty(manifest, split):
+        raise empty_split_error(manifest, data_dir, split, name)
+
+
 def load_split(
-    data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir"
+    data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir",
+    kind: str | tuple[str, ...] | None = None,
 ) -> dict[str, np.ndarray]:
     """Concatenate the shards of ``split``; ``tactile_offsets`` are rebased. Checks sha256 if ``verify``.
 
     Errors name ``name`` (the caller's argument for ``data_dir``): a FileNotFoundError for a shard listed
-    in the manifest but missing, a ValueError for a checksum mismatch or a shard numpy cannot read.
+    in the manifest but missing, a ValueError for a checksum mismatch or a shard numpy cannot read, for a
+    split that holds no samples (``split 'test' of DIR is empty (...)``) and, with ``kind`` (one dataset
+    kind or several accepted ones, see :func:`check_kind`), for a dataset of another kind. A split the
+    manifest does not list is a ValueError naming ``split``.
     """
     from vtlearn.sim_data.writer import sha256_file
 
     manifest = load_manifest(data_dir, name)
-    data_dir = Path(data_dir)
-    if not isinstance(split, str) or split not in manifest["splits"]:
-        raise ValueError(f"split: {split!r} not in {sorted(manifest['splits'])}")
+    if kind is not None:
+        check_kind(manifest, data_dir, kind, name)
+    check_split(manifest, data_dir, split, name)
+    data_dir_path = Path(data_dir)
     parts: dict[str, list[np.ndarray]] = {}
     base = 0
     for meta in manifest["shards"]:
         if meta["split"] != split:
             continue
-        path = data_dir / meta["file"]
+        path = data_dir_path / meta["file"]
         if not path.is_file():
             raise FileNotFoundError(
                 f"{name}: shard {meta['file']} listed in the manifest is missing from {data_dir}; "
@@ -125,7 +211,11 @@ def load_split(
                 a = a[1:] + base if parts.get(k) else a + base
                 base = int(a[-1])
             parts.setdefault(k, []).append(a)
-    return {k: np.concatenate(v) for k, v in parts.items()}
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    samples = "tactile_label" if manifest.get("kind") == "tactile-episodes" else "label"
+    if len(out.get(samples, ())) == 0:  # shards whose side counts were missing or wrong
+        raise empty_split_error(manifest, data_dir, split, name)
+    return out
 
 
 def split_clouds(points: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
@@ -231,11 +321,13 @@ class ShardedDataModule(pl.LightningDataModule):
         """Read and check ``data_dir``'s manifest; ``kind``: the dataset kind(s) accepted (a ValueError
         naming ``data_dir`` for another)."""
         manifest = load_manifest(data_dir)
-        kinds = (kind,) if isinstance(kind, str) else kind
-        if kinds is not None and manifest.get("kind") not in kinds:
-            need = repr(kinds[0]) if len(kinds) == 1 else " or ".join(repr(k) for k in kinds)
-            raise ValueError(f"data_dir: {data_dir} is a {manifest.get('kind')!r} dataset, need {need}")
+        if kind is not None:
+            check_kind(manifest, data_dir, kind)
+        for split in manifest["splits"]:  # an empty split its gen-data fractions meant to fill
+            if split_is_empty(manifest, split) and _split_fraction(manifest, split) != 0:
+                raise empty_split_error(manifest, data_dir, split)
         self.data_dir, self.verify = data_dir, verify
+        self._manifest = manifest
         self.class_names: list[str] = list(manifest["class_names"])
         self.num_classes: int = len(self.class_names)
         self._splits: dict[str, dict] = {}
@@ -265,5 +357,7 @@ class ShardedDataModule(pl.LightningDataModule):
         )
 
     def setup(self, stage: str | None = None) -> None:
+        # a split left empty on purpose (a zero --splits fraction) is loaded (and refused) only if used
         for split in ("train", "val", "test"):
-            self._split(split)
+            if not (split in self._manifest["splits"] and split_is_empty(self._manifest, split)):
+                self._split(split)

@@ -23,6 +23,37 @@ from vtlearn.cli_args import count
 log = logging.getLogger(__name__)
 
 CATEGORY_COLUMNS = ["group", "method", "n", "CD_mm", "HD_mm", "EMD_mm"]
+DATA_KINDS = ("reconstruction", "crossmodal")  # `gen-data` kinds with a dense cloud per instance
+
+
+def _check_output_file(path: str, flag: str, what: str, suffixes: tuple[str, ...]) -> None:
+    """Before any work: a ValueError naming ``flag`` when ``path`` is a folder, lies below a file, or has a
+    suffix other than ``suffixes`` (the formats the writer of ``what`` supports)."""
+    from vtlearn.bench_utils import check_output_path
+
+    p = check_output_path(path, flag, what)
+    if p.suffix.lower() not in suffixes:
+        got = f"format {p.suffix!r}" if p.suffix else "file without a suffix"
+        raise ValueError(f"{flag}: unsupported {what} {got} ({path}); expected one of {', '.join(suffixes)}")
+
+
+def _figure_suffixes() -> tuple[str, ...]:
+    """The file suffixes matplotlib can save a figure as (.png, .pdf, .svg, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted("." + k for k in FigureCanvasBase.get_supported_filetypes()))
+
+
+def _check_data(data: str, split: str) -> dict:
+    """The manifest of a ``gen-data`` dataset with dense clouds, read without loading any shard; errors name
+    ``--data``: no dataset, another kind (a ``gen-episodes`` folder has no dense clouds), an empty split (a
+    missing one names ``split``)."""
+    from vtlearn.datamodules.shards import check_kind, check_split, load_manifest
+
+    manifest = load_manifest(data, "--data")
+    check_kind(manifest, data, DATA_KINDS, "--data")
+    check_split(manifest, data, split, "--data")
+    return manifest
 
 
 # --------------------------------------------------------------------------- reconstruct
@@ -30,18 +61,31 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     import torch
 
     from vtlearn.geometry.metrics import chamfer_distance
-    from vtlearn.io import read_cloud, read_geometry, write_cloud, write_mesh
+    from vtlearn.io import CLOUD_SUFFIXES, MESH_SUFFIXES, read_cloud, read_geometry, write_cloud, write_mesh
     from vtlearn.models.actor import load_actor, reconstruct
+    from vtlearn.validation import load_named
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     if (args.input is None) == (args.data is None):
         raise ValueError("input: give exactly one of --input FILE or --data DIR")
-    model = load_actor(args.ckpt)
-    gt = None
-    centre, scale = np.zeros(3), 1.0  # canonical -> output frame
     if args.extent_m is not None and args.input is None:
         raise ValueError("--extent-m: only with --input (stored clouds are canonical already)")
+    # every output path and input file is checked before the model runs and anything is written
+    _check_output_file(args.out, "--out", "dense cloud", CLOUD_SUFFIXES)
+    if args.mesh:
+        _check_output_file(args.mesh, "--mesh", "mesh", MESH_SUFFIXES)
+        if Path(args.mesh).resolve() == Path(args.out).resolve():
+            raise ValueError(f"--mesh: {args.mesh} is also --out; give the mesh its own file")
+    if args.figure:
+        _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
+    if args.gt and not Path(args.gt).is_file():
+        raise FileNotFoundError(f"--gt: no such file: {args.gt}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.data is not None:
+        manifest = _check_data(args.data, args.split)
+    model = load_named(load_actor, args.ckpt, "--ckpt")
+    gt = None
+    centre, scale = np.zeros(3), 1.0  # canonical -> output frame
     if args.input is not None:
         sparse = read_cloud(args.input)
         if args.extent_m is not None:
@@ -59,13 +103,13 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
             )
     else:
         # an unseen simulated object: its stored tactile cloud and ground truth (canonical frame)
-        from vtlearn.datamodules.shards import load_manifest, load_split, split_clouds
+        from vtlearn.datamodules.shards import load_split, split_clouds
 
-        d = load_split(args.data, args.split, verify=True)
+        d = load_split(args.data, args.split, verify=True, name="--data")
         clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
         if not 0 <= args.index < len(clouds):
             raise ValueError(
-                f"index: {args.index} out of range, split {args.split!r} has {len(clouds)} tactile clouds"
+                f"--index: {args.index} out of range, split {args.split!r} has {len(clouds)} tactile clouds"
             )
         inst = int(d["tactile_instance"][args.index])
         row = int(np.flatnonzero(d["instance"] == inst)[0])
@@ -74,7 +118,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
             sparse = _subsample_tactile(sparse, args.max_points, args.max_points, np.random.default_rng(0))
         gt = d["dense"][row].astype(np.float64)
         args.mm_per_unit = float(d["scale_m"][row]) * 1000.0
-        name = load_manifest(args.data)["class_names"][int(d["label"][row])]
+        name = manifest["class_names"][int(d["label"][row])]
         print(
             f"{args.split} instance {inst} ({name}, {'transparent' if d['transparent'][row] else 'opaque'}): "
             f"{len(sparse)} tactile points"
@@ -211,19 +255,48 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from vtlearn.bench_utils import machine_info, print_table, write_json
-    from vtlearn.datamodules.shards import load_manifest, load_split, split_clouds
+    from vtlearn.bench_utils import check_output_path, machine_info, print_table, write_json
+    from vtlearn.datamodules.shards import load_split, split_clouds
     from vtlearn.models.actor import load_actor, reconstruct
     from vtlearn.models.gpis import gpis_reconstruct
+    from vtlearn.validation import load_named
 
+    # every argument, output path, dataset and checkpoint is checked before the (long) benchmark runs
+    if args.min_points > args.max_points:
+        raise ValueError(f"--min-points/--max-points: need --min-points <= --max-points, got "
+                         f"{args.min_points} > {args.max_points}")
     for name, suffix in (("markdown", ".md"), ("figure", ".png")):  # beside the JSON unless given
         if getattr(args, name) is None:
             setattr(args, name, str(Path(args.json).with_suffix(suffix)))
+    if args.markdown:
+        check_output_path(args.markdown, "--markdown", "markdown table")
+    if args.figure:
+        _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
+    gpis_variants = [] if args.no_gpis else _gpis_variants(args.gpis_normals)
+    class_names = list(_check_data(args.data, args.split)["class_names"])
+    models = {"ACTOR": load_named(load_actor, args.ckpt, "--ckpt")}
+    if args.ckpt_noattn:
+        noattn = load_named(load_actor, args.ckpt_noattn, "--ckpt-noattn")
+        if bool(noattn.hparams.get("attention", True)):
+            raise ValueError(
+                f"--ckpt-noattn: {args.ckpt_noattn} is an ACTOR trained with attention: true (its hparams); "
+                "the 'no attention' row needs one trained with attention: false"
+            )
+        models["ACTOR (no attention)"] = noattn
+    rec = None
+    if args.recognition_ckpt:
+        from vtlearn.models.actor_recognition import load_recognition
+
+        rec = load_named(load_recognition, args.recognition_ckpt, "--recognition-ckpt")
+        if rec.hparams.num_classes != len(class_names):
+            raise ValueError(
+                f"--recognition-ckpt: {rec.hparams.num_classes} classes, --data has {len(class_names)} "
+                f"({', '.join(class_names)})"
+            )
     if args.threads:
         torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    class_names = list(load_manifest(args.data)["class_names"])
-    d = load_split(args.data, args.split, verify=True)
+    d = load_split(args.data, args.split, verify=True, name="--data")
     clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
     first = {}
     for j, inst in enumerate(d["tactile_instance"]):
@@ -260,12 +333,8 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     if args.max_clouds:
         items = items[: args.max_clouds]
     if not items:
-        raise ValueError(f"data: split {args.split!r} of {args.data} has no tactile clouds")
+        raise ValueError(f"--data: split {args.split!r} of {args.data} has no tactile clouds")
 
-    models = {"ACTOR": load_actor(args.ckpt)}
-    if args.ckpt_noattn:
-        models["ACTOR (no attention)"] = load_actor(args.ckpt_noattn)
-    gpis_variants = [] if args.no_gpis else _gpis_variants(args.gpis_normals)
     methods = list(models) + [name for name, _ in gpis_variants]
     rows, examples, gpis_failures = [], {}, 0
     for it in tqdm(items, desc="bench actor", unit="cloud"):
@@ -339,14 +408,7 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     )
 
     recognition = None
-    if args.recognition_ckpt:
-        from vtlearn.models.actor_recognition import load_recognition
-
-        rec = load_recognition(args.recognition_ckpt)
-        if rec.hparams.num_classes != len(class_names):
-            raise ValueError(
-                f"recognition_ckpt: {rec.hparams.num_classes} classes, data has {len(class_names)}"
-            )
+    if rec is not None:
         k = len(class_names)
         conf = np.zeros((k, k), dtype=np.int64)
         with torch.no_grad():

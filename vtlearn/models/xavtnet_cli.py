@@ -1149,9 +1149,11 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     L.seed_everything(args.seed, verbose=False)
     from vtlearn.models.xavtnet_inference import checkpoint_normalize
 
-    dm = CrossModalDataModule(args.data, batch_size=args.batch_size, target_split=args.split,
-                              target_data_dir=args.target_data, seed=args.seed,
-                              normalize=checkpoint_normalize(dict(model.hparams)))  # the clouds as trained
+    dm = _check_up_front(lambda: CrossModalDataModule(
+        args.data, batch_size=args.batch_size, target_split=args.split, target_data_dir=args.target_data,
+        seed=args.seed, normalize=checkpoint_normalize(dict(model.hparams))),  # the clouds as trained
+        {"data_dir": "--data", "target_data_dir": "--target-data", "target_split": "--split",
+         "batch_size": "--batch-size"}, "data")
     if dm.num_classes != model.hparams.num_classes:
         raise ValueError(f"--data: {dm.num_classes} classes, the checkpoint has {model.hparams.num_classes}")
     from vtlearn.datamodules.shards import load_manifest
@@ -1246,7 +1248,8 @@ def run_recognize(args: argparse.Namespace) -> int:
         if split not in manifest["splits"]:
             raise ValueError(f"--split: {args.data} has no {split!r} split (it has "
                              f"{sorted(manifest['splits'])})")
-        stored, labels, _ = modality_clouds(load_split(args.data, split, verify=True), "tactile", False)
+        stored, labels, _ = modality_clouds(load_split(args.data, split, verify=True, name="--data"),
+                                            "tactile", False)
         bad = [i for i in args.index if not 0 <= i < len(stored)]
         if bad:
             raise ValueError(

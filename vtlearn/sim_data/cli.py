@@ -17,7 +17,32 @@ def _cmd_gen_shapes(args: argparse.Namespace) -> int:
     return 0
 
 
+# GenConfig fields / generate_dataset arguments -> the `gen-data` flags that set them, for the error messages
+_GEN_DATA_FLAGS = {
+    "categories": "--categories", "per_category": "--per-category", "split_fractions": "--splits",
+    "shard_size": "--shard-size", "sections": "--sections", "sensor": "--sensor", "touches": "--touches",
+    "pinches": "--pinches", "views": "--views", "image_width": "--width", "image_height": "--height",
+    "visual_crop_margin": "--visual-crop-margin", "tactile_clouds": "--tactile-clouds",
+    "mesh_source": "--meshes", "out_dir": "--out", "workers": "--workers",
+}
+
+
+def _flag_error(exc: Exception) -> Exception:
+    """``exc`` with a leading ``field:`` of a GenConfig / generate_dataset message replaced by its flag."""
+    field, sep, rest = str(exc).partition(": ")
+    if sep and field in _GEN_DATA_FLAGS:
+        return type(exc)(f"{_GEN_DATA_FLAGS[field]}: {rest}")
+    return exc
+
+
 def _cmd_gen_data(args: argparse.Namespace) -> int:
+    try:
+        return _gen_data(args)
+    except (ValueError, FileNotFoundError) as exc:
+        raise _flag_error(exc) from None
+
+
+def _gen_data(args: argparse.Namespace) -> int:
     from vtlearn.sim_data.writer import GenConfig, generate_dataset
 
     cfg = GenConfig(

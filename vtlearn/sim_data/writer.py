@@ -152,6 +152,31 @@ def _split_counts(n: int, fractions) -> list[int]:
     return counts
 
 
+def min_per_category(fractions) -> int:
+    """The fewest instances per category for which every split with a positive fraction gets at least one
+    (under :func:`_split_counts`): one per such split (3 for the default ``[0.7, 0.15, 0.15]``)."""
+    n = 1
+    while any(f > 0 and c == 0 for f, c in zip(fractions, _split_counts(n, fractions), strict=True)):
+        n += 1
+    return n
+
+
+def _check_split_sizes(cfg: GenConfig, per_category: int, what: str = "per_category",
+                       why: str = "") -> None:
+    """A ValueError naming ``what`` when ``per_category`` instances leave a split with a positive fraction
+    empty (every consumer of that split would then have no data); ``why`` says where the count comes from."""
+    counts = _split_counts(per_category, cfg.split_fractions)
+    empty = [s for s, f, c in zip(SPLITS, cfg.split_fractions, counts, strict=True) if f > 0 and c == 0]
+    if empty:
+        need = min_per_category(cfg.split_fractions)
+        fractions = ", ".join(f"{s} {f:g}" for s, f in zip(SPLITS, cfg.split_fractions, strict=True))
+        raise ValueError(
+            f"{what}: {why}{per_category} instance(s) per category leave split {empty[0]!r} with none "
+            f"(split fractions {fractions}); need at least {need}, one per split with a non-zero fraction, "
+            f"or fractions that leave that split out (--splits, e.g. 1,0,0 for a training set only)"
+        )
+
+
 def plan_instances(cfg: GenConfig, mesh_items: list[dict] | None = None) -> dict[str, list[dict]]:
     """Assign every instance to one split (by instance, deterministic per seed)."""
     rng = np.random.default_rng([cfg.seed, 7919])
@@ -490,8 +515,8 @@ def generate_dataset(
     as_int(workers, "workers", 1)
     if max_shards is not None:
         as_int(max_shards, "max_shards", 0)
+    _check_split_sizes(cfg, cfg.per_category)
     cfg_dict = asdict(cfg)
-    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
     mesh_items = None
     if cfg.mesh_source != "procedural":
         from vtlearn.sim_data.loaders import scan_mesh_folder
@@ -506,6 +531,12 @@ def generate_dataset(
         missing = sorted(set(cfg.categories) - {m["category"] for m in mesh_items})
         if missing:
             raise ValueError(f"categories: no usable meshes of {missing} in mesh_source {cfg.mesh_source}")
+        for cat in cfg.categories:
+            have = sum(m["category"] == cat for m in mesh_items)
+            if have < cfg.per_category:
+                _check_split_sizes(cfg, have, "mesh_source",
+                                   f"{cfg.mesh_source} has only {have} usable mesh(es) of {cat!r}: ")
+    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
     jobs = plan_shards(cfg, plan_instances(cfg, mesh_items))
     shards = run_shard_jobs(out, jobs, _run_job, (cfg_dict,), workers, max_shards,
                             desc=f"gen-data {cfg.kind}", progress=progress)

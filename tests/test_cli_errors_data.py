@@ -1,0 +1,229 @@
+"""Bad data and bad flags of `gen-data`, `reconstruct` and `bench actor`: one `vtlearn: error:` line that
+names the flag, exit code 2, before any long work (no table printed, no output file written)."""
+
+import json
+import os
+import shutil
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+
+import lightning as L
+import pytest
+import torch
+
+from vtlearn.cli import main
+from vtlearn.datamodules import ActivePoolDataModule, CrossModalDataModule, ReconstructionDataModule
+from vtlearn.datamodules.shards import check_kind, load_manifest, load_split
+from vtlearn.models.actor import ACTOR
+from vtlearn.sim_data.writer import GenConfig, generate_dataset, min_per_category
+
+TINY = dict(num_points=256, encoder_channels=(8, 8, 16, 32), fc_channels=32, deconv_channels=(16, 16, 8, 8),
+            deconv_strides=(2, 2, 4, 4, 4), emd_points=32)
+
+
+def _save(model: L.LightningModule, path) -> str:
+    trainer = L.Trainer(max_steps=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, accelerator="cpu")
+    trainer.strategy.connect(model)
+    trainer.save_checkpoint(path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def actor_ckpt(tmp_path_factory):
+    torch.manual_seed(0)
+    return _save(ACTOR(**TINY), tmp_path_factory.mktemp("ckpt") / "actor.ckpt")
+
+
+def _copy(src, dst, edit=None):
+    """A copy of dataset ``src`` in ``dst`` with its manifest passed through ``edit``."""
+    shutil.copytree(src, dst)
+    if edit is not None:
+        m = json.loads((dst / "manifest.json").read_text())
+        (dst / "manifest.json").write_text(json.dumps(edit(m)))
+    return dst
+
+
+def _empty_test_split(m, per_category=2, fractions=None):
+    """The manifest `gen-data --per-category 2` wrote before it refused that: a test split with no shard."""
+    m["shards"] = [s for s in m["shards"] if s["split"] != "test"]
+    m["splits"]["test"] = {"instances": 0, "tactile_clouds": 0, "visual_clouds": 0, "shards": []}
+    m["config"]["per_category"] = per_category
+    if fractions is not None:
+        m["config"]["split_fractions"] = fractions
+    return m
+
+
+def _error(capsys, argv) -> str:
+    """Run the CLI, check it refused with exit code 2 and one error line; return stderr."""
+    assert main(argv) == 2
+    out = capsys.readouterr()
+    assert out.err.startswith("vtlearn: error: ") and "Traceback" not in out.err
+    assert "ACTOR vs GPIS" not in out.out  # refused before the benchmark ran
+    return out.err
+
+
+# ------------------------------------------------------------------ 1a: an empty split
+@pytest.fixture(scope="module")
+def empty_recon(recon_dir, tmp_path_factory):
+    return _copy(recon_dir, tmp_path_factory.mktemp("e") / "recon", _empty_test_split)
+
+
+@pytest.fixture(scope="module")
+def empty_cross(cross_dir, tmp_path_factory):
+    return _copy(cross_dir, tmp_path_factory.mktemp("e") / "cross", _empty_test_split)
+
+
+def test_load_split_refuses_an_empty_split(empty_recon):
+    msg = (r"--data: split 'test' of .* is empty \(2 instance\(s\) per category left none for it\); "
+           r"regenerate with more --per-category \(at least 3\)")
+    with pytest.raises(ValueError, match=msg):
+        load_split(empty_recon, "test", name="--data")
+    assert len(load_split(empty_recon, "train")["label"]) > 0
+
+
+def test_commands_refuse_an_empty_split(empty_recon, actor_ckpt, tmp_path, capsys):
+    err = _error(capsys, ["reconstruct", "--ckpt", actor_ckpt, "--data", str(empty_recon), "--out",
+                          str(tmp_path / "d.ply")])
+    assert "--data: split 'test'" in err and "is empty" in err
+    assert not (tmp_path / "d.ply").exists()
+    err = _error(capsys, ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(empty_recon), "--json",
+                          str(tmp_path / "a.json")])
+    assert "--data: split 'test'" in err and "--per-category" in err
+    assert not (tmp_path / "a.json").exists()
+
+
+def test_datamodules_refuse_an_empty_split_up_front(empty_recon, empty_cross):
+    """At construction (train.py reports it as one line), not when the test loader first reads the split."""
+    with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty"):
+        ReconstructionDataModule(str(empty_recon))
+    with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty"):
+        CrossModalDataModule(str(empty_cross))
+    # active learning on visual clouds: the split is empty, the dataset does have visual clouds
+    with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty") as info:
+        ActivePoolDataModule(str(empty_cross), initial_labels=1, modality="visual")
+    assert "no visual clouds" not in str(info.value)
+
+
+def test_an_empty_split_left_so_on_purpose_is_refused_only_when_used(recon_dir, tmp_path):
+    d = _copy(recon_dir, tmp_path / "d", lambda m: _empty_test_split(m, 3, [0.7, 0.3, 0.0]))
+    dm = ReconstructionDataModule(str(d), batch_size=2)  # a zero test fraction: train and val still work
+    dm.setup("fit")
+    assert len(dm.train_dataloader().dataset) > 0
+    with pytest.raises(ValueError, match="split 'test' of .* is empty"):
+        dm.test_dataloader()
+
+
+# ------------------------------------------------------------------ 1b: gen-data refuses too few instances
+def test_min_per_category():
+    assert min_per_category([0.7, 0.15, 0.15]) == 3
+    assert min_per_category([0.5, 0.5, 0.0]) == 2
+    assert min_per_category([1.0, 0.0, 0.0]) == 1
+
+
+@pytest.mark.parametrize("kind", ["crossmodal", "reconstruction"])
+def test_gen_data_refuses_too_few_per_category(kind, tmp_path, capsys):
+    out = tmp_path / "cm"
+    err = _error(capsys, ["gen-data", kind, "--out", str(out), "--per-category", "2", "--categories",
+                          "wineglass,mug", "--views", "2", "--tactile-clouds", "2"])
+    assert err.startswith("vtlearn: error: --per-category: 2 instance(s) per category leave split 'test'")
+    assert "need at least 3" in err
+    assert not out.exists()  # refused before anything was written
+    err = _error(capsys, ["gen-data", kind, "--out", str(out), "--per-category", "1",
+                          "--splits", "0.5,0.5,0"])
+    assert "--per-category: 1 instance(s) per category leave split 'val'" in err and "at least 2" in err
+    with pytest.raises(ValueError, match="per_category: 2 instance"):
+        generate_dataset(GenConfig(kind=kind, categories=["mug"], per_category=2), out, progress=False)
+    assert not out.exists()
+
+
+def test_gen_data_errors_name_the_flag(tmp_path, capsys):
+    err = _error(capsys, ["gen-data", "reconstruction", "--out", str(tmp_path / "x"),
+                          "--categories", "bogus"])
+    assert err.startswith("vtlearn: error: --categories: ")
+    (tmp_path / "f").write_text("x")
+    err = _error(capsys, ["gen-data", "reconstruction", "--out", str(tmp_path / "f")])
+    assert err.startswith("vtlearn: error: --out: ")
+
+
+# ------------------------------------------------------------------ 2: a dataset of another kind
+@pytest.fixture(scope="module")
+def episodes(recon_dir, tmp_path_factory):
+    """A dataset whose manifest says `gen-episodes` made it (no dense clouds)."""
+    return _copy(recon_dir, tmp_path_factory.mktemp("ep") / "ep", lambda m: {**m, "kind": "tactile-episodes"})
+
+
+def test_commands_refuse_a_dataset_of_another_kind(episodes, actor_ckpt, tmp_path, capsys):
+    for argv in (["reconstruct", "--ckpt", actor_ckpt, "--data", str(episodes), "--split", "train", "--out",
+                  str(tmp_path / "d.ply")],
+                 ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(episodes), "--split", "train",
+                  "--json", str(tmp_path / "a.json")]):
+        err = _error(capsys, argv)
+        assert "--data: " in err
+        assert "is a 'tactile-episodes' dataset, need 'reconstruction' or 'crossmodal'" in err
+        assert "`vtlearn gen-episodes`" in err
+    with pytest.raises(ValueError, match="data_dir: .* 'tactile-episodes' dataset, need 'reconstruction'"):
+        load_split(episodes, "train", kind="reconstruction")
+    assert check_kind(load_manifest(episodes), episodes, "tactile-episodes") == "tactile-episodes"
+
+
+# ------------------------------------------------------------------ 3: checkpoints checked up front
+def test_bench_actor_checks_checkpoints_before_the_benchmark(recon_dir, actor_ckpt, tmp_path, capsys):
+    base = ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(recon_dir),
+            "--json", str(tmp_path / "a.json")]
+    err = _error(capsys, [*base, "--recognition-ckpt", actor_ckpt])
+    assert err.startswith("vtlearn: error: --recognition-ckpt: ") and "not an ACTORRecognition" in err
+    err = _error(capsys, [*base, "--ckpt-noattn", actor_ckpt])
+    assert err.startswith("vtlearn: error: --ckpt-noattn: ") and "attention: true" in err
+    err = _error(capsys, [*base[:3], str(tmp_path / "nope.ckpt"), *base[4:]])
+    assert err.startswith("vtlearn: error: --ckpt: ")
+    assert not (tmp_path / "a.json").exists()
+
+
+# ------------------------------------------------------------------ 4: output paths
+def test_reconstruct_checks_output_paths_first(recon_dir, actor_ckpt, tmp_path, capsys):
+    base = ["reconstruct", "--ckpt", actor_ckpt, "--data", str(recon_dir)]
+    err = _error(capsys, [*base, "--out", str(tmp_path)])
+    assert err.startswith("vtlearn: error: --out: ") and "is a folder" in err
+    err = _error(capsys, [*base, "--out", str(tmp_path / "dense")])
+    assert err.startswith("vtlearn: error: --out: unsupported dense cloud file without a suffix")
+    dense = tmp_path / "dense.ply"
+    err = _error(capsys, [*base, "--out", str(dense), "--mesh", str(tmp_path / "m.xyz")])
+    assert err.startswith("vtlearn: error: --mesh: unsupported mesh format '.xyz'")
+    err = _error(capsys, [*base, "--out", str(dense), "--figure", str(tmp_path / "f.xyz")])
+    assert err.startswith("vtlearn: error: --figure: unsupported figure format '.xyz'")
+    err = _error(capsys, [*base, "--out", str(dense), "--gt", str(tmp_path / "nope.ply")])
+    assert err.startswith("vtlearn: error: --gt: ")
+    assert not dense.exists()  # nothing written by any refused run
+
+
+def test_bench_actor_checks_markdown_first(recon_dir, actor_ckpt, tmp_path, capsys):
+    err = _error(capsys, ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(recon_dir), "--markdown",
+                          str(tmp_path), "--json", str(tmp_path / "a.json")])
+    assert err.startswith("vtlearn: error: --markdown: ") and "is a folder" in err
+    assert not (tmp_path / "a.json").exists()
+
+
+# ------------------------------------------------------------------ 5: the input point range
+@pytest.mark.parametrize("flags", [["--min-points", "500"], ["--max-points", "5"]])
+def test_bench_actor_checks_the_point_range(flags, recon_dir, actor_ckpt, tmp_path, capsys):
+    err = _error(capsys, ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(recon_dir), *flags, "--json",
+                          str(tmp_path / "a.json")])
+    assert err.startswith("vtlearn: error: --min-points/--max-points: need --min-points <= --max-points")
+
+
+def test_gen_episodes_refuses_an_empty_source_split(cross_dir, tmp_path, capsys):
+    """An empty split of the source gave an empty episode set, exit 0."""
+    import json
+    import shutil
+
+    from vtlearn.cli import main
+
+    src = tmp_path / "src"
+    shutil.copytree(cross_dir, src)
+    manifest = json.loads((src / "manifest.json").read_text())
+    manifest["shards"] = [m for m in manifest["shards"] if m["split"] != "test"]
+    (src / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["gen-episodes", "--source", str(src), "--split", "test", "--out", str(tmp_path / "ep")]) == 2
+    assert f"source: split 'test' of {src} is empty" in capsys.readouterr().err
+    assert not (tmp_path / "ep").exists()
