@@ -37,17 +37,24 @@ def _reason(exc: BaseException) -> str:
     text = str(exc).strip()
     if "Errors:" not in text:
         return " ".join(ln.strip() for ln in text.splitlines() if ln.strip())
+    first = text.splitlines()[0].strip()
+    key = first[len('Parser key "'):].split('"', 1)[0] if first.startswith('Parser key "') else None
     blocks: list[list[str]] = []
+    given = None
     for ln in text.split("Errors:", 1)[1].splitlines():
         s = ln.strip()
-        if s.startswith("- "):
-            blocks.append([s[2:]])
+        if s.startswith("Given value:"):
+            given = s[len("Given value:"):].strip()
         elif s.startswith("Given value"):
-            break
+            continue
+        elif s.startswith("- "):
+            blocks.append([s[2:]])
         elif s and blocks:
             blocks[-1].append(s)
-    kept = [" ".join(b) for b in blocks if "NoneType" not in b[0]]
-    return "; ".join(kept) or text
+    kept = "; ".join(" ".join(b) for b in blocks if "NoneType" not in b[0]) or text
+    if key and given is not None and len(given) < 80 and "Got value" not in kept and "NestedArg" not in given:
+        kept += f" (got {given})"
+    return f"{key}: {kept}" if key else kept
 
 
 def _last_checkpoints(trainer) -> tuple[list[Path], list[Path]]:
@@ -76,8 +83,10 @@ class VtlearnCLI(LightningCLI):
 
         sub = self.config.get("subcommand")
         ckpt = self.config[sub].get("ckpt_path") if sub else None
-        if ckpt in (None, "last", "best", "hpc", "registry"):
+        if ckpt is None or ckpt in ("last", "best", "hpc"):
             return
+        if str(ckpt).startswith("registry") or "://" in str(ckpt):
+            return  # Lightning's model registry and remote (fsspec) files: left to Lightning
         if not Path(ckpt).is_file():
             raise ConfigError(f"ckpt_path: no checkpoint file at {ckpt}")
         try:

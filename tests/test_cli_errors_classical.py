@@ -69,6 +69,13 @@ def test_track_refuses_a_tactile_folder_that_matches_no_frame(track_inputs, caps
     assert "--tactile:" in err and "frame names" in err
 
 
+def test_track_takes_an_empty_tactile_folder(track_inputs, capsys):
+    """A sequence in which no frame had contact leaves its tactile folder empty: tracked from vision alone."""
+    tmp, argv = track_inputs
+    (tmp / "tactile_none").mkdir()
+    assert main([*argv, "--tactile", str(tmp / "tactile_none"), "--method", "icp"]) == 0
+
+
 def test_track_takes_tactile_clouds_for_some_frames(track_inputs, capsys):
     """Contact is intermittent: a frame without a tactile cloud is tracked from vision alone."""
     tmp, argv = track_inputs
@@ -171,3 +178,22 @@ def test_hand_eye_empty_poses_file_is_one_line_without_a_numpy_warning(hand_eye_
     assert not [w for w in caught if "loadtxt" in str(w.message)]
     err = _error(capsys)
     assert err.count("\n") == 1 and "--poses:" in err and "holds no numbers" in err
+
+
+def test_pose_files_with_four_decimals_are_read_as_exact_rotations(track_inputs, tmp_path, capsys):
+    """Robot logs print poses with a few decimals: the rotation is then off by up to 5e-5, which a file may
+    be (it is snapped to the nearest rotation); one off by more is refused, naming the flag."""
+    from scipy.spatial.transform import Rotation
+
+    from vtlearn.classical.tracking_cli import _read_init_poses
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    T[:3, 3] = [0.1, 0.2, 0.3]
+    (tmp_path / "T.json").write_text(json.dumps(np.round(T, 4).tolist()))
+    R = _read_init_poses(str(tmp_path / "T.json"), 1)[0, :3, :3]
+    assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.allclose(R, T[:3, :3], atol=1e-4)
+    T[0, 0] += 0.01
+    (tmp_path / "bad.json").write_text(json.dumps(T.tolist()))
+    with pytest.raises(ValueError, match=r"--init-poses \(pose 0\): the 3x3 block is not a proper rotation"):
+        _read_init_poses(str(tmp_path / "bad.json"), 1)

@@ -93,16 +93,21 @@ def test_commands_refuse_an_empty_split(empty_recon, actor_ckpt, tmp_path, capsy
     assert not (tmp_path / "a.json").exists()
 
 
-def test_datamodules_refuse_an_empty_split_up_front(empty_recon, empty_cross):
-    """At construction (train.py reports it as one line), not when the test loader first reads the split."""
+def test_datamodules_refuse_an_empty_split_where_it_is_read(empty_recon, empty_cross):
+    """A split the datamodule trains on is refused at construction (train.py reports it in one line); an
+    unused empty split only by the loader that reads it: a dataset with an empty test split still trains."""
     with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty"):
-        ReconstructionDataModule(str(empty_recon))
-    with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty"):
-        CrossModalDataModule(str(empty_cross))
-    # active learning on visual clouds: the split is empty, the dataset does have visual clouds
-    with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty") as info:
-        ActivePoolDataModule(str(empty_cross), initial_labels=1, modality="visual")
-    assert "no visual clouds" not in str(info.value)
+        CrossModalDataModule(str(empty_cross), target_split="test")  # the target stream trains on it
+    for dm in (ReconstructionDataModule(str(empty_recon), batch_size=2),
+               CrossModalDataModule(str(empty_cross), batch_size=2),
+               ActivePoolDataModule(str(empty_cross), initial_labels=1, modality="visual", batch_size=2)):
+        dm.setup("fit")
+        assert dm.train_dataloader() is not None
+        # active learning on visual clouds: the split is empty, the dataset does have visual clouds
+        with pytest.raises(ValueError, match="data_dir: split 'test' of .* is empty") as info:
+            dm.setup("test")
+            dm.test_dataloader()
+        assert "no visual clouds" not in str(info.value)
 
 
 def test_an_empty_split_left_so_on_purpose_is_refused_only_when_used(recon_dir, tmp_path):

@@ -210,7 +210,7 @@ def test_recognize_refuses_data_options_with_files_and_bad_numbers(qs, tmp_path,
     assert "--box-m:" in err
     err = _error(capsys, ["recognize", "--ckpt", str(qs / "actor.ckpt"), str(cloud)])
     assert "--ckpt:" in err and "not an xAVTNet checkpoint" in err
-    for flag, value in (("--extent-m", "-1"), ("--zeta", "nan")):
+    for flag, value in (("--extent-m", "-1"), ("--zeta", "nan"), ("--zeta", "1")):
         with pytest.raises(SystemExit) as exc:
             main(["recognize", "--ckpt", ckpt, str(cloud), flag, value])
         assert exc.value.code == 2 and f"argument {flag}" in capsys.readouterr().err

@@ -47,6 +47,8 @@ def test_parse_errors_are_one_line(run):
     assert code == 2 and err.startswith("train.py: error: ") and 'Parser key "dropout"' in err
     code, err = run("fit", "--model.init_args.num_clases=3")
     assert code == 2 and "Option 'num_clases' is not accepted" in err
+    code, err = run("fit", "--trainer.max_epochs=abc")  # the key sits in the header, not in an alternative
+    assert (code, err) == (2, "train.py: error: trainer.max_epochs: Expected a <class 'int'> (got abc)")
 
 
 def test_unusable_ckpt_path_is_named(run, tmp_path):

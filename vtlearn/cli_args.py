@@ -61,8 +61,10 @@ def counts(minimum: int = 1) -> Callable[[str], list[int]]:
     return parse
 
 
-def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False) -> Callable[[str], float]:
-    """An argparse ``type``: a finite float in ``[low, high]`` (``(low, high]`` with ``open_low``), checked by
+def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False,
+         open_high: bool = False) -> Callable[[str], float]:
+    """An argparse ``type``: a finite float in ``[low, high]`` (an end excluded with ``open_low`` /
+    ``open_high``), checked by
     :func:`~vtlearn.validation.as_real`, so that argparse refuses NaN, inf or a value out of range with the
     flag's name (``argument --coverage-radius: need a finite number > 0, got -1.0``)."""
 
@@ -72,7 +74,7 @@ def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = Fal
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
         try:
-            return as_real(value, "value", low=low, high=high, open_low=open_low)
+            return as_real(value, "value", low=low, high=high, open_low=open_low, open_high=open_high)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
 

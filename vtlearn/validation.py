@@ -11,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_surface_mesh",
-           "as_transform", "as_vector", "check_class_scores", "check_not_collinear", "load_named", "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_stored_transform",
+           "as_surface_mesh", "as_transform", "as_vector", "check_class_scores", "check_not_collinear",
+           "load_named", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -32,20 +33,22 @@ def as_int(value: Any, name: str, minimum: int = 1) -> int:
 
 
 def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math.inf,
-            open_low: bool = False) -> float:
-    """``value`` as a finite float in ``[low, high]`` (``(low, high]`` with ``open_low``); a ``ValueError``
-    naming ``name`` otherwise, and for a bool or a string."""
+            open_low: bool = False, open_high: bool = False) -> float:
+    """``value`` as a finite float in ``[low, high]`` (the end excluded with ``open_low`` / ``open_high``); a
+    ``ValueError`` naming ``name`` otherwise, and for a bool or a string."""
     v = math.nan
     if not isinstance(value, (bool, str, bytes)):
         try:
             v = float(value)
         except (TypeError, ValueError):
             pass
-    if not (math.isfinite(v) and (v > low if open_low else v >= low) and v <= high):
+    above = v > low if open_low else v >= low
+    below = v < high if open_high else v <= high
+    if not (math.isfinite(v) and above and below):
         lo = "" if low == -math.inf else f"{'(' if open_low else '['}{low:g}, "
-        hi = "" if high == math.inf else f"{high:g}]"
+        hi = "" if high == math.inf else f"{high:g}{')' if open_high else ']'}"
         bound = (f" in {lo}{hi}" if lo and hi else f" {'>' if open_low else '>='} {low:g}" if lo
-                 else f" <= {high:g}" if hi else "")
+                 else f" {'<' if open_high else '<='} {high:g}" if hi else "")
         raise ValueError(f"{name}: need a finite number{bound}, got {value!r}")
     return v
 
@@ -173,6 +176,21 @@ def as_transform(T: Any, name: str, *, atol: float = 1e-5) -> np.ndarray:
     R = arr[:3, :3]
     if not np.allclose(R.T @ R, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
         raise ValueError(f"{name}: the 3x3 block is not a proper rotation (R^T R != I or det(R) < 0)")
+    return arr
+
+
+def as_stored_transform(T: Any, name: str, *, atol: float = 1e-3) -> np.ndarray:
+    """A rigid transform read from a file (robot logs, hand-written poses): :func:`as_transform` with the
+    looser tolerance ``atol`` that numbers printed with 4 decimals need, and the rotation block replaced by
+    the nearest rotation (SVD), so that downstream algebra gets an exact one.
+
+    Shapes:
+        T: (4, 4) -> (4, 4)
+    """
+    arr = as_transform(T, name, atol=atol).copy()
+    U, _, Vt = np.linalg.svd(arr[:3, :3])
+    arr[:3, :3] = U @ Vt  # det > 0: as_transform refused a reflection
+    arr[3] = (0.0, 0.0, 0.0, 1.0)
     return arr
 
 

@@ -74,21 +74,21 @@ def _read_array(path: str, name: str):
 def _read_poses(path: str, name: str):
     """``(V, 4, 4)`` rigid poses from a ``.npy`` or a text file of 4x4 blocks stacked; errors name
     ``name``."""
-    from vtlearn.validation import as_transform
+    import numpy as np
+
+    from vtlearn.validation import as_stored_transform
 
     arr = _read_array(path, name)
     if arr.ndim == 2 and arr.shape[1] == 4 and arr.shape[0] % 4 == 0:
         arr = arr.reshape(-1, 4, 4)  # text files: 4x4 blocks stacked
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
         raise ValueError(f"{name}: expected (V, 4, 4) poses (.npy, or 4V x 4 text), got shape {arr.shape}")
-    for i, T in enumerate(arr):
-        as_transform(T, f"{name} (pose {i})")
-    return arr
+    return np.stack([as_stored_transform(T, f"{name} (pose {i})") for i, T in enumerate(arr)])
 
 
 def _read_transform(path: str, name: str):
     """One ``(4, 4)`` rigid transform from a ``.npy`` or a 4 x 4 text file; errors name ``name``."""
-    from vtlearn.validation import as_transform
+    from vtlearn.validation import as_stored_transform
 
     arr = _read_array(path, name)
     if arr.shape == (1, 4, 4):
@@ -96,7 +96,7 @@ def _read_transform(path: str, name: str):
     if arr.shape != (4, 4):
         raise ValueError(f"{name}: expected one (4, 4) transform (.npy, or 4 x 4 text), "
                          f"got shape {arr.shape}")
-    return as_transform(arr, name)
+    return as_stored_transform(arr, name)
 
 
 def _cmd_hand_eye(args: argparse.Namespace) -> int:

@@ -67,7 +67,7 @@ def _read_init_poses(path: str, n_models: int) -> np.ndarray:
     ``(N, 4, 4)``; a ``ValueError`` (``FileNotFoundError``) naming the flag for anything else."""
     import json
 
-    from vtlearn.validation import as_transform
+    from vtlearn.validation import as_stored_transform
 
     expected = (f"expected one 4x4 T_world_object per --models file, shape ({n_models}, 4, 4), as .npy or "
                 "a JSON nested list")
@@ -86,12 +86,13 @@ def _read_init_poses(path: str, n_models: int) -> np.ndarray:
         T0 = T0[None]
     if T0.shape != (n_models, 4, 4):
         raise ValueError(f"--init-poses: {expected}, got shape {T0.shape}")
-    return np.stack([as_transform(T, f"--init-poses (pose {i})") for i, T in enumerate(T0)])
+    return np.stack([as_stored_transform(T, f"--init-poses (pose {i})") for i, T in enumerate(T0)])
 
 
 def _tactile_files(tactile: str | None, frames: list[Path]) -> dict[str, Path]:
     """``--tactile``: the tactile cloud of each frame that has one, by frame file name (frames without
-    contact have none); a ``ValueError`` naming the flag when the folder is missing or matches no frame."""
+    contact have none; an empty folder is a sequence without contact); a ``ValueError`` naming the flag when
+    the folder is missing, or holds files none of which is named like a frame (a naming mistake)."""
     if tactile is None:
         return {}
     d = Path(tactile)
@@ -99,7 +100,7 @@ def _tactile_files(tactile: str | None, frames: list[Path]) -> dict[str, Path]:
         raise ValueError(f"--tactile: {tactile} is not a directory; need a directory of tactile clouds "
                          "named like the --frames files")
     found = {f.name: d / f.name for f in frames if (d / f.name).is_file()}
-    if not found:
+    if not found and any(f.is_file() for f in d.iterdir()):
         raise ValueError(f"--tactile: no file in {tactile} has the name of a --frames file (e.g. "
                          f"{frames[0].name}); tactile clouds share the frame names")
     return found

@@ -112,18 +112,6 @@ def check_kind(manifest: dict, data_dir, kind: str | tuple[str, ...] | list[str]
     return found
 
 
-def _split_fraction(manifest: dict, split: str) -> float | None:
-    """The ``gen-data`` fraction of ``split`` recorded in the manifest's config (None when unknown)."""
-    from vtlearn.sim_data.writer import SPLITS
-
-    config = manifest.get("config")
-    fractions = config.get("split_fractions") if isinstance(config, dict) else None
-    try:
-        return float(fractions[SPLITS.index(split)])
-    except (TypeError, ValueError, IndexError, KeyError):
-        return None
-
-
 def split_is_empty(manifest: dict, split: str) -> bool:
     """True when the manifest lists no shard of ``split``, or only shards that hold no instance (for a
     ``tactile-episodes`` set: no tactile cloud), from the counts recorded with each shard."""
@@ -323,9 +311,8 @@ class ShardedDataModule(pl.LightningDataModule):
         manifest = load_manifest(data_dir)
         if kind is not None:
             check_kind(manifest, data_dir, kind)
-        for split in manifest["splits"]:  # an empty split its gen-data fractions meant to fill
-            if split_is_empty(manifest, split) and _split_fraction(manifest, split) != 0:
-                raise empty_split_error(manifest, data_dir, split)
+        # an empty split is refused where it is read (load_split), so a dataset whose unused test split is
+        # empty still trains; subclasses check the splits they train on here (CrossModalDataModule)
         self.data_dir, self.verify = data_dir, verify
         self._manifest = manifest
         self.class_names: list[str] = list(manifest["class_names"])
@@ -357,7 +344,7 @@ class ShardedDataModule(pl.LightningDataModule):
         )
 
     def setup(self, stage: str | None = None) -> None:
-        # a split left empty on purpose (a zero --splits fraction) is loaded (and refused) only if used
+        # an empty split (a zero --splits fraction, or too few instances) is loaded, and refused, only if used
         for split in ("train", "val", "test"):
             if not (split in self._manifest["splits"] and split_is_empty(self._manifest, split)):
                 self._split(split)

@@ -1213,8 +1213,6 @@ def run_recognize(args: argparse.Namespace) -> int:
             if value is not None:
                 raise ValueError(f"{flag}: only with --data DIR (stored tactile clouds); cloud files are "
                                  "recognised as given")
-    if not 0 <= args.zeta < 1:
-        raise ValueError(f"--zeta: need 0 <= zeta < 1, got {args.zeta}")
     box = None if args.box_m is None else [args.box_m[:3], args.box_m[3:]]
     if box is not None:
         _check_box(box, "--box-m")
@@ -1319,7 +1317,7 @@ def register(sub) -> None:
                    help="MC-dropout passes T (eq. 7.3); 0 for one deterministic pass")
     p.add_argument("--domain", choices=["target", "source"], default="target",
                    help="batch-norm statistics of a domain-BN model: target (tactile) or source (visual)")
-    p.add_argument("--zeta", type=real(0.0, 1.0), default=0.8,
+    p.add_argument("--zeta", type=real(0.0, 1.0, open_high=True), default=0.8,
                    help="confidence stop of thesis 7.2.4 (default 0.8)")
     p.add_argument("--top", type=count(1), default=3, help="classes to print")
     p.add_argument("--seed", type=count(0), default=0, help="dropout masks of the MC passes")
