@@ -61,7 +61,8 @@ def _last_checkpoints(trainer) -> tuple[list[Path], list[Path]]:
     """(folders searched, ``last*.ckpt`` files found) of the trainer's checkpoint callbacks that name a
     ``dirpath``; a callback without one writes into the logger's new version folder, which cannot hold a
     checkpoint yet."""
-    dirs = [Path(cb.dirpath) for cb in trainer.checkpoint_callbacks if getattr(cb, "dirpath", None)]
+    dirs = list(dict.fromkeys(Path(cb.dirpath) for cb in trainer.checkpoint_callbacks
+                              if getattr(cb, "dirpath", None)))  # two callbacks may share one folder
     return dirs, [f for d in dirs if d.is_dir() for f in d.glob("last*.ckpt")]
 
 

@@ -140,11 +140,12 @@ def _scene_figure(path: Path, before, after, titles: tuple[str, str]) -> None:
 def _cmd_runtime(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    target_cat, clutter_cats, transparent = _scene_categories(args)  # before pybullet loads and says so
+    paths = _model_paths(args)
     from vtlearn.pipeline import summary_figure
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
 
-    target_cat, clutter_cats, transparent = _scene_categories(args)
-    actor, xav, names = _load_models(_model_paths(args))
+    actor, xav, names = _load_models(paths)
     target_obj, clutter = clutter_scene(target_cat, clutter_cats, transparent=transparent, seed=args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
