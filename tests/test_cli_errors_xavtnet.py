@@ -129,18 +129,6 @@ def test_adapt_bn_names_ckpt_for_an_actor_checkpoint(qs, tmp_path, capsys):
     assert not (tmp_path / "x.ckpt").exists()
 
 
-def test_atomic_checkpoint_write_removes_its_temp_file_on_failure(tmp_path, monkeypatch):
-    from vtlearn.models import xavtnet_cli
-
-    def fail(src, dst):
-        raise OSError("disk full")
-
-    monkeypatch.setattr(xavtnet_cli.os, "replace", fail)
-    with pytest.raises(OSError, match="disk full"):
-        xavtnet_cli._save_atomic({"a": 1}, tmp_path / "out.ckpt")
-    assert list(tmp_path.iterdir()) == []
-
-
 # 3. bench active-learning: n0, kappa and rounds against the pool's size before the full-pool trainings
 
 def test_active_learning_checks_n0_against_the_pool_before_training(qs, tmp_path, capsys, no_training):

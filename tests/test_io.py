@@ -118,3 +118,29 @@ def test_atomic_write_npz_is_byte_reproducible(tmp_path):
     with np.load(two, allow_pickle=False) as d:
         np.testing.assert_array_equal(d["b"], arrays["b"])
         np.testing.assert_array_equal(d["a"], arrays["a"])
+
+
+def test_atomic_path_leaves_nothing_behind_on_failure(tmp_path, monkeypatch):
+    """The one atomic write of vtlearn (checkpoints, JSON, shards, figures): a failed write, or a failed
+    rename, leaves neither half a file at the destination nor its temporary file."""
+    import vtlearn.io as vio
+
+    with pytest.raises(RuntimeError, match="killed"):
+        with vio.atomic_path(tmp_path / "out.ckpt") as tmp:
+            tmp.write_bytes(b"half")
+            raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
+
+    def fail(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(vio.os, "replace", fail)
+    with pytest.raises(OSError, match="disk full"):
+        with vio.atomic_path(tmp_path / "out.ckpt") as tmp:
+            tmp.write_bytes(b"whole")
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+    with vio.atomic_path(tmp_path / "sub" / "fig.png") as tmp:
+        assert tmp.suffix == ".png" and tmp.parent == tmp_path / "sub"  # writers that infer the format
+        tmp.write_bytes(b"png")
+    assert [f.name for f in (tmp_path / "sub").iterdir()] == ["fig.png"]

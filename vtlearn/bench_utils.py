@@ -115,7 +115,6 @@ def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
     """What a benchmark ran on: CPU count, Python, torch, threads, and the versions of
     :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names; ``None`` for one that is not
     installed)."""
-    import os
     from importlib import metadata
 
     import torch
@@ -162,13 +161,11 @@ def _output_file(path, what: str) -> Path:
 def write_json(path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON (numpy converted), creating parent folders. The text goes to a
     temporary file beside ``path`` first and is renamed over it, so a killed run never leaves half a file."""
+    from vtlearn.io import atomic_path
+
     p = _output_file(path, "JSON")
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(p) as tmp:
         tmp.write_text(json.dumps(to_jsonable(obj), indent=2))
-        os.replace(tmp, p)
-    finally:
-        tmp.unlink(missing_ok=True)
     return p
 
 

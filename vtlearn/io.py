@@ -12,6 +12,8 @@ unreadable, empty or malformed one.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -222,6 +224,25 @@ def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarra
     return read_cloud(p)
 
 
+@contextmanager
+def atomic_path(path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write into, renamed over ``path`` (``os.replace``) when the block
+    ends without an exception and removed whatever happens, so a reader never sees a partial file and a
+    failed write leaves nothing behind. The temporary file keeps ``path``'s suffix (matplotlib and
+    ``np.savez`` infer the format from it); parent folders are created.
+
+    Example: ``with atomic_path("x.ckpt") as tmp: torch.save(obj, tmp)``.
+    """
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.stem}.tmp-{os.getpid()}{p.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
     """Write an ``.npz`` atomically and byte-reproducibly.
 
@@ -242,10 +263,8 @@ def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
     for k, v in arrays.items():
         if np.asarray(v).dtype == object:
             raise ValueError(f"{k}: object arrays cannot be stored (files must load with allow_pickle=False)")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    with open(tmp, "wb") as fh:
+    with atomic_path(p) as tmp, open(tmp, "wb") as fh:
         with zipfile.ZipFile(fh, "w", compression=method) as zf:
             for key in sorted(arrays):
                 info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -255,5 +274,4 @@ def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
                     np.lib.format.write_array(f, np.ascontiguousarray(arrays[key]), allow_pickle=False)
         fh.flush()
         os.fsync(fh.fileno())
-    os.replace(tmp, p)
     return p

@@ -33,6 +33,7 @@ import numpy as np
 
 from vtlearn.bench_utils import csv_list
 from vtlearn.cli_args import count
+from vtlearn.io import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -145,11 +146,10 @@ def _trainer(max_epochs: int, log_dir: Path, name: str):
 
 
 def _save_atomic(trainer, path: Path) -> None:
-    tmp = path.with_suffix(".tmp.ckpt")
     # the full training state (optimizer included), so the checkpoint can also resume training; loading it
     # elsewhere in vtlearn is always torch.load(weights_only=True), which this file satisfies
-    trainer.save_checkpoint(str(tmp), weights_only=False)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        trainer.save_checkpoint(str(tmp), weights_only=False)
 
 
 # ------------------------------------------------------------------------------------------ steps
@@ -249,19 +249,18 @@ def step_explore(cfg: QuickstartConfig, out: Path) -> dict:
             progress=lambda i, n: bar.update(),
         )
     bar.close()
-    tmp = out / "episode.tmp.npz"
-    np.savez(
-        tmp,
-        points=ep.points,
-        step=ep.step,
-        tactile=ep.tactile,
-        kinds=np.array(ep.kinds),
-        entropy=np.array(ep.entropy),
-        T_world_sensor=np.array(ep.T_world_sensor),
-        category=obj.category,
-        seed=obj.seed,
-    )
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savez(
+            tmp,
+            points=ep.points,
+            step=ep.step,
+            tactile=ep.tactile,
+            kinds=np.array(ep.kinds),
+            entropy=np.array(ep.entropy),
+            T_world_sensor=np.array(ep.T_world_sensor),
+            category=obj.category,
+            seed=obj.seed,
+        )
     return {"explore": f"{ep.n_steps} actions, {len(ep.points)} contact points"}
 
 
@@ -425,10 +424,9 @@ def summary_figure(path: Path, obj, ep, recon, scene, model_pts, T_est, T_gt, s:
         if ax.name == "3d":
             ax.set_box_aspect((1, 1, 1))
     fig.subplots_adjust(left=0.02, right=0.98, top=0.86, bottom=0.04, wspace=0.2)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def run_quickstart(

@@ -1107,20 +1107,6 @@ def _read_xavtnet(ckpt_path: Path):
     return ckpt, load_named(lambda p: load_xavtnet(p, ckpt), ckpt_path, "--ckpt")
 
 
-def _save_atomic(obj, out: Path) -> None:
-    """``torch.save(obj)`` to a temporary file beside ``out``, renamed over it: a killed or failed write
-    never leaves half a checkpoint at ``out``, and the temporary file is removed whatever happens."""
-    import torch
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def run_adapt_bn(args: argparse.Namespace) -> int:
     """``vtlearn adapt-bn``: AdaBN for a trained xAVTNet checkpoint (no labels, no weight changes).
 
@@ -1173,7 +1159,12 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
     ckpt["hyper_parameters"] = {**ckpt["hyper_parameters"], "domain_bn": True}
     ckpt.pop("optimizer_states", None)  # the new statistics are not a training state to resume
     ckpt.pop("lr_schedulers", None)
-    _save_atomic(ckpt, out)
+    import torch
+
+    from vtlearn.io import atomic_path
+
+    with atomic_path(out) as tmp:  # a failed write leaves neither half a checkpoint nor its temporary file
+        torch.save(ckpt, tmp)
     print(f"target statistics from {n} unlabelled tactile clouds x {args.passes} pass(es)")
     if has_test:
         print(f"tactile test accuracy: {before:.1f} % before, {after:.1f} % after")

@@ -32,14 +32,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from vtlearn.io import atomic_write_npz
+from vtlearn.io import atomic_path, atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
 from vtlearn.validation import as_int
 
@@ -227,10 +226,8 @@ def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
 
 
 def write_json_atomic(path: Path, obj) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=1, sort_keys=True))
 
 
 def sha256_file(path: Path) -> str:
