@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from vtlearn.bench_utils import csv_list
 from vtlearn.validation import as_real
@@ -59,6 +59,16 @@ def counts(minimum: int = 1) -> Callable[[str], list[int]]:
     parse.__name__ = f"list of integers >= {minimum}"
     parse.minimum = minimum  # type: ignore[attr-defined]  # read by the CLI's tests
     return parse
+
+
+def with_flag(exc: Exception, flags: Mapping[str, str]) -> Exception | None:
+    """``exc``, an error whose message starts ``"key: ..."`` (a config field or a function argument), made
+    again with the command-line flag ``flags[key]`` in place of ``key``; None when it names no key of
+    ``flags``. Commands map their flags onto the arguments they pass on, so the user reads the flag typed."""
+    key, sep, rest = str(exc).partition(": ")
+    if sep and key.strip() in flags:
+        return type(exc)(f"{flags[key.strip()]}: {rest}")
+    return None
 
 
 def real(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False,

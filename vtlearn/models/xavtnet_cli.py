@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, save_figure
-from vtlearn.cli_args import count, real
+from vtlearn.cli_args import count, real, with_flag
 from vtlearn.validation import as_int, as_real
 
 log = logging.getLogger(__name__)
@@ -245,21 +245,21 @@ def _given_flags(args: argparse.Namespace) -> dict[str, str]:
             if getattr(args, flag[2:].replace("-", "_"), None) not in (None, False)}
 
 
-def _check_up_front(build, given: dict[str, str], what: str):
-    """``build()``, a datamodule or model built before any training only to check the bench's arguments;
+def _check_up_front(build, given: dict[str, str], what: str | None):
+    """``build()``, a datamodule or model built before any training only to check the command's arguments;
     its ValueError (or FileNotFoundError) ``"key: ..."`` is re-raised naming the flag that set ``key``
-    (``given``: argument -> flag), else the config's ``what`` section (``--config: data.init_args.key:
-    ...``)."""
+    (``given``: argument -> flag, :func:`~vtlearn.cli_args.with_flag`), else the config's ``what`` section
+    (``--config: data.key: ...``); a command without a config (``what`` None) re-raises it as it is."""
     try:
         return build()
     except (ValueError, FileNotFoundError) as exc:
-        text = str(exc)
-        key = text.split(":", 1)[0].strip()
-        if key in given:
-            raise type(exc)(f"{given[key]}{text[len(key):]}") from exc
-        if not key.isidentifier():  # already a flag, or a message about no argument in particular
+        named = with_flag(exc, given)
+        if named is not None:
+            raise named from exc
+        key = str(exc).split(":", 1)[0].strip()
+        if what is None or not key.isidentifier():  # already a flag, or about no argument in particular
             raise
-        raise type(exc)(f"--config: {what}.{text}") from exc
+        raise type(exc)(f"--config: {what}.{exc}") from exc
 
 
 def _quiet_lightning() -> None:
@@ -1139,7 +1139,7 @@ def run_adapt_bn(args: argparse.Namespace) -> int:
         args.data, batch_size=args.batch_size, target_split=args.split, target_data_dir=args.target_data,
         seed=args.seed, normalize=checkpoint_normalize(dict(model.hparams))),  # the clouds as trained
         {"data_dir": "--data", "target_data_dir": "--target-data", "target_split": "--split",
-         "batch_size": "--batch-size"}, "data")
+         "batch_size": "--batch-size", "seed": "--seed"}, None)  # adapt-bn has no --config
     if dm.num_classes != model.hparams.num_classes:
         raise ValueError(f"--data: {dm.num_classes} classes, the checkpoint has {model.hparams.num_classes}")
     from vtlearn.datamodules.shards import load_manifest

@@ -6,7 +6,7 @@ import argparse
 import json
 
 from vtlearn.bench_utils import csv_list
-from vtlearn.cli_args import count
+from vtlearn.cli_args import count, with_flag
 
 
 def _cmd_gen_shapes(args: argparse.Namespace) -> int:
@@ -27,19 +27,11 @@ _GEN_DATA_FLAGS = {
 }
 
 
-def _flag_error(exc: Exception) -> Exception:
-    """``exc`` with a leading ``field:`` of a GenConfig / generate_dataset message replaced by its flag."""
-    field, sep, rest = str(exc).partition(": ")
-    if sep and field in _GEN_DATA_FLAGS:
-        return type(exc)(f"{_GEN_DATA_FLAGS[field]}: {rest}")
-    return exc
-
-
 def _cmd_gen_data(args: argparse.Namespace) -> int:
     try:
         return _gen_data(args)
     except (ValueError, FileNotFoundError) as exc:
-        raise _flag_error(exc) from None
+        raise (with_flag(exc, _GEN_DATA_FLAGS) or exc) from None
 
 
 def _gen_data(args: argparse.Namespace) -> int:
