@@ -116,7 +116,7 @@ def test_counts_type_parses_and_bounds():
     ("bad.json", "{bad", "cannot read"),
     ("missing.npy", None, "no file at"),
     ("t24.json", json.dumps(np.eye(4)[:2].tolist()), "got shape (2, 4)"),
-    ("two.json", json.dumps([np.eye(4).tolist()] * 2), "got shape (2, 4, 4)"),  # one model, two poses
+    ("two.json", json.dumps([np.eye(4).tolist()] * 2), "need one pose as"),  # one model, two poses
     ("scaled.json", json.dumps(np.diag([2.0, 2.0, 2.0, 1.0]).tolist()), "not a proper rotation"),
 ])
 def test_track_init_poses_errors_name_the_flag(track_inputs, capsys, name, content, what):
@@ -147,7 +147,7 @@ def test_hand_eye_init_must_be_one_4x4(hand_eye_inputs, capsys):
     np.save(tmp / "bad.npy", np.eye(3))
     assert main([*argv, "--init", str(tmp / "bad.npy")]) == 2
     err = _error(capsys)
-    assert "--init: expected one (4, 4) transform" in err and "(V, 4, 4)" not in err
+    assert "--init: need one pose as" in err and "got shape (3, 3)" in err
 
 
 def test_hand_eye_names_a_degenerate_tactile_cloud(hand_eye_inputs, capsys):
@@ -185,15 +185,18 @@ def test_pose_files_with_four_decimals_are_read_as_exact_rotations(track_inputs,
     be (it is snapped to the nearest rotation); one off by more is refused, naming the flag."""
     from scipy.spatial.transform import Rotation
 
-    from vtlearn.classical.tracking_cli import _read_init_poses
+    from vtlearn.io import read_poses
 
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
     T[:3, 3] = [0.1, 0.2, 0.3]
     (tmp_path / "T.json").write_text(json.dumps(np.round(T, 4).tolist()))
-    R = _read_init_poses(str(tmp_path / "T.json"), 1)[0, :3, :3]
+    R = read_poses(str(tmp_path / "T.json"), "--init-poses", n=1)[0, :3, :3]
     assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.allclose(R, T[:3, :3], atol=1e-4)
     T[0, 0] += 0.01
     (tmp_path / "bad.json").write_text(json.dumps(T.tolist()))
-    with pytest.raises(ValueError, match=r"--init-poses \(pose 0\): the 3x3 block is not a proper rotation"):
-        _read_init_poses(str(tmp_path / "bad.json"), 1)
+    with pytest.raises(ValueError, match=r"--init-poses: the 3x3 block is not a proper rotation"):
+        read_poses(str(tmp_path / "bad.json"), "--init-poses", n=1)
+    (tmp_path / "bad2.json").write_text(json.dumps([np.eye(4).tolist(), T.tolist()]))
+    with pytest.raises(ValueError, match=r"--init-poses \(pose 1\): the 3x3 block is not a proper rotation"):
+        read_poses(str(tmp_path / "bad2.json"), "--init-poses")

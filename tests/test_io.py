@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -8,6 +10,7 @@ from vtlearn.io import (
     read_cloud_with_normals,
     read_geometry,
     read_mesh,
+    read_poses,
     write_cloud,
     write_mesh,
 )
@@ -144,3 +147,37 @@ def test_atomic_path_leaves_nothing_behind_on_failure(tmp_path, monkeypatch):
         assert tmp.suffix == ".png" and tmp.parent == tmp_path / "sub"  # writers that infer the format
         tmp.write_bytes(b"png")
     assert [f.name for f in (tmp_path / "sub").iterdir()] == ["fig.png"]
+
+
+def test_read_poses_reads_every_format_alike(tmp_path):
+    """The same two poses as .npy, JSON and stacked 4x4 text blocks read back equal (pose files from robot
+    logs come in all three)."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.repeat(np.eye(4)[None], 2, 0)
+    T[:, :3, :3] = Rotation.from_rotvec([[0.3, -0.2, 0.5], [0.0, 1.0, 0.0]]).as_matrix()
+    T[:, :3, 3] = [[0.1, 0.2, 0.3], [-0.4, 0.0, 0.05]]
+    np.save(tmp_path / "T.npy", T)
+    (tmp_path / "T.json").write_text(json.dumps(T.tolist()))
+    np.savetxt(tmp_path / "T.txt", T.reshape(-1, 4))
+    for name in ("T.npy", "T.json", "T.txt"):
+        np.testing.assert_allclose(read_poses(tmp_path / name, "--poses", n=2), T, atol=1e-12)
+    np.save(tmp_path / "one.npy", T[0])  # a single (4, 4) pose is one pose
+    np.testing.assert_allclose(read_poses(tmp_path / "one.npy", "--init", n=1), T[:1], atol=1e-12)
+
+
+@pytest.mark.parametrize("content, n, what", [
+    (None, None, "no file at"),
+    ("", None, "holds no numbers"),
+    ("1 2 3\n4 5", None, "cannot read"),
+    ("1 0 0\n0 1 0\n0 0 1", None, "got shape (3, 3)"),
+    ("\n".join(["1 0 0 0", "0 1 0 0", "0 0 1 0", "0 0 0 1"] * 2), 1, "need one pose as"),
+    ("\n".join(["2 0 0 0", "0 2 0 0", "0 0 2 0", "0 0 0 1"]), None, "not a proper rotation"),
+])
+def test_read_poses_errors_name_the_argument(tmp_path, content, n, what):
+    p = tmp_path / "T.txt"
+    if content is not None:
+        p.write_text(content)
+    with pytest.raises((ValueError, FileNotFoundError)) as exc:
+        read_poses(p, "--poses", n=n)
+    assert str(exc.value).startswith("--poses") and what in str(exc.value)

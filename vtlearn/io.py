@@ -29,6 +29,7 @@ __all__ = [
     "read_mesh",
     "write_mesh",
     "read_geometry",
+    "read_poses",
     "atomic_write_npz",
 ]
 
@@ -222,6 +223,60 @@ def read_geometry(path, n_points: int = 1024, seed: int | None = 0) -> np.ndarra
 
         return sample_surface(read_mesh(p), n_points, seed)[0]
     return read_cloud(p)
+
+
+POSE_FORMATS = "a .npy (N, 4, 4) or (4, 4) array, a JSON nested list, or text of 4x4 blocks stacked (4N x 4)"
+
+
+def read_poses(path, name: str, *, n: int | None = None) -> np.ndarray:
+    """Rigid poses ``T_a_b`` from a file, each checked and snapped to the nearest rotation
+    (:func:`vtlearn.validation.as_stored_transform`, so a file written with 4 decimals reads).
+
+    Formats: ``.npy`` (``(N, 4, 4)`` or ``(4, 4)``, ``allow_pickle=False``), ``.json`` (a nested list of the
+    same shapes) or any other suffix as whitespace-separated text, one 4x4 block after another. Shapes:
+    output ``(N, 4, 4)`` float64.
+
+    Args:
+        path: the file.
+        name: what the user calls it (a command-line flag such as ``--poses``); every error names it.
+        n: the number of poses required, or ``None`` for any number ``>= 1``.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: an unreadable file, no numbers, the wrong count or shape, or a pose that is not rigid.
+    """
+    import json
+    import warnings
+
+    from vtlearn.validation import as_stored_transform
+
+    p = Path(path)
+    want = f"{'one' if n == 1 else n if n is not None else 'N'} pose{'' if n == 1 else 's'} as {POSE_FORMATS}"
+    if not p.is_file():
+        raise FileNotFoundError(f"{name}: no file at {p}; need {want}")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".npy":
+            arr = np.load(p, allow_pickle=False)
+        elif suffix == ".json":
+            arr = json.loads(p.read_text())
+        else:
+            with warnings.catch_warnings():  # an empty file: numpy warns, then the size check below refuses
+                warnings.simplefilter("ignore", UserWarning)
+                arr = np.loadtxt(p, ndmin=2)
+        arr = np.asarray(arr, dtype=np.float64)
+    except (ValueError, TypeError, OSError) as exc:  # json.JSONDecodeError is a ValueError
+        raise ValueError(f"{name}: cannot read {p} ({exc}); need {want}") from None
+    if arr.size == 0:
+        raise ValueError(f"{name}: {p} holds no numbers; need {want}")
+    if arr.ndim == 2 and arr.shape[1] == 4 and arr.shape[0] % 4 == 0:
+        arr = arr.reshape(-1, 4, 4)  # (4, 4), or text blocks stacked
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4) or (n is not None and len(arr) != n):
+        shown = arr.shape if arr.ndim != 3 or arr.shape[1:] != (4, 4) else f"{len(arr)} poses"
+        raise ValueError(f"{name}: need {want}, got {shown if isinstance(shown, str) else f'shape {shown}'}")
+    if len(arr) == 1:
+        return as_stored_transform(arr[0], name)[None]
+    return np.stack([as_stored_transform(T, f"{name} (pose {i})") for i, T in enumerate(arr)])
 
 
 @contextmanager

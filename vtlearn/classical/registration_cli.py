@@ -45,73 +45,19 @@ def _cmd_register(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_array(path: str, name: str):
-    """The numbers in ``path`` (``.npy``, or whitespace-separated text) as a float64 array; a
-    ``FileNotFoundError`` or ``ValueError`` naming ``name``, the command-line flag, otherwise."""
-    import warnings
-
-    import numpy as np
-
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{name}: no file at {p}")
-    try:
-        if p.suffix == ".npy":
-            arr = np.load(p, allow_pickle=False)
-        else:
-            with warnings.catch_warnings():  # an empty file: numpy warns, then the shape check below refuses
-                warnings.simplefilter("ignore", UserWarning)
-                arr = np.loadtxt(p)
-        arr = np.asarray(arr, dtype=np.float64)
-    except (ValueError, TypeError, OSError) as exc:
-        raise ValueError(f"{name}: cannot read {p} as {'a .npy array' if p.suffix == '.npy' else 'numbers'} "
-                         f"({exc})") from None
-    if arr.size == 0:
-        raise ValueError(f"{name}: {p} holds no numbers")
-    return arr
-
-
-def _read_poses(path: str, name: str):
-    """``(V, 4, 4)`` rigid poses from a ``.npy`` or a text file of 4x4 blocks stacked; errors name
-    ``name``."""
-    import numpy as np
-
-    from vtlearn.validation import as_stored_transform
-
-    arr = _read_array(path, name)
-    if arr.ndim == 2 and arr.shape[1] == 4 and arr.shape[0] % 4 == 0:
-        arr = arr.reshape(-1, 4, 4)  # text files: 4x4 blocks stacked
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise ValueError(f"{name}: expected (V, 4, 4) poses (.npy, or 4V x 4 text), got shape {arr.shape}")
-    return np.stack([as_stored_transform(T, f"{name} (pose {i})") for i, T in enumerate(arr)])
-
-
-def _read_transform(path: str, name: str):
-    """One ``(4, 4)`` rigid transform from a ``.npy`` or a 4 x 4 text file; errors name ``name``."""
-    from vtlearn.validation import as_stored_transform
-
-    arr = _read_array(path, name)
-    if arr.shape == (1, 4, 4):
-        arr = arr[0]
-    if arr.shape != (4, 4):
-        raise ValueError(f"{name}: expected one (4, 4) transform (.npy, or 4 x 4 text), "
-                         f"got shape {arr.shape}")
-    return as_stored_transform(arr, name)
-
-
 def _cmd_hand_eye(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import to_jsonable
     from vtlearn.classical.hand_eye import LOCAL_METHODS, in_situ_hand_eye
-    from vtlearn.io import read_geometry
+    from vtlearn.io import read_geometry, read_poses
     from vtlearn.validation import as_points, check_not_collinear
 
     if args.init is None and args.method in LOCAL_METHODS:
-        raise ValueError(f"--init: method {args.method} needs an initial T_E_C guess (.npy (4, 4) or 4 x 4 "
-                         "text); a global method such as stiqf needs none")
-    poses = _read_poses(args.poses, "--poses")
+        raise ValueError(f"--init: method {args.method} needs an initial T_E_C guess (a .npy, JSON or "
+                         "4 x 4 text pose file); a global method such as stiqf needs none")
+    poses = read_poses(args.poses, "--poses")
     if len(poses) != len(args.visual):
         raise ValueError(f"--poses: need one T_W_E per --visual file ({len(args.visual)}), got {len(poses)}")
-    init = _read_transform(args.init, "--init") if args.init else None
+    init = read_poses(args.init, "--init", n=1)[0] if args.init else None
     visual = []
     for i, v in enumerate(args.visual):
         cloud = as_points(read_geometry(v, n_points=args.visual_points, seed=args.seed + i), f"--visual {v}",
@@ -149,11 +95,13 @@ def register(subparsers: Any) -> None:
     h.add_argument("--visual", nargs="+", required=True,
                    help="the object's visual cloud in the camera frame, one file per view")
     h.add_argument("--poses", required=True,
-                   help="T_W_E of the camera arm for each view: .npy (V, 4, 4) or text, 4x4 blocks stacked")
+                   help="T_W_E of the camera arm for each view: .npy (V, 4, 4), JSON, or text of 4x4 "
+                        "blocks stacked")
     h.add_argument("--tactile", required=True, help="tactile contacts on the same object, world frame")
     h.add_argument("--method", default="stiqf", choices=sorted(METHODS),
                    help="registration (default stiqf, global); local methods need --init")
-    h.add_argument("--init", default=None, help="nominal T_E_C (.npy (4, 4) or text), start of every view")
+    h.add_argument("--init", default=None,
+                   help="nominal T_E_C (.npy (4, 4), JSON or 4x4 text), start of every view")
     h.add_argument("--visual-points", type=count(1), default=1024,
                    help="points sampled from a visual mesh input")
     h.add_argument("--tactile-points", type=count(1), default=60,

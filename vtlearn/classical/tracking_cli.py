@@ -62,33 +62,6 @@ def _require_trackers(methods: list[str], flag: str) -> dict[str, Any]:
     return trackers
 
 
-def _read_init_poses(path: str, n_models: int) -> np.ndarray:
-    """``--init-poses``: one ``T_world_object`` per model from a ``.npy`` or a JSON nested list, as
-    ``(N, 4, 4)``; a ``ValueError`` (``FileNotFoundError``) naming the flag for anything else."""
-    import json
-
-    from vtlearn.validation import as_stored_transform
-
-    expected = (f"expected one 4x4 T_world_object per --models file, shape ({n_models}, 4, 4), as .npy or "
-                "a JSON nested list")
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"--init-poses: no file at {p} ({expected})")
-    try:
-        if p.suffix.lower() == ".npy":
-            T0 = np.load(p, allow_pickle=False)
-        else:
-            T0 = json.loads(p.read_text())
-        T0 = np.asarray(T0, dtype=np.float64)
-    except (ValueError, TypeError, OSError) as exc:  # json.JSONDecodeError is a ValueError
-        raise ValueError(f"--init-poses: cannot read {p} ({exc}); {expected}") from None
-    if T0.shape == (4, 4):
-        T0 = T0[None]
-    if T0.shape != (n_models, 4, 4):
-        raise ValueError(f"--init-poses: {expected}, got shape {T0.shape}")
-    return np.stack([as_stored_transform(T, f"--init-poses (pose {i})") for i, T in enumerate(T0)])
-
-
 def _tactile_files(tactile: str | None, frames: list[Path]) -> dict[str, Path]:
     """``--tactile``: the tactile cloud of each frame that has one, by frame file name (frames without
     contact have none; an empty folder is a sequence without contact); a ``ValueError`` naming the flag when
@@ -133,7 +106,7 @@ def run_tracker(
 def _cmd_track(args: argparse.Namespace) -> int:
     import json
 
-    from vtlearn.io import read_cloud
+    from vtlearn.io import read_cloud, read_poses
 
     if 0 < args.max_points < 3:
         raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
@@ -151,7 +124,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
     tactile_files = _tactile_files(args.tactile, files)
     if args.init_poses:
-        T0 = _read_init_poses(args.init_poses, len(models))
+        T0 = read_poses(args.init_poses, "--init-poses", n=len(models))
     else:
         T0 = np.repeat(np.eye(4)[None], len(models), 0)  # models are the t = 0 segmented clouds
     cls = trackers[args.method]
@@ -203,7 +176,8 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--frames", required=True, help="directory of scene clouds, tracked in name order")
     sp.add_argument("--tactile", default=None, help="directory of tactile clouds with the frames' file names")
     sp.add_argument(
-        "--init-poses", default=None, help=".npy or .json (N, 4, 4) T_world_object at t = 0 (default I)"
+        "--init-poses", default=None,
+        help="T_world_object of each model at t = 0 (default I): .npy (N, 4, 4), JSON, or text of 4x4 blocks",
     )
     sp.add_argument("--method", choices=["artreg", "pf", "icp", "filterreg"], default="artreg")
     sp.add_argument("--process-std", type=float, nargs=2, default=(0.005, 0.015), metavar=("M", "RAD"))
