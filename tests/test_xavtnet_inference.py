@@ -51,8 +51,8 @@ def test_canonical_cloud_centres_on_the_box_and_divides_by_the_extent():
         ({"points": np.array([[0, 0, 0], [1, 1, np.nan], [0, 1, 0]])}, "points: contains NaN"),
         ({"points": np.zeros((5, 2))}, r"points: expected shape \(N, 3\)"),
         ({"points": np.ones((5, 3))}, "points coincide"),
-        ({"points": _cloud(), "extent_m": 0.0}, "extent_m: need a positive"),
-        ({"points": _cloud(), "extent_m": float("nan")}, "extent_m: need a positive"),
+        ({"points": _cloud(), "extent_m": 0.0}, r"extent_m: need a finite number > 0 \(m\)"),
+        ({"points": _cloud(), "extent_m": float("nan")}, r"extent_m: need a finite number > 0 \(m\)"),
         ({"points": _cloud(), "units": "mm"}, "units: expected one of"),
     ],
 )

@@ -33,9 +33,13 @@ def as_int(value: Any, name: str, minimum: int = 1) -> int:
 
 
 def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math.inf,
-            open_low: bool = False, open_high: bool = False) -> float:
+            open_low: bool = False, open_high: bool = False, unit: str | None = None) -> float:
     """``value`` as a finite float in ``[low, high]`` (the end excluded with ``open_low`` / ``open_high``); a
-    ``ValueError`` naming ``name`` otherwise, and for a bool or a string."""
+    ``ValueError`` naming ``name`` otherwise, and for a bool or a string.
+
+    ``unit`` (e.g. ``"m"``, ``"rad"``, ``"deg"``, ``"s"``, ``"N"``), when given, is the unit ``value`` is read
+    in; the message states it after the bound: ``"voxel: need a finite number > 0 (m), got 'a'"``. It changes
+    nothing else (no conversion)."""
     v = math.nan
     if not isinstance(value, (bool, str, bytes)):
         try:
@@ -49,7 +53,8 @@ def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math
         hi = "" if high == math.inf else f"{high:g}{')' if open_high else ']'}"
         bound = (f" in {lo}{hi}" if lo and hi else f" {'>' if open_low else '>='} {low:g}" if lo
                  else f" {'<' if open_high else '<='} {high:g}" if hi else "")
-        raise ValueError(f"{name}: need a finite number{bound}, got {value!r}")
+        in_unit = f" ({unit})" if unit else ""
+        raise ValueError(f"{name}: need a finite number{bound}{in_unit}, got {value!r}")
     return v
 
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_int, as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform, as_vector
 
 __all__ = [
     "ActionSet",
@@ -196,8 +196,7 @@ def sample_touch_actions(
         ``n`` actions if ``feasible`` rejects too many.
     """
     n = _check_count(n)
-    if not (np.isfinite(standoff) and standoff >= 0):
-        raise ValueError(f"standoff: need a non-negative finite distance, got {standoff}")
+    standoff = as_real(standoff, "standoff", low=0.0, unit="m")
     rng = np.random.default_rng(seed)
     half = box.extents / 2
     area = np.array(
@@ -245,8 +244,7 @@ def sample_pinch_actions(
     lo_f, hi_f = height_range
     if not 0.0 <= lo_f <= hi_f <= 1.0:
         raise ValueError(f"height_range: need 0 <= low <= high <= 1, got {height_range}")
-    if not (np.isfinite(approach_height) and approach_height >= 0):
-        raise ValueError(f"approach_height: need a non-negative finite height, got {approach_height}")
+    approach_height = as_real(approach_height, "approach_height", low=0.0, unit="m")
     rng = np.random.default_rng(seed)
     half = box.extents / 2
     R_wb, t_wb = box.T_world_box[:3, :3], box.T_world_box[:3, 3]
@@ -338,11 +336,8 @@ def sample_view_actions(
     ``T_world_camera``.
     """
     n = _check_count(n)
-    o = np.asarray(o_centroid, dtype=np.float64)
-    if o.shape != (3,) or not np.isfinite(o).all():
-        raise ValueError(f"o_centroid: expected a finite (3,) position, got {o.tolist()}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: need a positive finite distance, got {radius}")
+    o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) position")
+    radius = as_real(radius, "radius", low=0.0, open_low=True)
     if not 0.0 <= min_elevation_deg < 90.0:
         raise ValueError(f"min_elevation_deg: need a value in [0, 90), got {min_elevation_deg}")
     rng = np.random.default_rng(seed)

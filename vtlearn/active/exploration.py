@@ -37,6 +37,7 @@ from vtlearn.active.actions import ActionSet, OrientedBox, sample_pinch_actions,
 from vtlearn.active.occupancy import OccupancyGrid
 from vtlearn.active.sensors import PinchSensor, Rays, TactileArray, cast_rays_on_mesh
 from vtlearn.geometry.sampling import sample_surface
+from vtlearn.validation import as_real
 
 __all__ = [
     "ExplorationResult",
@@ -73,8 +74,7 @@ def simulate_touch(
     Shapes:
         rays: ``R`` rays in ``A`` actions -> ranges ``(R,)``, hit ``(R,)`` bool.
     """
-    if not (np.isfinite(compliance) and compliance >= 0):
-        raise ValueError(f"compliance: need a non-negative distance in metres, got {compliance}")
+    compliance = as_real(compliance, "compliance", low=0.0, unit="m")
     if pad_size is None:
         pad, n_pads = rays.action_index, rays.n_actions
     else:

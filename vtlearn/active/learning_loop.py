@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 
 from vtlearn.active.mc_dropout import QUERY_STRATEGIES, score_pool, select_power, select_top_k, split_strategy
 from vtlearn.bench_utils import wilcoxon_p
+from vtlearn.validation import as_real
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach",
            "bootstrap_label_ratio"]
@@ -132,8 +133,7 @@ class ActiveLearningLoop:
     ) -> None:
         if strategy not in QUERY_STRATEGIES:
             raise ValueError(f"strategy must be one of {QUERY_STRATEGIES}, got {strategy!r}")
-        if not (power_beta >= 0 and math.isfinite(power_beta)):
-            raise ValueError(f"power_beta must be a finite number >= 0, got {power_beta}")
+        power_beta = as_real(power_beta, "power_beta", low=0.0)
         if kappa < 1:
             raise ValueError(f"kappa must be >= 1, got {kappa}")
         if rounds < 0:

@@ -17,12 +17,13 @@ eq. (7.3)-(7.4) (Gal and Ghahramani, 2016).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
 import torch
 from torch import nn
+
+from vtlearn.validation import as_real
 
 __all__ = [
     "STRATEGIES",
@@ -176,8 +177,7 @@ def select_power(
     _check_scores(scores)
     if not 1 <= k <= scores.numel():
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
-    if not (beta >= 0 and math.isfinite(beta)):
-        raise ValueError(f"beta must be a finite number >= 0, got {beta}")
+    beta = as_real(beta, "beta", low=0.0)
     if not torch.isfinite(scores).all() or (scores < 0).any():
         raise ValueError("scores must be finite and >= 0 for power acquisition")
     u = torch.rand(scores.shape, generator=generator, dtype=torch.float64).clamp(1e-300, 1.0 - 1e-16)

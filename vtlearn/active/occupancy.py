@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_points
+from vtlearn.validation import as_points, as_real, as_vector
 
 __all__ = [
     "OccupancyGrid",
@@ -122,11 +122,8 @@ class OccupancyGrid:
         clamp_max: float = DEFAULT_CLAMP_MAX,
         occupied_threshold: float = 0.5,
     ):
-        origin = np.asarray(origin, dtype=np.float64)
-        if origin.shape != (3,) or not np.isfinite(origin).all():
-            raise ValueError(f"origin: expected a finite (3,) position, got {origin.tolist()}")
-        if not (np.isfinite(resolution) and resolution > 0):
-            raise ValueError(f"resolution: need a positive finite cell size in metres, got {resolution}")
+        origin = as_vector(origin, "origin", 3, "a finite (3,) position")
+        resolution = as_real(resolution, "resolution", low=0.0, open_low=True, unit="m")
         shape_arr = np.asarray(shape)
         if shape_arr.shape != (3,) or not np.issubdtype(shape_arr.dtype, np.integer) or (shape_arr < 1).any():
             raise ValueError(f"shape: expected three positive integers (nx, ny, nz), got {shape}")

@@ -39,6 +39,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from vtlearn.validation import as_real
+
 __all__ = ["ExpectedBoxFitGain", "box_fit_error", "predict_tactile_contacts"]
 
 
@@ -70,10 +72,8 @@ def predict_tactile_contacts(
         raise ValueError(
             f"max_range, pad_index: need ({len(o)},) each (pad_index int), got {mr.shape}, {pad.shape}"
         )
-    if not (np.isfinite(radius) and radius > 0) or not (np.isfinite(stop_depth) and stop_depth >= 0):
-        raise ValueError(
-            f"radius, stop_depth: need radius > 0 and stop_depth >= 0, got {radius}, {stop_depth}"
-        )
+    radius = as_real(radius, "radius", low=0.0, open_low=True, unit="m")
+    stop_depth = as_real(stop_depth, "stop_depth", low=0.0, unit="m")
     if len(o) == 0:
         return np.zeros(0), np.zeros(0, dtype=bool)
     Pt, ot, dt = (torch.from_numpy(a) for a in (P, o, d))
@@ -131,10 +131,8 @@ class ExpectedBoxFitGain:
     ):
         if int(max_points) < 3:
             raise ValueError(f"max_points: need >= 3, got {max_points}")
-        if not (np.isfinite(radius_factor) and radius_factor > 0):
-            raise ValueError(f"radius_factor: need a positive finite factor, got {radius_factor}")
-        if not (np.isfinite(contact_tolerance) and contact_tolerance >= 0):
-            raise ValueError(f"contact_tolerance: need >= 0 (m), got {contact_tolerance}")
+        radius_factor = as_real(radius_factor, "radius_factor", low=0.0, open_low=True)
+        contact_tolerance = as_real(contact_tolerance, "contact_tolerance", low=0.0, unit="m")
         if not 0.0 <= float(percentile) < 50.0:
             raise ValueError(f"percentile: need 0 <= percentile < 50, got {percentile}")
         self.model = model

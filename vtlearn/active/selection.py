@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_transform, to_numpy
+from vtlearn.validation import as_real, as_transform, to_numpy
 
 __all__ = [
     "EnergyCosts",
@@ -61,8 +61,7 @@ class EnergyCosts:
     def __post_init__(self):
         for name in ("opaque", "transparent"):
             for kind, cost in getattr(self, name):
-                if not (np.isfinite(cost) and cost > 0):
-                    raise ValueError(f"{name}: cost of {kind!r} must be positive and finite, got {cost}")
+                as_real(cost, f"{name}: cost of {kind!r}", low=0.0, open_low=True)
 
     def cost(self, kind: str, transparent: bool) -> float:
         table = dict(self.transparent if transparent else self.opaque)
@@ -197,8 +196,7 @@ def cloud_top_down_box(
         raise ValueError(f"points: expected shape (N, 3), got {tuple(pts.shape)}")
     if pts.shape[0] and not np.isfinite(pts).all():
         raise ValueError("points: contains NaN or inf")
-    if not (np.isfinite(plane_distance) and plane_distance > 0):
-        raise ValueError(f"plane_distance: need a positive threshold in metres, got {plane_distance}")
+    plane_distance = as_real(plane_distance, "plane_distance", low=0.0, open_low=True, unit="m")
     if pts.shape[0] >= 3:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         o3d.utility.random.seed(seed)

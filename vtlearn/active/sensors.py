@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtlearn.sim_data.sensors import SENSORS, TaxelSensor, get_sensor
-from vtlearn.validation import as_pair, to_numpy
+from vtlearn.validation import as_pair, as_real, to_numpy
 
 __all__ = ["PinchSensor", "Rays", "TactileArray", "ToFCamera", "as_transforms", "cast_rays_on_mesh"]
 
@@ -109,9 +109,7 @@ class TactileArray:
 
     def __init__(self, layout: TaxelSensor | str = "xela_4x4", ray_length: float = 0.1):
         self.layout = get_sensor(layout)
-        if not (np.isfinite(ray_length) and ray_length > 0):
-            raise ValueError(f"ray_length: need a positive finite length in metres, got {ray_length}")
-        self.ray_length = float(ray_length)
+        self.ray_length = as_real(ray_length, "ray_length", low=0.0, open_low=True, unit="m")
 
     @property
     def rays_per_action(self) -> int:
@@ -140,9 +138,7 @@ class PinchSensor:
 
     def __init__(self, layout: TaxelSensor | str = "xela_4x4", opening: float = 0.14):
         self.layout = get_sensor(layout)
-        if not (np.isfinite(opening) and opening > 0):
-            raise ValueError(f"opening: need a positive finite width in metres, got {opening}")
-        self.opening = float(opening)
+        self.opening = as_real(opening, "opening", low=0.0, open_low=True, unit="m")
 
     @property
     def rays_per_action(self) -> int:
@@ -201,8 +197,7 @@ class ToFCamera:
             raise ValueError(f"fov_deg: each angle must lie in (0, 180) degrees, got {fov_deg}")
         if int(stride) < 1:
             raise ValueError(f"stride: need >= 1, got {stride}")
-        if not (np.isfinite(max_range) and max_range > 0):
-            raise ValueError(f"max_range: need a positive finite length in metres, got {max_range}")
+        max_range = as_real(max_range, "max_range", low=0.0, open_low=True, unit="m")
         self.width, self.height, self.stride = int(width), int(height), int(stride)
         self.fov_deg = (fx_deg, fy_deg)
         self.max_range = float(max_range)

@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.ukf import ManifoldUKF
 from vtlearn.geometry.lie import se3_exp, se3_log
-from vtlearn.validation import as_points, as_transform, to_numpy
+from vtlearn.validation import as_points, as_real, as_transform, to_numpy
 
 __all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3"]
 
@@ -168,19 +168,14 @@ class ArtRegTracker:
         for name, pair in (("process_std", process_std), ("init_std", init_std)):
             if len(pair) != 2 or not all(np.isfinite(v) and v > 0 for v in pair):
                 raise ValueError(f"{name} must be two positive numbers (m, rad), got {pair!r}")
-        for name, v in (
-            ("visual_std", visual_std),
-            ("tactile_std", tactile_std),
-            ("max_correspondence_distance", max_correspondence_distance),
-            ("robust_scale", robust_scale),
-        ):
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        self.visual_std = as_real(visual_std, "visual_std", low=0.0, open_low=True, unit="m")
+        self.tactile_std = as_real(tactile_std, "tactile_std", low=0.0, open_low=True, unit="m")
+        self.max_correspondence_distance = as_real(
+            max_correspondence_distance, "max_correspondence_distance", low=0.0, open_low=True, unit="m"
+        )
+        self.robust_scale = as_real(robust_scale, "robust_scale", low=0.0, open_low=True, unit="m")
         if max_points_per_part is not None and max_points_per_part < 3:
             raise ValueError(f"max_points_per_part must be >= 3 or None, got {max_points_per_part!r}")
-        self.visual_std, self.tactile_std = float(visual_std), float(tactile_std)
-        self.max_correspondence_distance = float(max_correspondence_distance)
-        self.robust_scale = float(robust_scale)
         self.max_points_per_part = max_points_per_part
         if int(n_iterations) != n_iterations or n_iterations < 1:
             raise ValueError(f"n_iterations must be a positive integer, got {n_iterations!r}")

@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.correspondences import TangentPlanes
 from vtlearn.classical.tiqf import TIQF, _matrix_to_quat, _quat_to_matrix
-from vtlearn.validation import as_points, check_not_collinear
+from vtlearn.validation import as_points, as_real, check_not_collinear
 
 __all__ = [
     "STIQF",
@@ -131,8 +131,8 @@ def best_buddy_pairs(
         )
     if model_normals is not None:
         model_normals = _normals_like(model_normals, model, "model_normals")
-    if normal_angle_deg is not None and not math.isfinite(normal_angle_deg):
-        raise ValueError(f"normal_angle_deg: must be finite or None, got {normal_angle_deg}")
+    if normal_angle_deg is not None:
+        normal_angle_deg = as_real(normal_angle_deg, "normal_angle_deg", unit="deg")
     return _best_buddy_pairs(
         scene_in_model, model, model_tree, scene_normals_in_model, model_normals, normal_angle_deg
     )
@@ -175,8 +175,7 @@ class DistanceField:
         points = as_points(points, "points", min_points=1)
         if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 2:
             raise ValueError(f"grid: need an integer >= 2 lattice nodes per side, got {grid!r}")
-        if not (math.isfinite(pad) and pad >= 0):
-            raise ValueError(f"pad: need a finite margin >= 0, got {pad}")
+        pad = as_real(pad, "pad", low=0.0)
         lo, hi = points.min(0), points.max(0)
         side = float((hi - lo).max())
         side = side if side > 0 else 1.0

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.artreg import _frame_cloud, _inv, _translation
 from vtlearn.geometry import se3_exp, se3_log
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_points, as_real, as_transform
 
 try:  # optional extra
     from probreg import filterreg as _filterreg
@@ -57,9 +57,9 @@ class _TrackerBase:
                 f"T_world_object0 must have one pose per model: {len(T_world_object0)} poses, "
                 f"{len(models)} models"
             )
-        if not (np.isfinite(max_correspondence_distance) and max_correspondence_distance > 0):
-            raise ValueError(f"max_correspondence_distance must be > 0, got {max_correspondence_distance!r}")
-        self.max_correspondence_distance = float(max_correspondence_distance)
+        self.max_correspondence_distance = as_real(
+            max_correspondence_distance, "max_correspondence_distance", low=0.0, open_low=True
+        )
         self.models_c: list[np.ndarray] = []
         self.trees: list[cKDTree] = []
         self._T_object_centroid: list[np.ndarray] = []

@@ -48,6 +48,8 @@ from typing import Any
 
 import numpy as np
 
+from vtlearn.validation import as_real
+
 __all__ = ["ManifoldUKF", "SigmaWeights", "sigma_weights", "sigma_offsets"]
 
 
@@ -96,10 +98,8 @@ def sigma_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 
     """
     if int(n) != n or n < 1:
         raise ValueError(f"n must be a positive integer, got {n!r}")
-    if not np.isfinite(alpha) or alpha <= 0:
-        raise ValueError(f"alpha must be a positive finite number, got {alpha!r}")
-    if not (np.isfinite(beta) and np.isfinite(kappa)):
-        raise ValueError(f"beta and kappa must be finite, got beta={beta!r}, kappa={kappa!r}")
+    alpha = as_real(alpha, "alpha", low=0.0, open_low=True)
+    beta, kappa = as_real(beta, "beta"), as_real(kappa, "kappa")
     n = int(n)
     lam = alpha**2 * (n + kappa) - n
     if n + lam <= 0:

@@ -12,7 +12,7 @@ import torch
 from vtlearn.geometry._compat import as_tensor, numpy_compatible
 from vtlearn.geometry.lie import make_transform
 from vtlearn.geometry.quaternion import quat_to_matrix, random_quaternion
-from vtlearn.validation import as_pair, as_points
+from vtlearn.validation import as_pair, as_points, as_real
 
 __all__ = ["transform_points", "random_pose", "random_rotation", "canonical_box"]
 
@@ -115,10 +115,5 @@ def canonical_box(points, extent_m: float | None = None, name: str = "points") -
         if scale <= 1e-9:
             raise ValueError(f"{name}: all {len(pts)} points coincide; the cloud has no extent to scale by")
     else:
-        try:
-            scale = float(extent_m)
-        except (TypeError, ValueError):
-            scale = float("nan")
-        if not np.isfinite(scale) or scale <= 0:
-            raise ValueError(f"extent_m: need a positive finite extent in metres, got {extent_m!r}")
+        scale = as_real(extent_m, "extent_m", low=0.0, open_low=True, unit="m")
     return (lo + hi) / 2, scale

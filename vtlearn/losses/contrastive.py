@@ -14,10 +14,10 @@ gives only to dense clouds. Bounds: ``L ≥ 0``, and ``L = log(2n − 1)`` when 
 
 from __future__ import annotations
 
-import math
-
 import torch
 import torch.nn.functional as F
+
+from vtlearn.validation import as_real
 
 __all__ = ["nt_xent"]
 
@@ -33,8 +33,7 @@ def nt_xent(z1: torch.Tensor, z2: torch.Tensor, temperature: float = 0.5) -> tor
                          f"{tuple(z2.shape)}")
     if z1.shape[0] < 2:
         raise ValueError(f"z1: need n >= 2 clouds (the others are the negatives), got {z1.shape[0]}")
-    if not (math.isfinite(temperature) and temperature > 0):
-        raise ValueError(f"temperature: need a finite τ > 0, got {temperature}")
+    temperature = as_real(temperature, "temperature", low=0.0, open_low=True)
     n = z1.shape[0]
     z = F.normalize(torch.cat([z1, z2]), dim=1)
     sim = z @ z.T / temperature

@@ -14,6 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vtlearn.validation import as_real
+
 __all__ = ["grad_reverse", "GradientReversal", "dann_lambda", "domain_adversarial_loss"]
 
 
@@ -30,9 +32,7 @@ class _GradReverse(torch.autograd.Function):
 
 def grad_reverse(x: torch.Tensor, lambd: float = 1.0) -> torch.Tensor:
     """Identity forward, gradient × (−lambd) backward. Shapes: any -> same."""
-    if lambd < 0 or not math.isfinite(lambd):
-        raise ValueError(f"lambd must be finite and >= 0, got {lambd}")
-    return _GradReverse.apply(x, float(lambd))
+    return _GradReverse.apply(x, as_real(lambd, "lambd", low=0.0))
 
 
 class GradientReversal(nn.Module):

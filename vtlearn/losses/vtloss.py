@@ -26,7 +26,6 @@ DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
 import torch
@@ -36,6 +35,7 @@ from torch import nn
 from vtlearn.losses.coral import coral
 from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import mk_mmd
+from vtlearn.validation import as_real
 
 __all__ = ["VTLoss"]
 
@@ -105,8 +105,7 @@ class VTLoss(nn.Module):
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """``α·CE + s·β·MMD + s·λ·CORAL`` with ``s = da_scale`` (1 in eq. 7.8; a warm-up ramp may pass
         less early in training). Returns the total and its detached parts."""
-        if not (math.isfinite(da_scale) and da_scale >= 0):
-            raise ValueError(f"da_scale: need a finite scale >= 0, got {da_scale}")
+        da_scale = as_real(da_scale, "da_scale", low=0.0)
         if logits_source.dim() != 2:
             raise ValueError(f"logits_source must be (n, k), got {tuple(logits_source.shape)}")
         if labels_source.shape != logits_source.shape[:1]:

@@ -127,7 +127,7 @@ from vtlearn.models.components.xavtnet_backbone import (
     XAVTNetOutput,
     check_cloud_batch,
 )
-from vtlearn.validation import ConfigMismatchError
+from vtlearn.validation import ConfigMismatchError, as_real
 
 __all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
 
@@ -459,14 +459,12 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"lr must be > 0, got {lr}")
         if lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
-        if da_ramp_gamma is not None and not (math.isfinite(da_ramp_gamma) and da_ramp_gamma > 0):
-            raise ValueError(f"da_ramp_gamma: need a positive finite γ or None, got {da_ramp_gamma}")
+        if da_ramp_gamma is not None:
+            as_real(da_ramp_gamma, "da_ramp_gamma", low=0.0, open_low=True)
         if int(da_memory) != da_memory or da_memory < 0:
             raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
-        if not (math.isfinite(im_weight) and im_weight >= 0):
-            raise ValueError(f"im_weight: need a finite weight >= 0, got {im_weight}")
-        if not (math.isfinite(pseudo_label_weight) and pseudo_label_weight >= 0):
-            raise ValueError(f"pseudo_label_weight: need a finite weight >= 0, got {pseudo_label_weight}")
+        as_real(im_weight, "im_weight", low=0.0)
+        as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
         if not 0 <= pseudo_label_start < 1:
             raise ValueError(f"pseudo_label_start: need a share of the epochs in [0, 1), got "
                              f"{pseudo_label_start}")
@@ -478,8 +476,7 @@ class XAVTNet(L.LightningModule):
         if pseudo_label_groups and pseudo_label_weight <= 0:
             raise ValueError("pseudo_label_groups: needs pseudo_label_weight > 0 (it says how the "
                              "self-training labels are drawn)")
-        if not (math.isfinite(consistency_weight) and consistency_weight >= 0):
-            raise ValueError(f"consistency_weight: need a finite weight >= 0, got {consistency_weight}")
+        as_real(consistency_weight, "consistency_weight", low=0.0)
         if not 0 <= consistency_rampup <= 1:
             raise ValueError(f"consistency_rampup: need a share of the training in [0, 1], got "
                              f"{consistency_rampup}")
@@ -488,9 +485,7 @@ class XAVTNet(L.LightningModule):
         if not 0 < consistency_keep <= 1:
             raise ValueError(f"consistency_keep: need a share of the points in (0, 1], got "
                              f"{consistency_keep}")
-        if not (math.isfinite(consistency_jitter) and consistency_jitter >= 0):
-            raise ValueError(f"consistency_jitter: need a finite standard deviation >= 0, got "
-                             f"{consistency_jitter}")
+        as_real(consistency_jitter, "consistency_jitter", low=0.0)
         if not 0 <= consistency_threshold < 1:
             raise ValueError(f"consistency_threshold: need a confidence in [0, 1), got "
                              f"{consistency_threshold}")
@@ -502,11 +497,9 @@ class XAVTNet(L.LightningModule):
         if student_keep is not None and not 0 < student_keep <= 1:
             raise ValueError(f"student_keep: need a share of the points in (0, 1] or None, got "
                              f"{student_keep}")
-        if student_jitter is not None and not (math.isfinite(student_jitter) and student_jitter >= 0):
-            raise ValueError(f"student_jitter: need a finite standard deviation >= 0 or None, got "
-                             f"{student_jitter}")
-        if not (math.isfinite(student_scale) and student_scale >= 1):
-            raise ValueError(f"student_scale: need a finite stretch factor >= 1, got {student_scale}")
+        if student_jitter is not None:
+            as_real(student_jitter, "student_jitter", low=0.0)
+        as_real(student_scale, "student_scale", low=1.0)
         if consistency_weight <= 0:  # without a teacher no target copy is made and no consistency taken
             unused = [name for name, on in (("consistency_loss", consistency_loss != "squared"),
                                             ("student_keep", student_keep is not None),
@@ -517,12 +510,10 @@ class XAVTNet(L.LightningModule):
         if consistency_align and consistency_weight <= 0:
             raise ValueError("consistency_align: needs consistency_weight > 0 (it aligns the teacher's "
                              "targets)")
-        if not (math.isfinite(neighbour_weight) and neighbour_weight >= 0):
-            raise ValueError(f"neighbour_weight: need a finite weight >= 0, got {neighbour_weight}")
+        as_real(neighbour_weight, "neighbour_weight", low=0.0)
         if int(neighbour_k) != neighbour_k or neighbour_k < 1:
             raise ValueError(f"neighbour_k: need an integer >= 1 (neighbours per cloud), got {neighbour_k!r}")
-        if not (math.isfinite(neighbour_dispersion) and neighbour_dispersion >= 0):
-            raise ValueError(f"neighbour_dispersion: need a finite weight >= 0, got {neighbour_dispersion}")
+        as_real(neighbour_dispersion, "neighbour_dispersion", low=0.0)
         if not 0 <= neighbour_start < 1:
             raise ValueError(f"neighbour_start: need a share of the epochs in [0, 1), got {neighbour_start}")
         if neighbour_layer not in FEATURE_LAYERS:
@@ -531,19 +522,14 @@ class XAVTNet(L.LightningModule):
             raise ValueError(f"neighbour_bank: expected one of {NEIGHBOUR_BANKS}, got {neighbour_bank!r}")
         if neighbour_bank == "teacher" and consistency_weight <= 0:
             raise ValueError("neighbour_bank: 'teacher' needs consistency_weight > 0 (a mean teacher)")
-        if not (math.isfinite(rotation_weight) and rotation_weight >= 0):
-            raise ValueError(f"rotation_weight: need a finite weight >= 0, got {rotation_weight}")
-        if not (math.isfinite(contrast_weight) and contrast_weight >= 0):
-            raise ValueError(f"contrast_weight: need a finite weight >= 0, got {contrast_weight}")
-        if not (math.isfinite(contrast_temperature) and contrast_temperature > 0):
-            raise ValueError(f"contrast_temperature: need a finite τ > 0, got {contrast_temperature}")
+        as_real(rotation_weight, "rotation_weight", low=0.0)
+        as_real(contrast_weight, "contrast_weight", low=0.0)
+        as_real(contrast_temperature, "contrast_temperature", low=0.0, open_low=True)
         if contrast_weight > 0 and domain_bn:
             raise ValueError("contrast_weight: not with domain_bn=True (the copies are normalised by their "
                              "own batch, not by a domain's statistics)")
-        if not (math.isfinite(mix_weight) and mix_weight >= 0):
-            raise ValueError(f"mix_weight: need a finite weight >= 0, got {mix_weight}")
-        if not (math.isfinite(mix_alpha) and mix_alpha > 0):
-            raise ValueError(f"mix_alpha: need a finite Beta parameter > 0, got {mix_alpha}")
+        as_real(mix_weight, "mix_weight", low=0.0)
+        as_real(mix_alpha, "mix_alpha", low=0.0, open_low=True)
         if mix_weight > 0 and domain_bn:
             raise ValueError("mix_weight: not with domain_bn=True (a mixed cloud belongs to neither domain)")
         if rotation_weight > 0 and domain_bn:

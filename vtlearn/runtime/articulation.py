@@ -203,9 +203,8 @@ def classify_relative_motion(
     """
     T0 = as_transform(T_a_b_before, "T_a_b_before")
     T1 = as_transform(T_a_b_after, "T_a_b_after")
-    for name, v in (("rot_threshold", rot_threshold), ("trans_threshold", trans_threshold)):
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name}: need a positive finite threshold, got {v}")
+    rot_threshold = as_real(rot_threshold, "rot_threshold", low=0.0, open_low=True, unit="rad")
+    trans_threshold = as_real(trans_threshold, "trans_threshold", low=0.0, open_low=True, unit="m")
     delta = T1 @ se3_inverse(T0)
     angle = float(np.deg2rad(rotation_error_deg(T0[:3, :3], T1[:3, :3])))
     disp = T1[:3, 3] - T0[:3, 3]

@@ -139,12 +139,9 @@ class PushPID:
     """
 
     def __init__(self, kp: float = KP, ki: float = KI, kd: float = KD, limit: float = C_LIMIT):
-        for name, v in (("kp", kp), ("ki", ki), ("kd", kd)):
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name}: need a finite gain >= 0, got {v}")
-        if not (np.isfinite(limit) and limit > 0):
-            raise ValueError(f"limit: need a positive finite saturation, got {limit}")
-        self.kp, self.ki, self.kd, self.limit = float(kp), float(ki), float(kd), float(limit)
+        self.kp, self.ki, self.kd = (as_real(kp, "kp", low=0.0), as_real(ki, "ki", low=0.0),
+                                     as_real(kd, "kd", low=0.0))
+        self.limit = as_real(limit, "limit", low=0.0, open_low=True, unit="m")
         self.reset()
 
     def reset(self) -> None:
@@ -474,8 +471,7 @@ class GoalPusher:
         contact, stopping early when the contact is lost (the tactile monitoring of the thesis).
         Returns (contact made, contact lost, distance pushed in contact)."""
         T_W_S = as_transform(T_W_S, "T_W_S")
-        if not (np.isfinite(length) and length > 0):
-            raise ValueError(f"length: need a positive distance in metres, got {length}")
+        length = as_real(length, "length", low=0.0, open_low=True, unit="m")
         if self._pad is None:
             self._make_pad()
         R, z = T_W_S[:3, :3], T_W_S[:3, 2]

@@ -152,10 +152,8 @@ class IKFeasibility:
     ):
         if not isinstance(arm, PandaArm):
             raise ValueError(f"arm: need a PandaArm, got {type(arm).__name__}")
-        if not (np.isfinite(position_tol) and position_tol > 0):
-            raise ValueError(f"position_tol: need a positive distance in metres, got {position_tol}")
-        if not (np.isfinite(angle_tol_deg) and angle_tol_deg > 0):
-            raise ValueError(f"angle_tol_deg: need a positive angle, got {angle_tol_deg}")
+        position_tol = as_real(position_tol, "position_tol", low=0.0, open_low=True, unit="m")
+        angle_tol_deg = as_real(angle_tol_deg, "angle_tol_deg", low=0.0, open_low=True, unit="deg")
         if int(iterations) < 1:
             raise ValueError(f"iterations: need >= 1, got {iterations}")
         self.rolls = tuple(float(r) for r in rolls)
@@ -361,8 +359,7 @@ class TwoArmRuntime:
                     "class_names: needed with an xavtnet model whose checkpoint records no class names "
                     "(the label order of its classes; pass the crossmodal manifest.json)"
                 )
-        if not (np.isfinite(camera_height) and 0.2 <= camera_height <= 0.9):
-            raise ValueError(f"camera_height: need a height in [0.2, 0.9] m, got {camera_height}")
+        camera_height = as_real(camera_height, "camera_height", low=0.2, high=0.9, unit="m")
         self.actor, self.xavtnet = actor, xavtnet
         self.class_names = None if class_names is None else [str(c) for c in class_names]
         self.sensor = sensor
@@ -879,8 +876,7 @@ def clutter_scene(
             f"clutter_categories: hold the target category {target_category!r}; the clutter must differ "
             "from the target (thesis 5.2.2)"
         )
-    if not (np.isfinite(gap) and gap >= 0):
-        raise ValueError(f"gap: need a non-negative distance in metres, got {gap}")
+    gap = as_real(gap, "gap", low=0.0, unit="m")
     target = held_out_objects([target_category], 1, transparent=transparent, sections=sections)[0]
     rng = np.random.default_rng([int(seed), 4242])
     clutter = [

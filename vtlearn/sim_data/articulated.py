@@ -41,7 +41,7 @@ import trimesh
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.sim_data.camera import DepthNoise, RGBDCamera
 from vtlearn.sim_data.scene import Scene, pose_to_matrix
-from vtlearn.validation import as_vector
+from vtlearn.validation import as_real, as_vector
 
 __all__ = [
     "CATEGORIES",
@@ -357,13 +357,9 @@ def look_at_45(target: np.ndarray, distance: float, azimuth: float = -np.pi / 2)
     ``azimuth`` is the direction, in the table plane, from the target to the camera (default -y, the
     objects' front). ``target`` is a finite (3,) point, ``distance`` finite and > 0, ``azimuth`` finite.
     """
-    target = np.asarray(target, dtype=np.float64)
-    if target.shape != (3,) or not np.isfinite(target).all():
-        raise ValueError(f"target: need a finite (3,) point, got {target.tolist()}")
-    if not (np.isfinite(distance) and distance > 0):
-        raise ValueError(f"distance: need a positive finite distance in metres, got {distance}")
-    if not np.isfinite(azimuth):
-        raise ValueError(f"azimuth: need a finite angle in radians, got {azimuth}")
+    target = as_vector(target, "target", 3, "a finite (3,) point")
+    distance = as_real(distance, "distance", low=0.0, open_low=True, unit="m")
+    azimuth = as_real(azimuth, "azimuth", unit="rad")
     d = np.array(
         [np.cos(azimuth) * np.cos(np.pi / 4), np.sin(azimuth) * np.cos(np.pi / 4), np.sin(np.pi / 4)]
     )

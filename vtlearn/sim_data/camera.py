@@ -122,8 +122,7 @@ class RGBDCamera:
         transparency: TransparencyModel | None = None,
     ):
         self.width, self.height = as_int(width, "width", 1), as_int(height, "height", 1)
-        if not (np.isfinite(near) and np.isfinite(far)):
-            raise ValueError(f"near/far: need finite clipping planes, got {near}, {far}")
+        near, far = as_real(near, "near"), as_real(far, "far")
         self.K = intrinsics_from_fov(self.width, self.height, fov_y_deg)
         # TinyRenderer rasterises pixel (u, v) at image coordinates (u, v + 1) rather than at the
         # centre (u + 0.5, v + 0.5), measured against the mesh (median error 0.2 mm vs 1 mm). Shift
@@ -333,8 +332,7 @@ def sample_hemisphere_views(
     if n < 1:
         raise ValueError(f"n: need >= 1 views, got {n}")
     radius = as_real(radius, "radius", low=0.0, open_low=True)
-    if not (np.isfinite(min_elevation_deg) and min_elevation_deg < 90):
-        raise ValueError(f"min_elevation_deg: need a finite angle < 90, got {min_elevation_deg}")
+    min_elevation_deg = as_real(min_elevation_deg, "min_elevation_deg", high=90.0, open_high=True, unit="deg")
     o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) point")
     out = []
     min_z = np.sin(np.deg2rad(min_elevation_deg))

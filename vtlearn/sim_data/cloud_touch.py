@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vtlearn.validation import as_real
+
 __all__ = ["touch_cloud"]
 
 
@@ -75,14 +77,12 @@ def touch_cloud(
         raise ValueError("points: contains NaN or inf")
     if int(n) < 1:
         raise ValueError(f"n: need >= 1, got {n}")
-    if not (np.isfinite(pitch) and pitch > 0):
-        raise ValueError(f"pitch: need a positive finite taxel pitch, got {pitch}")
+    pitch = as_real(pitch, "pitch", low=0.0, open_low=True)
     if int(rows) < 1 or int(cols) < 1:
         raise ValueError(f"rows, cols: need a positive taxel layout, got {rows}x{cols}")
     if int(max_touches) < 1:
         raise ValueError(f"max_touches: need >= 1, got {max_touches}")
-    if not (np.isfinite(margin) and 0 <= margin <= 1):
-        raise ValueError(f"margin: need a fraction in [0, 1], got {margin}")
+    margin = as_real(margin, "margin", low=0.0, high=1.0)
     tol = 0.5 * pitch if depth_tol is None else float(depth_tol)
     if not tol >= 0:
         raise ValueError(f"depth_tol: need >= 0, got {depth_tol}")

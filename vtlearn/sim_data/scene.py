@@ -112,8 +112,8 @@ class Scene:
             raise ValueError(f"T_world_object: need shape (4, 4), got {T.shape}")
         T = as_transform(T, "T_world_object")
         rgba_arr = as_vector(rgba, "rgba", 4, "4 finite numbers (r, g, b, a)")
-        if not fixed and not (np.isfinite(mass) and mass > 0):
-            raise ValueError(f"mass: a free object needs a positive finite mass in kg, got {mass!r}")
+        if not fixed:
+            mass = as_real(mass, "mass", low=0.0, open_low=True, unit="kg")
         mesh_m = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=False)
         v = mesh_m.vertices.astype(np.float64).tolist()
         idx = mesh_m.faces.astype(np.int32).ravel().tolist()

@@ -96,8 +96,7 @@ class TactileConfig:
             as_real(getattr(self, name), name, low=0.0, open_low=True)
         if not (0 <= self.min_force < self.force_threshold):
             raise ValueError(f"min_force: need 0 <= min_force < force_threshold, got {self.min_force}")
-        if not (self.position_noise >= 0 and np.isfinite(self.position_noise)):
-            raise ValueError(f"position_noise: need >= 0, got {self.position_noise}")
+        as_real(self.position_noise, "position_noise", low=0.0, unit="m")
         if not (0 <= self.dropout < 1):
             raise ValueError(f"dropout: need 0 <= dropout < 1, got {self.dropout}")
         as_int(self.min_contacts, "min_contacts")

@@ -345,13 +345,13 @@ def crop_to_box(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: floa
         points (N, 3), lo (3,), hi (3,) -> (M, 3) with M <= N
     """
     from vtlearn.sim_data.tactile import _check_box
-    from vtlearn.validation import as_points
+    from vtlearn.validation import as_points, as_real
 
     as_points(points, "points", min_points=0)
     points = np.asarray(points)
     lo, hi = _check_box(lo, hi)
-    if margin is not None and not (np.isfinite(margin) and margin >= 0):
-        raise ValueError(f"margin: need None or a finite value >= 0, got {margin}")
+    if margin is not None:
+        margin = as_real(margin, "margin", low=0.0)
     if margin is None or len(points) == 0:
         return points
     pad = margin * float(np.max(np.asarray(hi) - np.asarray(lo)))

@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import lengths_to_mask, random_valid_order
+from vtlearn.validation import as_real
 
 __all__ = ["ema_update", "sigmoid_rampup", "perturb_padded"]
 
@@ -72,10 +73,8 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
         raise ValueError(f"lengths must have shape ({points.shape[0]},), got {tuple(lengths.shape)}")
     if not 0 < keep_min <= 1:
         raise ValueError(f"keep_min: need a share in (0, 1], got {keep_min}")
-    if not (math.isfinite(jitter) and jitter >= 0):
-        raise ValueError(f"jitter: need a finite standard deviation >= 0, got {jitter}")
-    if not (math.isfinite(scale) and scale >= 1):
-        raise ValueError(f"scale: need a finite stretch factor >= 1, got {scale}")
+    jitter = as_real(jitter, "jitter", low=0.0)
+    scale = as_real(scale, "scale", low=1.0)
     b, n, _ = points.shape
     dev = points.device
     share = keep_min + (1 - keep_min) * torch.rand(b, generator=generator, device=dev)
