@@ -164,6 +164,42 @@ def test_register_rejects_bad_arguments():
         register(model, scene, "stiqf", estimate_scale=True, restarts=2)
     with pytest.raises(ValueError, match="T_init"):
         register(model, scene, "icp", T_init=np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="restarts: need an integer"):
+        register(model, scene, "icp", restarts=2.5)  # was run as 3 restarts and reported as 2
+    with pytest.raises(ValueError, match="time_budget"):
+        register(model, scene, "icp", time_budget="1")
+
+
+@pytest.mark.parametrize("method, options, named", [
+    ("stiqf", {"estimate_scales": True}, "'estimate_scales'"),  # a misspelt option
+    ("icp", {"estimate_scale": True}, "'estimate_scale'"),  # an option of another method
+    ("fgr", {"max_iter": 10, "rho": 0.1}, "'max_iter', 'rho'"),
+])
+def test_register_refuses_options_the_method_does_not_take(method, options, named):
+    """Before, each method picked the options it knew and dropped the rest, so a typo silently ran the
+    default (``estimate_scales=True`` returned scale 1)."""
+    rng = np.random.default_rng(7)
+    model, scene = rng.random((50, 3)), rng.random((10, 3))
+    with pytest.raises(ValueError, match=f"options: method '{method}' takes no {named}; its options are"):
+        register(model, scene, method, **options)
+
+
+def test_every_method_option_is_read_by_its_runner():
+    """METHOD_OPTIONS is what register() accepts: each listed option must change what the method does, else
+    it is accepted and silently ignored. Checked on the cheap ones: max_iter=1 stops the local methods
+    after one step, so the result differs from the default's."""
+    from vtlearn.classical.registration import METHOD_OPTIONS
+
+    assert set(METHOD_OPTIONS) == set(METHODS)
+    rng = np.random.default_rng(3)
+    model = _box_cloud(rng, 300)
+    T = _pose(rng, trans=0.1, rot_scale=0.3)
+    scene = model[:150] @ T[:3, :3].T + T[:3, 3]
+    for method in ("tiqf", "icp", "sparse_icp"):
+        assert "max_iter" in METHOD_OPTIONS[method]
+        full = register(model, scene, method, seed=0).T_scene_model
+        one = register(model, scene, method, seed=0, max_iter=1).T_scene_model
+        assert not np.allclose(full, one, atol=1e-6), method
 
 
 def test_cli_register_json(tmp_path, capsys):
@@ -241,3 +277,14 @@ def test_bench_registration_rejects_unknown_method(tmp_path, capsys):
     assert main(["bench", "registration", "--meshes", "bunny", "--methods", "stiqf, icpp", "--json", js]) == 2
     assert "icpp" in capsys.readouterr().err
     assert not (tmp_path / "reg.json").exists()
+
+
+def test_cli_register_estimate_scale_needs_stiqf(tmp_path, capsys):
+    from vtlearn.cli import main
+    from vtlearn.io import write_cloud
+
+    cloud = _box_cloud(np.random.default_rng(2), 100)
+    write_cloud(tmp_path / "m.xyz", cloud)
+    assert main(["register", "--model", str(tmp_path / "m.xyz"), "--scene", str(tmp_path / "m.xyz"),
+                 "--method", "icp", "--estimate-scale"]) == 2
+    assert "--estimate-scale: only --method stiqf estimates a scale, not icp" in capsys.readouterr().err

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from vtlearn.classical.sparse_icp import sparse_icp
 from vtlearn.classical.stiqf import STIQF
 from vtlearn.classical.tiqf import TIQF, _quat_to_matrix
-from vtlearn.validation import as_points, as_transform, check_not_collinear
+from vtlearn.validation import as_int, as_points, as_real, as_transform, check_not_collinear
 
 __all__ = ["RegistrationResult", "register", "METHODS", "available_methods"]
 
@@ -89,41 +89,45 @@ def _diameter(points):
     return float(np.linalg.norm(points.max(0) - points.min(0)))
 
 
+_TIQF_OPTIONS = ("rho", "sigma0", "max_iter", "tol_trans", "tol_rot_deg", "n_escapes", "escape_deg")
+_STIQF_OPTIONS = (
+    "estimate_scale",
+    "t0",
+    "t_min",
+    "zeta",
+    "restarts_sa",
+    "sa_cost",
+    "grid",
+    "n_refine",
+    "best_buddies",
+    "normal_angle_deg",
+    "rho",
+    "max_iter",
+    "tol_trans",
+    "tol_rot_deg",
+    "n_escapes",
+    "scale_iters",
+    "tangent",
+    "tangent_cap",
+    "tangent_patches",
+    "tangent_k",
+    "sa_field",
+    "chains_per_restart",
+    "sa_max_points",
+    "model_normals",
+    "scene_normals",
+)
+
+
 def _run_tiqf(model, scene, rng, opts):
-    keys = ("rho", "sigma0", "max_iter", "tol_trans", "tol_rot_deg", "n_escapes", "escape_deg")
-    res = TIQF(seed=int(rng.integers(1 << 31)), **{k: opts[k] for k in keys if k in opts}).register(
+    res = TIQF(seed=int(rng.integers(1 << 31)), **{k: opts[k] for k in _TIQF_OPTIONS if k in opts}).register(
         model, scene
     )
     return res.T_scene_model, np.ones(3), res.iterations
 
 
 def _run_stiqf(model, scene, rng, opts):
-    keys = (
-        "estimate_scale",
-        "t0",
-        "t_min",
-        "zeta",
-        "restarts_sa",
-        "sa_cost",
-        "grid",
-        "n_refine",
-        "best_buddies",
-        "normal_angle_deg",
-        "rho",
-        "max_iter",
-        "tol_trans",
-        "tol_rot_deg",
-        "n_escapes",
-        "scale_iters",
-        "tangent",
-        "tangent_cap",
-        "tangent_patches",
-        "tangent_k",
-        "sa_field",
-        "chains_per_restart",
-        "sa_max_points",
-    )
-    kw = {k: opts[k] for k in keys if k in opts}
+    kw = {k: opts[k] for k in _STIQF_OPTIONS[:-2] if k in opts}
     if "restarts_sa" in kw:
         kw["restarts"] = kw.pop("restarts_sa")
     res = STIQF(seed=int(rng.integers(1 << 31)), **kw).register(
@@ -220,6 +224,19 @@ METHODS = {
     "cpd": lambda m, s, r, o: _run_probreg(m, s, r, o, "cpd"),
 }
 _NEEDS_PROBREG = {"filterreg", "cpd"}
+# the **options each method reads; register() refuses any other, so a misspelt or inapplicable option is an
+# error rather than a silent default
+METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
+    "tiqf": _TIQF_OPTIONS,
+    "stiqf": _STIQF_OPTIONS,
+    "icp": ("max_iter", "max_correspondence_distance"),
+    "icp_plane": ("max_iter", "max_correspondence_distance"),
+    "sparse_icp": ("p", "mu", "max_iter"),
+    "ransac_fpfh": ("voxel_size", "max_iter"),
+    "fgr": ("voxel_size",),
+    "filterreg": ("max_iter",),
+    "cpd": ("max_iter",),
+}
 
 
 def available_methods() -> list[str]:
@@ -268,19 +285,19 @@ def register(
         method: one of :data:`METHODS`.
         T_init: initial ``T_scene_model`` for restart 0 (default identity).
         restarts: extra random restarts (the common wrapper).
-        time_budget: if given, keep restarting until this many seconds have passed (``restarts`` is then
-            ignored); used for time-matched comparisons.
+        time_budget: if given, seconds >= 0: keep restarting until they have passed (``restarts`` is then
+            ignored; the first run always happens); used for time-matched comparisons.
         seed: seeds every random choice.
         **options: method options, e.g. ``estimate_scale=True`` for S-TIQF, ``max_iter``, ``rho``,
-            ``p``/``mu``
-            for sparse ICP, ``voxel_size`` for FPFH, ``model_normals``/``scene_normals`` for S-TIQF.
+            ``p``/``mu`` for sparse ICP, ``voxel_size`` for FPFH, ``model_normals``/``scene_normals`` for
+            S-TIQF; :data:`METHOD_OPTIONS` lists each method's, and any other is refused.
 
     Shapes:
         model: ``(M, 3)``; scene: ``(N, 3)``, N >= 3; T_init: ``(4, 4)``.
 
     Raises:
-        ValueError: unknown or unavailable method, fewer than 3 points, NaN/inf, a collinear scene, or a
-            non-rigid ``T_init``.
+        ValueError: unknown or unavailable method, an option the method does not take, fewer than 3 points,
+            NaN/inf, a collinear scene, or a non-rigid ``T_init``.
     """
     if method not in METHODS:
         raise ValueError(f"method: unknown {method!r}; choose from {sorted(METHODS)}")
@@ -290,10 +307,13 @@ def register(
     scene = as_points(scene, "scene", min_points=3)
     check_not_collinear(scene, "scene")
     check_not_collinear(model, "model")
-    if restarts < 0:
-        raise ValueError(f"restarts: must be >= 0, got {restarts}")
-    if time_budget is not None and not time_budget >= 0:
-        raise ValueError(f"time_budget: must be >= 0 seconds, got {time_budget}")
+    unknown = sorted(set(options) - set(METHOD_OPTIONS[method]))
+    if unknown:
+        raise ValueError(f"options: method {method!r} takes no {', '.join(map(repr, unknown))}; its options "
+                         f"are {', '.join(METHOD_OPTIONS[method])}")
+    restarts = as_int(restarts, "restarts", minimum=0)
+    if time_budget is not None:
+        time_budget = as_real(time_budget, "time_budget", low=0.0, unit="s")
     T0 = np.eye(4) if T_init is None else as_transform(T_init, "T_init")
     if options.get("estimate_scale") and (restarts or time_budget is not None or T_init is not None):
         # a scale in the model axes does not compose with a pre-move of the model

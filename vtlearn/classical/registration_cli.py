@@ -28,6 +28,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
     scene = read_geometry(args.scene, n_points=args.scene_points, seed=args.seed + 1)
     opts: dict[str, Any] = {}
     if args.estimate_scale:
+        if args.method != "stiqf":
+            raise ValueError(f"--estimate-scale: only --method stiqf estimates a scale, not {args.method}")
         opts["estimate_scale"] = True
     res = reg(model, scene, args.method, restarts=args.restarts, seed=args.seed, **opts)
     out = res.to_dict()
