@@ -350,3 +350,29 @@ def test_train_steps_gives_every_round_the_same_number_of_optimiser_steps():
     assert steps == [4, 8]
     with pytest.raises(ValueError, match="train_steps"):
         ActiveLearningLoop(dm, lambda s: Counting(**TINY), train_steps=-1)
+
+
+def test_loop_names_a_model_that_does_not_log_test_acc():
+    """A model of one's own that logs its accuracy under another key gets a ValueError saying which key
+    the loop reads, not a KeyError from inside the loop."""
+
+    class OtherKey(XAVTNet):
+        def test_step(self, batch, batch_idx):
+            out = self(batch["points"], batch["lengths"])
+            self.log("test_acc", (out.logits.argmax(-1) == batch["label"]).float().mean())
+
+    loop = ActiveLearningLoop(TinyPoolDM(), lambda s: OtherKey(**TINY), strategy="random", kappa=4,
+                              rounds=0, mc_passes=1, max_epochs=1, seed=0, show_progress=False)
+    with pytest.raises(ValueError, match=r"model: its test_step must log 'test/acc'.*\['test_acc'\]"):
+        loop.run()
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"kappa": 2.5}, "kappa"), ({"rounds": "3"}, "rounds"), ({"mc_passes": 0}, "mc_passes"),
+    ({"min_steps": -1}, "min_steps"), ({"max_epochs": None}, "max_epochs"),
+])
+def test_loop_arguments_are_checked_by_name(kwargs, name):
+    with pytest.raises(ValueError, match=f"^{name}: need an integer"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), **kwargs)
+    with pytest.raises(ValueError, match="model_factory: need a callable"):
+        ActiveLearningLoop(TinyPoolDM(), XAVTNet(**TINY))

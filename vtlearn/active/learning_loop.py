@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 
 from vtlearn.active.mc_dropout import QUERY_STRATEGIES, score_pool, select_power, select_top_k, split_strategy
 from vtlearn.bench_utils import wilcoxon_p
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach",
            "bootstrap_label_ratio"]
@@ -87,6 +87,10 @@ def train_and_test(
     trainer = _trainer(epochs, limit_val_batches=0, **trainer_kwargs)
     trainer.fit(model, train_dataloaders=train_loader)
     metrics = trainer.test(model, dataloaders=test_loader, verbose=False)
+    if not metrics or "test/acc" not in metrics[0]:
+        logged = sorted(metrics[0]) if metrics else []
+        raise ValueError(f"model: its test_step must log 'test/acc' (the accuracy the loop records, e.g. "
+                         f"self.log('test/acc', acc)); it logged {logged}")
     return float(metrics[0]["test/acc"])
 
 
@@ -97,7 +101,11 @@ class ActiveLearningLoop:
         datamodule: an ``ActivePoolDataModule`` (``train_dataloader`` over the labelled set,
             ``unlabelled_dataloader`` yielding ``{"points", "lengths", "index"}``, ``query(indices)``,
             ``labelled_indices``, ``unlabelled_indices``, ``test_dataloader``). It is mutated.
-        model_factory: ``seed -> LightningModule`` with dropout layers (e.g. an ``XAVTNet``).
+        model_factory: ``seed -> LightningModule`` with dropout layers (e.g. an ``XAVTNet``). A model of
+            your own needs three things: ``forward(points, lengths)`` returning class logits ``(B, K)`` (or
+            an object with a ``.logits`` attribute), dropout modules that MC-dropout switches on
+            (:func:`vtlearn.active.mc_dropout.mc_dropout_probs`), and a ``test_step`` that logs
+            ``"test/acc"``, the accuracy each round records.
         strategy: "entropy" (thesis), "bald", "random", or "power_entropy" / "power_bald" (draw κ
             samples ∝ score^``power_beta`` instead of the top κ; see ``vtlearn.active.mc_dropout``).
         kappa: κ, clouds queried per round.
@@ -134,23 +142,16 @@ class ActiveLearningLoop:
         if strategy not in QUERY_STRATEGIES:
             raise ValueError(f"strategy must be one of {QUERY_STRATEGIES}, got {strategy!r}")
         power_beta = as_real(power_beta, "power_beta", low=0.0)
-        if kappa < 1:
-            raise ValueError(f"kappa must be >= 1, got {kappa}")
-        if rounds < 0:
-            raise ValueError(f"rounds must be >= 0, got {rounds}")
-        if mc_passes < 1:
-            raise ValueError(f"mc_passes must be >= 1, got {mc_passes}")
-        if max_epochs < 1:
-            raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
         self.dm = datamodule
+        if isinstance(model_factory, torch.nn.Module) or not callable(model_factory):
+            raise ValueError(f"model_factory: need a callable seed -> LightningModule (e.g. lambda seed: "
+                             f"XAVTNet(...)), got {type(model_factory).__name__}")
         self.model_factory = model_factory
-        self.strategy, self.kappa, self.rounds = strategy, int(kappa), int(rounds)
-        if min_steps < 0:
-            raise ValueError(f"min_steps must be >= 0, got {min_steps}")
-        if train_steps < 0:
-            raise ValueError(f"train_steps must be >= 0, got {train_steps}")
-        self.train_steps = int(train_steps)
-        self.mc_passes, self.max_epochs, self.min_steps = int(mc_passes), int(max_epochs), int(min_steps)
+        self.strategy = strategy
+        self.kappa, self.rounds = as_int(kappa, "kappa"), as_int(rounds, "rounds", minimum=0)
+        self.train_steps = as_int(train_steps, "train_steps", minimum=0)
+        self.mc_passes, self.max_epochs = as_int(mc_passes, "mc_passes"), as_int(max_epochs, "max_epochs")
+        self.min_steps = as_int(min_steps, "min_steps", minimum=0)
         self.warm_start, self.seed = bool(warm_start), int(seed)
         self.power_beta = float(power_beta)
         self.trainer_kwargs = dict(trainer_kwargs or {})
