@@ -126,3 +126,35 @@ def test_bad_input_raises():
         tracker.step(np.zeros((0, 3)), allow_empty=False)
     with pytest.raises(ValueError, match="tactile_cloud"):
         tracker.step(model, tactile_cloud=np.zeros((3, 4)))
+
+
+def test_clouds_in_millimetres_warn_once_instead_of_silently_standing_still():
+    """A user's clouds in mm: every point falls outside the 0.05 m gate, so the filter only predicts. That
+    is said once, with the likely cause; clouds in metres with the same motion raise nothing."""
+    import warnings
+
+    m = _box_cloud()
+    for scale, expect_warning in ((1000.0, True), (1.0, False)):
+        tr = ArtRegTracker([m * scale], [np.eye(4)])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for k in range(3):
+                tr.step((m + [0.005 * (k + 1), 0, 0]) * scale)
+        ours = [w for w in caught if "ArtRegTracker" in str(w.message)]
+        assert len(ours) == (1 if expect_warning else 0)
+        if expect_warning:
+            assert "millimetres" in str(ours[0].message) and tr.last_counts == [0]
+        else:
+            assert tr.last_counts[0] > 0
+
+
+def test_tracker_arguments_named():
+    m = _box_cloud()
+    with pytest.raises(ValueError, match=r"models: need a list .* for one object pass \[model\]"):
+        ArtRegTracker(m, [np.eye(4)])
+    with pytest.raises(ValueError, match=r"T_world_object0: need a list .* pass \[T\]"):
+        ArtRegTracker([m], np.eye(4))
+    with pytest.raises(ValueError, match=r"process_std: expected two positive numbers \(m, rad\)"):
+        ArtRegTracker([m], [np.eye(4)], process_std=0.01)
+    with pytest.raises(ValueError, match=r"init_std: expected two positive numbers"):
+        ArtRegTracker([m], [np.eye(4)], init_std=(0.01, -1.0))

@@ -40,6 +40,7 @@ Frames with no usable point keep the last estimate: the filter only predicts, so
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -48,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.ukf import ManifoldUKF
 from vtlearn.geometry.lie import se3_exp, se3_log
-from vtlearn.validation import as_points, as_real, as_transform, to_numpy
+from vtlearn.validation import as_pair, as_points, as_real, as_transform, to_numpy
 
 __all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3"]
 
@@ -158,6 +159,12 @@ class ArtRegTracker:
         kappa: float = 0.0,
         seed: int = 0,
     ) -> None:
+        if hasattr(models, "shape") and len(models.shape) == 2:  # one numpy array or torch tensor
+            raise ValueError(f"models: need a list of (K_i, 3) model clouds, one per object, got one array "
+                             f"of shape {tuple(models.shape)}; for one object pass [model]")
+        if hasattr(T_world_object0, "shape") and len(T_world_object0.shape) == 2:
+            raise ValueError("T_world_object0: need a list of (4, 4) poses, one per model, got one (4, 4) "
+                             "array; for one object pass [T]")
         if len(models) == 0:
             raise ValueError("models is empty: give at least one model cloud")
         if len(models) != len(T_world_object0):
@@ -166,8 +173,9 @@ class ArtRegTracker:
                 f"{len(models)} models"
             )
         for name, pair in (("process_std", process_std), ("init_std", init_std)):
-            if len(pair) != 2 or not all(np.isfinite(v) and v > 0 for v in pair):
-                raise ValueError(f"{name} must be two positive numbers (m, rad), got {pair!r}")
+            what = "two positive numbers (m, rad)"
+            if not all(np.isfinite(v) and v > 0 for v in as_pair(pair, name, what)):
+                raise ValueError(f"{name}: expected {what}, got {pair!r}")
         self.visual_std = as_real(visual_std, "visual_std", low=0.0, open_low=True, unit="m")
         self.tactile_std = as_real(tactile_std, "tactile_std", low=0.0, open_low=True, unit="m")
         self.max_correspondence_distance = as_real(
@@ -213,6 +221,7 @@ class ArtRegTracker:
         self.n_frames = 0
         #: number of measurement points each part used in the last frame
         self.last_counts: list[int] = [0] * len(self.filters)
+        self._warned_unassigned = False
 
     @property
     def n_parts(self) -> int:
@@ -279,6 +288,16 @@ class ArtRegTracker:
 
         owner, dist = self._assign(points)
         ok = dist <= self.max_correspondence_distance
+        if len(points) >= 3 and not ok.any() and not self._warned_unassigned:
+            self._warned_unassigned = True
+            warnings.warn(
+                f"ArtRegTracker: frame {self.n_frames}: none of its {len(points)} points lies within "
+                f"max_correspondence_distance = {self.max_correspondence_distance:g} m of any part (the "
+                f"nearest is {dist.min():.3g} away), so every part keeps its prediction. Clouds are in "
+                "metres (is this one in millimetres?), and a part moves less than that distance between "
+                "frames. last_counts gives each part's points per frame; this warning is shown once.",
+                stacklevel=2,
+            )
         for i, (f, meas) in enumerate(zip(self.filters, self._meas, strict=True)):
             sel = np.flatnonzero(ok & (owner == i))
             if len(sel) < 3:
