@@ -276,6 +276,28 @@ def test_reconstruct_validates_input():
         reconstruct(model, np.zeros((10, 2)))
 
 
+def test_reconstruct_refuses_clouds_that_are_not_canonical():
+    """A cloud in millimetres spans hundreds of units; ACTOR's frame puts a whole object within 1."""
+    import warnings
+
+    model = ACTOR(**TINY)
+    rng = np.random.default_rng(0)
+    canon = rng.uniform(-0.5, 0.5, (40, 3))
+    assert reconstruct(model, canon).shape[-1] == 3
+    with pytest.raises(ValueError, match=r"points: spans 1\d\d\.?\d*, but ACTOR takes clouds in its"):
+        reconstruct(model, canon * 150.0)
+    batch = np.zeros((2, 40, 3), dtype=np.float32)
+    batch[0], batch[1, :20] = canon, canon[:20] * 150.0
+    with pytest.raises(ValueError, match=r"\(cloud 1\)"):
+        reconstruct(model, batch, lengths=[40, 20])
+    batch[1, :20] = canon[:20]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # padded and lengths given: nothing to say
+        assert reconstruct(model, batch, lengths=[40, 20]).shape[0] == 2
+    with pytest.warns(UserWarning, match="pass lengths for a padded batch"):
+        reconstruct(model, batch)
+
+
 def test_actor_loss_equals_foundation_chamfer_with_padding():
     from vtlearn.geometry.metrics import chamfer_distance
 

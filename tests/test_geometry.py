@@ -271,3 +271,13 @@ def test_canonical_box_is_the_box_centre_and_the_largest_extent():
     with pytest.raises(ValueError, match="cloud: point cloud has only 2 points"):
         canonical_box(pts[:2], name="cloud")
 
+
+
+def test_canonical_box_refuses_a_cloud_longer_than_twice_its_extent():
+    from vtlearn.geometry.transforms import canonical_box
+
+    pts = np.random.default_rng(0).uniform(0, 0.1, (50, 3))  # a 10 cm patch
+    centre, scale = canonical_box(pts, 0.15)
+    assert scale == 0.15 and np.allclose(centre, (pts.min(0) + pts.max(0)) / 2)
+    with pytest.raises(ValueError, match=r"extent_m: points spans .* millimetres"):
+        canonical_box(pts * 1000.0, 0.15)

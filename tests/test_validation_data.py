@@ -219,6 +219,11 @@ def test_recognize_clouds_model_clouds_mc_samples(ckpts):
     for bad in (None, 3, "abc"):
         with pytest.raises(ValueError, match="clouds: expected a list of"):
             recognize_clouds(model, bad)
+    for single in (_cloud(), torch.as_tensor(_cloud())):  # one cloud, numpy or torch, not a list of them
+        with pytest.raises(ValueError, match="clouds: expected a list of .* wrap it in a list"):
+            recognize_clouds(model, single)
+    with pytest.raises(ValueError, match="extent_m: clouds\\[0\\] spans .* millimetres"):
+        recognize_clouds(model, [_cloud() * 1000.0], extent_m=0.15)
     for bad in ("x", 2.5, -1, None):
         with pytest.raises(ValueError, match="mc_samples: need an integer >= 0"):
             recognize_clouds(model, [_cloud()], mc_samples=bad)

@@ -103,7 +103,8 @@ def canonical_box(points, extent_m: float | None = None, name: str = "points") -
 
     The simulated datasets store clouds in this frame
     (:meth:`vtlearn.active.closed_loop.SimObject.to_canonical`), so ACTOR and xAVTNet trained on them
-    expect it. The cloud must be gravity-aligned (z up).
+    expect it. The cloud must be gravity-aligned (z up) and, with ``extent_m``, in metres: a cloud more
+    than twice as long as ``extent_m`` is refused (the usual cause is a cloud in millimetres).
 
     Shapes:
         points ``(N, 3)`` (N >= 3) -> centre ``(3,)``, scale (float, metres per canonical unit).
@@ -116,4 +117,9 @@ def canonical_box(points, extent_m: float | None = None, name: str = "points") -
             raise ValueError(f"{name}: all {len(pts)} points coincide; the cloud has no extent to scale by")
     else:
         scale = as_real(extent_m, "extent_m", low=0.0, open_low=True, unit="m")
+        own = float((hi - lo).max())
+        if own > 2.0 * scale:  # a cloud of the object cannot be twice the object's size
+            raise ValueError(f"extent_m: {name} spans {own:.4g} along its longest axis, more than twice the "
+                             f"object's extent_m = {scale:.4g} m; are the points in millimetres, or is "
+                             "extent_m another object's?")
     return (lo + hi) / 2, scale

@@ -20,6 +20,7 @@ so the module works in the data's own frame and units.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -463,12 +464,20 @@ def load_actor(ckpt: str | Path, map_location: str | torch.device = "cpu") -> AC
 def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
     """Dense reconstruction of one sparse cloud or a padded batch, as numpy.
 
+    The clouds are in ACTOR's canonical frame, not in metres: centred on the object's bounding box and
+    divided by its largest extent, so a whole object spans 1
+    (:func:`vtlearn.geometry.transforms.canonical_box`; the README's "Models in your own loop" shows the
+    round trip ``(points - centre) / L`` in and ``dense * L + centre`` out). A cloud spanning more than 2 is
+    refused as not canonical (e.g. millimetres). A cloud in metres is not detectable (a partial canonical
+    cloud is small too) and gives a wrong shape.
+
     Args:
         model: an :class:`ACTOR` (put in eval mode here); anything that is not a torch module returning
             ``(B, P, 3)`` clouds (e.g. None or an XAVTNet classifier) is refused.
         points: one cloud (N, 3) (numpy, torch or list) with N >= 3, or a padded batch (B, N, 3) with
             ``lengths``, B >= 1 and N >= 1.
-        lengths: (B,) valid points per cloud, batch input only.
+        lengths: (B,) valid points per cloud, batch input only. Without it every row is a point, zero padding
+            included (a warning says so when a cloud ends in all-zero rows).
 
     Shapes:
         (N, 3) -> (num_points, 3); (B, N, 3) -> (B, num_points, 3).
@@ -505,8 +514,30 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
             )
         if not torch.isfinite(x).all():
             raise ValueError("points: contains NaN or inf")
+        if lengths is None and bool((x[:, -1] == 0).all(-1).any()):
+            warnings.warn("reconstruct: a cloud of the batch ends in all-zero rows, which count as points "
+                          "without lengths; pass lengths for a padded batch", stacklevel=2)
         lt = None if lengths is None else torch.as_tensor(lengths, dtype=torch.long).to(device)
+        valid = x.detach().cpu().numpy().astype(np.float64)
+        if lt is not None and lt.shape == (len(valid),):
+            valid[np.arange(valid.shape[1])[None, :] >= lt.cpu().numpy()[:, None]] = np.nan  # the padding
+        _check_canonical(valid)
         return run(x.to(device), lt)
     pts = as_points(points, "points", min_points=3)
+    _check_canonical(pts[None])
     x = torch.as_tensor(pts, dtype=torch.float32, device=device)[None]
     return run(x)[0]
+
+
+def _check_canonical(clouds: np.ndarray) -> None:
+    """A ValueError naming ``points`` when a cloud of ``clouds`` (B, N, 3; NaN rows are padding) spans more
+    than 2 along an axis: ACTOR's canonical frame puts a whole object within 1."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-padding cloud
+        span = np.nanmax(np.nanmax(clouds, axis=1) - np.nanmin(clouds, axis=1), axis=-1)
+    worst = int(np.nanargmax(span)) if np.isfinite(span).any() else 0
+    if np.isfinite(span[worst]) and span[worst] > 2.0:
+        where = "" if len(clouds) == 1 else f" (cloud {worst})"
+        raise ValueError(f"points: spans {span[worst]:.4g}{where}, but ACTOR takes clouds in its canonical "
+                         "frame, where a whole object spans 1 (are they in millimetres?); map a cloud in "
+                         "metres with vtlearn.geometry.transforms.canonical_box(points, extent_m)")

@@ -224,7 +224,7 @@ def recognize_clouds(
         raise ValueError(
             f"model: expected an XAVTNet (e.g. from load_xavtnet), got {type(model).__name__}"
         )
-    if isinstance(clouds, np.ndarray) and clouds.ndim == 2:
+    if hasattr(clouds, "shape") and len(clouds.shape) == 2:  # one numpy array or torch tensor
         raise ValueError("clouds: expected a list of (N, 3) clouds, got a single array; wrap it in a list")
     if clouds is None or isinstance(clouds, (str, bytes, dict)):
         raise ValueError(f"clouds: expected a list of (N, 3) clouds, got {type(clouds).__name__}")
