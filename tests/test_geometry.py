@@ -281,3 +281,16 @@ def test_canonical_box_refuses_a_cloud_longer_than_twice_its_extent():
     assert scale == 0.15 and np.allclose(centre, (pts.min(0) + pts.max(0)) / 2)
     with pytest.raises(ValueError, match=r"extent_m: points spans .* millimetres"):
         canonical_box(pts * 1000.0, 0.15)
+
+
+def test_lists_in_give_numpy_out_and_torch_in_gives_torch_out():
+    """The interop rule of vtlearn.geometry: torch in, torch out; numpy or plain lists in, numpy out."""
+    from vtlearn.geometry import chamfer_distance, random_pose, transform_points
+
+    P = np.random.default_rng(0).random((20, 3))
+    T = random_pose(seed=0)
+    moved = transform_points(T.tolist(), P.tolist())
+    assert isinstance(moved, np.ndarray) and np.allclose(moved, P @ T[:3, :3].T + T[:3, 3])
+    assert isinstance(chamfer_distance(P.tolist(), moved.tolist()), float)
+    assert isinstance(transform_points(torch.as_tensor(T), P), torch.Tensor)
+    assert isinstance(chamfer_distance(torch.as_tensor(P), P), torch.Tensor)

@@ -1,7 +1,8 @@
 """numpy/torch interoperability for the geometry kernels.
 
-The kernels are written once in torch. ``numpy_compatible`` lets a user pass numpy arrays instead: inputs are
-converted to float64 tensors and outputs back to numpy, so ``quat_to_matrix(np_array)`` returns an ndarray.
+The kernels are written once in torch. ``numpy_compatible`` lets a user pass numpy arrays, or nested lists of
+numbers, instead: inputs are converted to float64 tensors and outputs back to numpy, so
+``quat_to_matrix(np_array)`` returns an ndarray. The rule: torch in, torch out; otherwise numpy out.
 """
 
 from __future__ import annotations
@@ -25,14 +26,23 @@ def _to_numpy_tree(x: Any) -> Any:
 
 
 def numpy_compatible(fn: Callable) -> Callable:
-    """Decorator: numpy inputs become float64 tensors; if any input was numpy, tensor outputs become numpy."""
+    """Decorator: numpy inputs, and lists or tuples of numbers, become float64 tensors; tensor outputs become
+    numpy unless some input was a torch tensor."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        was_numpy = False
+        was_numpy = saw_torch = False
 
         def conv(v):
-            nonlocal was_numpy
+            nonlocal was_numpy, saw_torch
+            if isinstance(v, torch.Tensor):
+                saw_torch = True
+            elif isinstance(v, (list, tuple)) and v and not any(isinstance(e, torch.Tensor) for e in v):
+                try:
+                    a = np.asarray(v)
+                except (TypeError, ValueError):  # ragged: left to the kernel's own check
+                    return v
+                v = a if a.dtype.kind in "iubf" else v
             if isinstance(v, np.ndarray):
                 was_numpy = True
                 if v.dtype.kind in "iub":
@@ -43,7 +53,7 @@ def numpy_compatible(fn: Callable) -> Callable:
         args = tuple(conv(a) for a in args)
         kwargs = {k: conv(v) for k, v in kwargs.items()}
         out = fn(*args, **kwargs)
-        return _to_numpy_tree(out) if was_numpy else out
+        return _to_numpy_tree(out) if was_numpy and not saw_torch else out
 
     return wrapper
 

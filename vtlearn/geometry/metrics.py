@@ -33,7 +33,7 @@ __all__ = [
 
 def _batched(x, y, x_lengths, y_lengths):
     """Two clouds or two batches as ``(B, N, 3)`` tensors with lengths, and whether the input was single."""
-    was_numpy = isinstance(x, np.ndarray) or isinstance(y, np.ndarray)
+    was_numpy = not (isinstance(x, torch.Tensor) or isinstance(y, torch.Tensor))  # numpy or lists: numpy out
     x = as_tensor(x, "x", last_dims=(3,))
     y = as_tensor(y, "y", last_dims=(3,)).to(x.dtype)
     single = x.dim() == 2
