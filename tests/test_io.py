@@ -24,12 +24,13 @@ def cloud():
     return pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
 
 
-@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz"])
+@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz"])
 def test_cloud_round_trip(tmp_path, cloud, suffix):
     pts, nrm = cloud
     path = write_cloud(tmp_path / f"c{suffix}", pts, nrm)
     back, back_n = read_cloud_with_normals(path)
-    tol = 1e-6 if suffix in (".ply", ".pcd", ".xyz", ".txt") else 0  # text/float32-free formats are exact
+    text = (".ply", ".pcd", ".xyz", ".txt", ".csv")
+    tol = 1e-6 if suffix in text else 0  # text/float32-free formats are exact
     np.testing.assert_allclose(back, pts, atol=max(tol, 1e-12))
     assert back_n is not None
     np.testing.assert_allclose(back_n, nrm, atol=max(tol, 1e-12))
@@ -77,8 +78,8 @@ def test_missing_and_malformed_files(tmp_path):
     with pytest.raises(ValueError, match="garbage.ply"):
         read_cloud(garbage)
     wrong = tmp_path / "wrong.npy"
-    np.save(wrong, np.ones((4, 4)))
-    with pytest.raises(ValueError, match=r"wrong.npy.*\(4, 4\)"):
+    np.save(wrong, np.ones((4, 2)))
+    with pytest.raises(ValueError, match=r"wrong.npy.*k >= 3 columns.*\(4, 2\)"):
         read_cloud(wrong)
     other = tmp_path / "cloud.csvx"
     other.write_text("1 2 3")
@@ -181,3 +182,21 @@ def test_read_poses_errors_name_the_argument(tmp_path, content, n, what):
     with pytest.raises((ValueError, FileNotFoundError)) as exc:
         read_poses(p, "--poses", n=n)
     assert str(exc.value).startswith("--poses") and what in str(exc.value)
+
+
+def test_extra_columns_and_a_header_row_are_read_as_the_text_formats_are(tmp_path, cloud):
+    """Scanner exports carry intensity (x y z i) and CSV headers: .npy reads like text, x y z first."""
+    pts, nrm = cloud
+    intensity = np.arange(len(pts), dtype=np.float64)[:, None]
+    np.save(tmp_path / "xyzi.npy", np.hstack([pts, intensity]))
+    np.testing.assert_array_equal(read_cloud(tmp_path / "xyzi.npy"), pts)
+    np.save(tmp_path / "xyzni.npy", np.hstack([pts, nrm, intensity]))
+    got_pts, got_nrm = read_cloud_with_normals(tmp_path / "xyzni.npy")
+    np.testing.assert_array_equal(got_pts, pts)
+    np.testing.assert_allclose(np.abs(got_nrm), np.abs(nrm), atol=1e-12)
+    rows = "\n".join(",".join(f"{v:.9g}" for v in r) for r in np.hstack([pts, intensity]))
+    (tmp_path / "scan.csv").write_text("x,y,z,intensity\n" + rows + "\n")
+    np.testing.assert_allclose(read_cloud(tmp_path / "scan.csv"), pts, atol=1e-8)
+    (tmp_path / "header_only.csv").write_text("x,y,z\n")
+    with pytest.raises(ValueError, match="header_only.csv.*no data rows"):
+        read_cloud(tmp_path / "header_only.csv")

@@ -1,8 +1,11 @@
 """Point-cloud and mesh I/O.
 
-Clouds: ``.ply``, ``.pcd`` (Open3D), ``.xyz`` / ``.txt`` (whitespace or comma separated, first three columns
-are x y z, optional next three are normals), ``.npy`` (an ``(N, 3)`` or ``(N, 6)`` array) and ``.npz`` (key
-``points``, optional ``normals``; loaded with ``allow_pickle=False``).
+Clouds: ``.ply``, ``.pcd`` (Open3D), ``.xyz`` / ``.txt`` / ``.csv`` (whitespace or comma separated, ``#``
+comments and a header row skipped), ``.npy`` (an ``(N, k)`` array) and ``.npz`` (key ``points``, optional
+``normals``; loaded with ``allow_pickle=False``). In the text and ``.npy`` formats the first three of k >= 3
+columns are x y z, in metres; with k >= 6 the next three are the normals, further columns (intensity, ...) are
+ignored. A ``.ply`` with faces but no point data reads as its vertices (:func:`read_geometry` samples the
+surface instead).
 Meshes: ``.obj``, ``.ply``, ``.stl``, ``.off`` (trimesh).
 
 Every reader raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the file for an
@@ -33,7 +36,7 @@ __all__ = [
     "atomic_write_npz",
 ]
 
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz")
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off")
 
 
@@ -56,6 +59,14 @@ def _validated(points, normals, p: Path):
         if normals.shape != pts.shape or not np.isfinite(normals).all():
             normals = None
     return pts, normals
+
+
+def _numeric(row: list[str]) -> bool:
+    try:
+        [float(v) for v in row]
+    except ValueError:
+        return False
+    return True
 
 
 def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -83,9 +94,11 @@ def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
                 pts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
             elif pcd.has_normals():
                 normals = np.asarray(pcd.normals)
-        elif suffix in (".xyz", ".txt"):
+        elif suffix in (".xyz", ".txt", ".csv"):
             text = p.read_text().replace(",", " ")
             rows = [r.split() for r in text.splitlines() if r.strip() and not r.lstrip().startswith("#")]
+            if rows and not _numeric(rows[0]):
+                rows = rows[1:]  # a header row (x y z ...)
             if not rows:
                 raise ValueError("no data rows")
             width = {len(r) for r in rows}
@@ -96,9 +109,10 @@ def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
             normals = arr[:, 3:6] if arr.shape[1] >= 6 else None
         elif suffix == ".npy":
             arr = np.load(p, allow_pickle=False)
-            if arr.ndim != 2 or arr.shape[1] not in (3, 6):
-                raise ValueError(f"expected an (N, 3) or (N, 6) array, got {arr.shape}")
-            pts, normals = arr[:, :3], (arr[:, 3:6] if arr.shape[1] == 6 else None)
+            if arr.ndim != 2 or arr.shape[1] < 3:
+                raise ValueError(f"expected an (N, k) array with k >= 3 columns (x y z first), got "
+                                 f"{arr.shape}")
+            pts, normals = arr[:, :3], (arr[:, 3:6] if arr.shape[1] >= 6 else None)
         else:  # .npz
             with np.load(p, allow_pickle=False) as data:
                 if "points" not in data.files:
@@ -117,7 +131,9 @@ def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def read_cloud(path) -> np.ndarray:
-    """Read a point cloud. Shapes: output ``(N, 3)`` float64."""
+    """Read a point cloud (formats in the module docstring; a mesh file is :func:`read_geometry`'s).
+
+    Shapes: output ``(N, 3)`` float64."""
     return read_cloud_with_normals(path)[0]
 
 
@@ -144,9 +160,9 @@ def write_cloud(path, points, normals=None) -> Path:
             pcd.normals = o3d.utility.Vector3dVector(nrm)
         if not o3d.io.write_point_cloud(str(p), pcd):
             raise ValueError(f"{p}: Open3D could not write the file")
-    elif suffix in (".xyz", ".txt"):
+    elif suffix in (".xyz", ".txt", ".csv"):
         arr = pts if nrm is None else np.hstack([pts, nrm])
-        np.savetxt(p, arr, fmt="%.9g")
+        np.savetxt(p, arr, fmt="%.9g", delimiter="," if suffix == ".csv" else " ")
     elif suffix == ".npy":
         np.save(p, pts if nrm is None else np.hstack([pts, nrm]))
     else:

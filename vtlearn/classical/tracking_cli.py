@@ -106,7 +106,7 @@ def run_tracker(
 def _cmd_track(args: argparse.Namespace) -> int:
     import json
 
-    from vtlearn.io import read_cloud, read_poses
+    from vtlearn.io import CLOUD_SUFFIXES, read_cloud, read_poses
 
     if 0 < args.max_points < 3:
         raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
@@ -118,7 +118,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     files = sorted(
         f
         for f in frames_dir.iterdir()
-        if f.suffix.lower() in (".ply", ".pcd", ".xyz", ".txt", ".npy", ".npz")
+        if f.suffix.lower() in CLOUD_SUFFIXES
     )
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
