@@ -121,8 +121,8 @@ def test_recognize_rejects_bad_arguments_by_name():
 def test_checkpoint_keeps_the_datamodule_class_names(tmp_path, tiny_crossmodal):
     import lightning as L
 
-    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet import load_xavtnet
 
     with pytest.raises(ValueError, match="class_names: 1 names for num_classes=3"):
         XAVTNet(num_classes=3, class_names=["a"])
@@ -326,3 +326,13 @@ def test_recognize_command_takes_the_object_box(tmp_path, tiny_crossmodal, capsy
     assert "box_m: this checkpoint was trained in the object frame" in capsys.readouterr().err
     assert main(["recognize", "--ckpt", str(ckpt), "--data", str(tiny_crossmodal), "--box-m", *box]) == 2
     assert "--box-m: only for cloud files" in capsys.readouterr().err
+
+
+def test_checkpoint_class_names_names_a_wrong_argument():
+    from vtlearn.models.xavtnet_inference import checkpoint_class_names
+
+    assert checkpoint_class_names({"num_classes": 2}) == ["class_0", "class_1"]
+    assert checkpoint_class_names({"num_classes": 2, "class_names": ["a", "b"]}) == ["a", "b"]
+    for bad in ("runs/quickstart/xavtnet.ckpt", {"lr": 1e-3}):  # a path; another dict
+        with pytest.raises(ValueError, match="hparams: need a checkpoint's hyper-parameters"):
+            checkpoint_class_names(bad)

@@ -354,8 +354,8 @@ def perceive_object(
 
 def step_perceive(cfg: QuickstartConfig, out: Path) -> dict:
     """Step 4: reconstruction, recognition and S-TIQF pose; ``summary.json`` and ``summary.png``."""
-    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.models.actor import load_actor
+    from vtlearn.models.xavtnet import load_xavtnet
 
     ep, obj = _load_episode(out)
     actor = load_actor(out / "actor.ckpt")

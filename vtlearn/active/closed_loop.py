@@ -636,29 +636,7 @@ def classify_prefixes(model, obj: SimObject, ep: Episode, ks, max_points: int = 
 
 
 def load_xavtnet(ckpt, data: dict | None = None):
-    """:class:`~vtlearn.models.xavtnet.XAVTNet` from a Lightning checkpoint (``weights_only=True``), in
-    eval mode; ValueError for a checkpoint of another model. ``data``: the checkpoint ``ckpt`` already read
-    by :func:`~vtlearn.models.actor.read_lightning_checkpoint` (then the file is not read again)."""
-    import inspect
+    """:func:`vtlearn.models.xavtnet.load_xavtnet`, also importable from here, beside the closed loop."""
+    from vtlearn.models.xavtnet import load_xavtnet as load
 
-    from vtlearn.models.actor import read_lightning_checkpoint
-    from vtlearn.models.xavtnet import XAVTNet
-
-    data = read_lightning_checkpoint(ckpt) if data is None else data
-    if not any(k.startswith("encoder.") for k in data["state_dict"]) or not any(
-        k.startswith("head.") for k in data["state_dict"]
-    ):
-        raise ValueError(f"ckpt: {ckpt} is not an xAVTNet checkpoint (no encoder.* / head.* weights)")
-    if any(k.startswith("encoder.features.convs.") for k in data["state_dict"]):
-        raise ValueError(f"ckpt: {ckpt} is an ACTOR recognition checkpoint, not an XAVTNet one (load it with "
-                         "vtlearn.models.actor_recognition.load_recognition)")
-    names = set(inspect.signature(XAVTNet.__init__).parameters) - {"self"}
-    hp = {k: v for k, v in dict(data["hyper_parameters"]).items() if k in names}
-    try:
-        model = XAVTNet(**hp)
-        model.load_state_dict(data["state_dict"], strict=True)
-    except (RuntimeError, TypeError, ValueError) as exc:
-        raise ValueError(
-            f"ckpt: {ckpt} does not match the xAVTNet architecture: {str(exc).splitlines()[0]}"
-        ) from exc
-    return model.eval()
+    return load(ckpt, data)

@@ -261,9 +261,9 @@ def run_active_recognition(args: argparse.Namespace) -> int:
         TouchWorld,
         classify_prefixes,
         held_out_objects,
-        load_xavtnet,
         run_episode,
     )
+    from vtlearn.models.xavtnet import load_xavtnet
 
     _setup(args)
     if not 0 < args.zeta <= 1:

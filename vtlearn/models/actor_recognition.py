@@ -255,7 +255,7 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
         if any(k.startswith("head.fc") for k in state) or any(k.startswith("encoder.mlp1.") for k in state):
             raise ValueError(
                 f"ckpt: {ckpt} is an XAVTNet checkpoint, not an ACTOR recognition one (load it with "
-                "vtlearn.active.closed_loop.load_xavtnet)"
+                "vtlearn.models.xavtnet.load_xavtnet)"
             )
         raise ValueError(
             f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no encoder.features.convs.* weights, or "

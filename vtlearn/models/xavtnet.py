@@ -129,7 +129,7 @@ from vtlearn.models.components.xavtnet_backbone import (
 )
 from vtlearn.validation import ConfigMismatchError, as_real
 
-__all__ = ["XAVTNet", "subsample_padded", "normalize_padded"]
+__all__ = ["XAVTNet", "load_xavtnet", "subsample_padded", "normalize_padded"]
 
 DA_METHODS = ("none", "vtloss", "dann")
 LR_SCHEDULES = ("constant", "cosine")
@@ -1282,3 +1282,32 @@ class XAVTNet(L.LightningModule):
         total = max(1, int(self.trainer.estimated_stepping_batches))
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=total)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def load_xavtnet(ckpt, data: dict | None = None):
+    """:class:`XAVTNet` from a Lightning checkpoint (``train.py``'s or ``vtlearn quickstart``'s, read with
+    ``weights_only=True``), in eval mode; ValueError for a checkpoint of another model. ``data``: the
+    checkpoint ``ckpt`` already read by :func:`~vtlearn.models.actor.read_lightning_checkpoint` (then the
+    file is not read again)."""
+    import inspect
+
+    from vtlearn.models.actor import read_lightning_checkpoint
+
+    data = read_lightning_checkpoint(ckpt) if data is None else data
+    if not any(k.startswith("encoder.") for k in data["state_dict"]) or not any(
+        k.startswith("head.") for k in data["state_dict"]
+    ):
+        raise ValueError(f"ckpt: {ckpt} is not an xAVTNet checkpoint (no encoder.* / head.* weights)")
+    if any(k.startswith("encoder.features.convs.") for k in data["state_dict"]):
+        raise ValueError(f"ckpt: {ckpt} is an ACTOR recognition checkpoint, not an XAVTNet one (load it with "
+                         "vtlearn.models.actor_recognition.load_recognition)")
+    names = set(inspect.signature(XAVTNet.__init__).parameters) - {"self"}
+    hp = {k: v for k, v in dict(data["hyper_parameters"]).items() if k in names}
+    try:
+        model = XAVTNet(**hp)
+        model.load_state_dict(data["state_dict"], strict=True)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise ValueError(
+            f"ckpt: {ckpt} does not match the xAVTNet architecture: {str(exc).splitlines()[0]}"
+        ) from exc
+    return model.eval()

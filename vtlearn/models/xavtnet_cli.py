@@ -1099,8 +1099,8 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
 def _read_xavtnet(ckpt_path: Path):
     """``(checkpoint dict, XAVTNet in eval mode)`` of ``--ckpt`` (``weights_only=True``); an unreadable file
     or a checkpoint of another model is a ValueError naming ``--ckpt``, before any data is read."""
-    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.models.actor import read_lightning_checkpoint
+    from vtlearn.models.xavtnet import load_xavtnet
     from vtlearn.validation import load_named
 
     ckpt = load_named(read_lightning_checkpoint, ckpt_path, "--ckpt")

@@ -31,7 +31,7 @@ Shapes:
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,7 +126,12 @@ def checkpoint_normalize(hparams: dict) -> str:
 def checkpoint_class_names(hparams: dict, override: Sequence[str] | None = None) -> list[str]:
     """Class names for a checkpoint: ``override`` if given, else the names the checkpoint recorded (models
     trained since the names were kept), else ``class_0 ... class_{C-1}``. A ValueError if ``override``
-    has the wrong length."""
+    has the wrong length, or if ``hparams`` is not a checkpoint's hyper-parameters (``dict(model.hparams)``,
+    or ``torch.load(...)["hyper_parameters"]``; a checkpoint path goes through ``load_xavtnet`` first)."""
+    if not isinstance(hparams, Mapping) or "num_classes" not in hparams:
+        got = type(hparams).__name__ if not isinstance(hparams, Mapping) else f"keys {sorted(hparams)[:8]}"
+        raise ValueError(f"hparams: need a checkpoint's hyper-parameters with num_classes "
+                         f"(dict(model.hparams)), got {got}")
     n = int(hparams["num_classes"])
     if override is not None:
         names = [str(s) for s in override]
@@ -151,6 +156,7 @@ class Recognition:
     mc_samples: int
 
     def predicted(self, i: int) -> str:
+        """The name of cloud ``i``'s most probable class."""
         return self.class_names[int(np.argmax(self.probs[i]))]
 
     def confident(self, i: int, zeta: float = ZETA) -> bool:
@@ -158,10 +164,14 @@ class Recognition:
         return bool(self.probs[i].max() > zeta)
 
     def top(self, i: int, k: int = 3) -> list[tuple[str, float]]:
+        """Cloud ``i``'s ``k`` most probable classes as ``(name, probability)``, most probable first."""
         order = np.argsort(-self.probs[i])[: max(int(k), 1)]
         return [(self.class_names[j], float(self.probs[i, j])) for j in order]
 
     def to_dict(self, i: int, zeta: float = ZETA) -> dict:
+        """Cloud ``i``'s belief as plain JSON-ready values: the predicted class and its probability, the stop
+        rule at ``zeta``, the entropy, every class's probability and, with MC dropout, the mutual
+        information and the probabilities' std."""
         out = {
             "predicted": self.predicted(i),
             "probability": float(self.probs[i].max()),
@@ -193,7 +203,7 @@ def recognize_clouds(
 
     Args:
         model: :class:`~vtlearn.models.xavtnet.XAVTNet`, e.g. from
-            :func:`~vtlearn.active.closed_loop.load_xavtnet` (``weights_only=True``); another model (e.g. an
+            :func:`~vtlearn.models.xavtnet.load_xavtnet` (``weights_only=True``); another model (e.g. an
             ACTOR) is a ValueError.
         clouds: a list of gravity-aligned clouds (z up), at least 3 points each.
         class_names: names of the classes; default from the checkpoint (:func:`checkpoint_class_names`).

@@ -393,11 +393,11 @@ class TwoArmRuntime:
         cls, actor_ckpt: str | Path | None, xavtnet_ckpt: str | Path | None, class_names=None, **kwargs
     ) -> TwoArmRuntime:
         """Load the models with ``weights_only=True`` (:func:`~vtlearn.models.actor.load_actor`,
-        :func:`~vtlearn.active.closed_loop.load_xavtnet`); ``class_names`` may be a list, or the path of
+        :func:`~vtlearn.models.xavtnet.load_xavtnet`); ``class_names`` may be a list, or the path of
         a crossmodal dataset's ``manifest.json`` (its ``class_names``)."""
-        from vtlearn.active.closed_loop import load_xavtnet
         from vtlearn.datamodules.shards import read_class_names
         from vtlearn.models.actor import load_actor
+        from vtlearn.models.xavtnet import load_xavtnet
 
         if isinstance(class_names, (str, Path)):
             class_names = read_class_names(class_names, "class_names")

@@ -64,9 +64,9 @@ def _model_paths(args) -> tuple[tuple[Path, str] | None, ...]:
 def _load_models(paths) -> tuple:
     """The ACTOR model, the xAVTNet model and its class names of :func:`_model_paths` (None where not given);
     a bad checkpoint or manifest is reported under the flag that gave it."""
-    from vtlearn.active.closed_loop import load_xavtnet
     from vtlearn.datamodules.shards import read_class_names
     from vtlearn.models.actor import load_actor
+    from vtlearn.models.xavtnet import load_xavtnet
     from vtlearn.validation import load_named
 
     actor_path, xav_path, names_path = paths
