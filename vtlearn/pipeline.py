@@ -34,6 +34,7 @@ import numpy as np
 from vtlearn.bench_utils import csv_list
 from vtlearn.cli_args import count
 from vtlearn.io import atomic_path
+from vtlearn.validation import as_int
 
 log = logging.getLogger(__name__)
 
@@ -87,14 +88,11 @@ class QuickstartConfig:
             raise ValueError(
                 f"object_category: {self.object_category!r} is not in categories {self.categories}"
             )
-        for name in ("recon_per_category", "cross_per_category"):
-            if getattr(self, name) < 3:
-                raise ValueError(f"{name}: need >= 3 (one instance per split), got {getattr(self, name)}")
-        for name in ("actor_epochs", "xavtnet_epochs", "batch_size", "n_actions", "n_candidates", "cells"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: need >= 1, got {getattr(self, name)}")
-        if self.n_candidates < 2:
-            raise ValueError(f"n_candidates: need >= 2, got {self.n_candidates}")
+        for name in ("recon_per_category", "cross_per_category"):  # one instance per split
+            as_int(getattr(self, name), name, minimum=3)
+        for name in ("actor_epochs", "xavtnet_epochs", "batch_size", "n_actions", "cells"):
+            as_int(getattr(self, name), name)
+        as_int(self.n_candidates, "n_candidates", minimum=2)
 
 
 def tiny_quickstart_config() -> QuickstartConfig:

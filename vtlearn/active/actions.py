@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_int, as_points, as_real, as_transform, as_vector
+from vtlearn.validation import as_int, as_pair, as_points, as_real, as_transform, as_vector
 
 __all__ = [
     "ActionSet",
@@ -124,9 +124,11 @@ class ReachFeasibility:
         self.base = np.asarray(base, dtype=np.float64)
         if self.base.shape != (3,) or not np.isfinite(self.base).all():
             raise ValueError(f"base: expected a finite (3,) position, got {self.base.tolist()}")
-        if not (0 <= min_reach < max_reach):
+        min_reach = as_real(min_reach, "min_reach", low=0.0, unit="m")
+        max_reach = as_real(max_reach, "max_reach", unit="m")
+        if not min_reach < max_reach:
             raise ValueError(f"max_reach: need 0 <= min_reach < max_reach, got {min_reach}, {max_reach}")
-        self.max_reach, self.min_reach = float(max_reach), float(min_reach)
+        self.max_reach, self.min_reach = max_reach, min_reach
 
     def __call__(self, T_world_sensor: np.ndarray) -> np.ndarray:
         dist = np.linalg.norm(T_world_sensor[:, :3, 3] - self.base, axis=1)
@@ -151,8 +153,7 @@ def _check_count(n, name="n"):
 def _sample_feasible(
     draw: Callable[[int], ActionSet], n: int, feasible: Feasibility | None, max_rounds: int
 ) -> ActionSet:
-    if int(max_rounds) < 1:
-        raise ValueError(f"max_rounds: need >= 1, got {max_rounds}")
+    max_rounds = as_int(max_rounds, "max_rounds")
     if feasible is None:
         return draw(n)
     kept: list[ActionSet] = []
@@ -241,7 +242,7 @@ def sample_pinch_actions(
     above the box top from which the gripper descends.
     """
     n = _check_count(n)
-    lo_f, hi_f = height_range
+    lo_f, hi_f = as_pair(height_range, "height_range")
     if not 0.0 <= lo_f <= hi_f <= 1.0:
         raise ValueError(f"height_range: need 0 <= low <= high <= 1, got {height_range}")
     approach_height = as_real(approach_height, "approach_height", low=0.0, unit="m")
@@ -338,8 +339,8 @@ def sample_view_actions(
     n = _check_count(n)
     o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) position")
     radius = as_real(radius, "radius", low=0.0, open_low=True)
-    if not 0.0 <= min_elevation_deg < 90.0:
-        raise ValueError(f"min_elevation_deg: need a value in [0, 90), got {min_elevation_deg}")
+    min_elevation_deg = as_real(min_elevation_deg, "min_elevation_deg", low=0.0, high=90.0, open_high=True,
+                                unit="deg")
     rng = np.random.default_rng(seed)
     z_min = np.sin(np.radians(min_elevation_deg))
 

@@ -66,6 +66,7 @@ from vtlearn.active.exploration import uniform_pinch_schedule, uniform_touch_sch
 from vtlearn.active.occupancy import OccupancyGrid
 from vtlearn.active.selection import EnergyCosts, energy_costs, select_next_best_action
 from vtlearn.active.sensors import PinchSensor, Rays, TactileArray, ToFCamera, cast_rays_on_mesh
+from vtlearn.validation import as_int
 
 __all__ = [
     "STRATEGIES",
@@ -153,8 +154,7 @@ def held_out_objects(
     """
     from vtlearn.sim_data.shapes import CATEGORIES, instance_seed
 
-    if int(per_category) < 1:
-        raise ValueError(f"per_category: need >= 1, got {per_category}")
+    per_category = as_int(per_category, "per_category")
     out = []
     for cat in categories:
         if cat not in CATEGORIES:
@@ -382,14 +382,14 @@ def run_episode(
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
-    if int(n_tactile) < 0 or int(n_views) < 0 or int(n_tactile) + int(n_views) < 1:
+    n_tactile, n_views = as_int(n_tactile, "n_tactile", minimum=0), as_int(n_views, "n_views", minimum=0)
+    if n_tactile + n_views < 1:
         raise ValueError(
             f"n_tactile, n_views: need non-negative budgets with a positive sum, got {n_tactile}, {n_views}"
         )
-    if not 0 <= int(n_init) <= int(n_tactile):
+    if as_int(n_init, "n_init", minimum=0) > n_tactile:
         raise ValueError(f"n_init: need 0 <= n_init <= n_tactile, got {n_init}")
-    if int(n_candidates) < 2:
-        raise ValueError(f"n_candidates: need >= 2, got {n_candidates}")
+    n_candidates = as_int(n_candidates, "n_candidates", minimum=2)
     if gain_mode == "auto":
         gain_mode = "box_fit" if int(n_views) == 0 and reconstructor is not None else "probabilistic"
     if gain_mode not in GAIN_MODES:
@@ -556,8 +556,7 @@ def network_input(
     trained on, :class:`~vtlearn.datamodules.ReconstructionDataModule`)."""
     from vtlearn.datamodules.shards import random_voxel_subsample
 
-    if int(max_points) < 1:
-        raise ValueError(f"max_points: need >= 1, got {max_points}")
+    max_points = as_int(max_points, "max_points")
     c = obj.to_canonical(points_world)
     if len(c) > int(max_points):
         c = random_voxel_subsample(c, int(max_points), int(max_points), np.random.default_rng(seed))

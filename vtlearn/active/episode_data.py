@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.validation import as_int
+
 log = logging.getLogger(__name__)
 
 KIND = "tactile-episodes"
@@ -88,16 +90,14 @@ class EpisodeDataConfig:
             raise ValueError(
                 f"gain_mode: expected 'raycast' or 'probabilistic' (of {GAIN_MODES}), got {self.gain_mode!r}"
             )
-        if int(self.touches) < 1:
-            raise ValueError(f"touches: need >= 1, got {self.touches}")
+        as_int(self.touches, "touches")
         if not self.prefixes or any(not 1 <= int(k) <= int(self.touches) for k in self.prefixes):
             raise ValueError(f"prefixes: need values in [1, touches={self.touches}], got {self.prefixes}")
-        if int(self.min_points) < 1:
-            raise ValueError(f"min_points: need >= 1, got {self.min_points}")
-        if int(self.n_candidates) < 2 or int(self.cells) < 2:
-            raise ValueError(f"n_candidates, cells: need >= 2, got {self.n_candidates}, {self.cells}")
-        if int(self.shard_size) < 1 or int(self.seed) < 0:
-            raise ValueError(f"shard_size, seed: need >= 1 and >= 0, got {self.shard_size}, {self.seed}")
+        as_int(self.min_points, "min_points")
+        as_int(self.n_candidates, "n_candidates", minimum=2)
+        as_int(self.cells, "cells", minimum=2)
+        as_int(self.shard_size, "shard_size")
+        as_int(self.seed, "seed", minimum=0)
 
 
 def _source_plan(cfg: EpisodeDataConfig) -> tuple[dict, list[dict]]:

@@ -37,7 +37,7 @@ from vtlearn.active.actions import ActionSet, OrientedBox, sample_pinch_actions,
 from vtlearn.active.occupancy import OccupancyGrid
 from vtlearn.active.sensors import PinchSensor, Rays, TactileArray, cast_rays_on_mesh
 from vtlearn.geometry.sampling import sample_surface
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = [
     "ExplorationResult",
@@ -78,7 +78,7 @@ def simulate_touch(
     if pad_size is None:
         pad, n_pads = rays.action_index, rays.n_actions
     else:
-        if int(pad_size) < 1 or len(rays) % int(pad_size):
+        if len(rays) % as_int(pad_size, "pad_size"):
             raise ValueError(f"pad_size: must be >= 1 and divide the {len(rays)} rays, got {pad_size}")
         pad, n_pads = np.arange(len(rays)) // int(pad_size), len(rays) // int(pad_size)
     ranges, hit = cast_rays_on_mesh(mesh, rays)
@@ -178,7 +178,8 @@ def explore(
 
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
-    if int(n_touches) < 1 or int(n_init) < 0 or int(n_init) > int(n_touches):
+    n_touches, n_init = as_int(n_touches, "n_touches"), as_int(n_init, "n_init", minimum=0)
+    if n_init > n_touches:
         raise ValueError(
             f"n_touches, n_init: need n_touches >= 1 and 0 <= n_init <= n_touches, got {n_touches}, {n_init}"
         )

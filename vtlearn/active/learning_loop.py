@@ -77,8 +77,7 @@ def train_and_test(
     equal-budget protocol: every round, and the full-pool reference, train equally long), and
     ``max_epochs``/``min_steps`` are ignored.
     """
-    if train_steps < 0:
-        raise ValueError(f"train_steps must be >= 0, got {train_steps}")
+    train_steps = as_int(train_steps, "train_steps", minimum=0)
     if train_steps:
         epochs = math.ceil(train_steps / max(1, len(train_loader)))
         trainer_kwargs = {**trainer_kwargs, "max_steps": int(train_steps)}
@@ -215,8 +214,7 @@ def labels_to_reach(
     if len(n_labels) != len(accuracy) or len(n_labels) == 0:
         raise ValueError(f"n_labels and accuracy must be non-empty and equal length, got "
                          f"{len(n_labels)} and {len(accuracy)}")
-    if not full_accuracy > 0:
-        raise ValueError(f"full_accuracy must be > 0, got {full_accuracy}")
+    full_accuracy = as_real(full_accuracy, "full_accuracy", low=0.0, open_low=True)
     out: dict[float, int | None] = {}
     within = [[(full_accuracy - a) / full_accuracy <= t for a in accuracy] for t in thresholds]
     for t, ok in zip(thresholds, within, strict=True):
@@ -274,10 +272,8 @@ def bootstrap_label_ratio(
         raise ValueError(f"full_accuracy must have one value per seed ({a.shape[0]}), got shape {full.shape}")
     if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(full).all()) or (full <= 0).any():
         raise ValueError("accuracy, baseline and full_accuracy must be finite, and full_accuracy > 0")
-    if not 0 <= threshold < 1:
-        raise ValueError(f"threshold must be in [0, 1), got {threshold}")
-    if n_boot < 1:
-        raise ValueError(f"n_boot must be >= 1, got {n_boot}")
+    threshold = as_real(threshold, "threshold", low=0.0, high=1.0, open_high=True)
+    n_boot = as_int(n_boot, "n_boot")
 
     def ratios(idx: np.ndarray) -> np.ndarray:  # idx (B, S) seed draws -> (B,) ratios (inf, nan)
         f = full[idx].mean(1, keepdims=True)

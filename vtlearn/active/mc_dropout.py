@@ -23,7 +23,7 @@ from contextlib import contextmanager
 import torch
 from torch import nn
 
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = [
     "STRATEGIES",
@@ -91,8 +91,7 @@ def mc_dropout_probs(
     Shapes:
         points (B, N, 3), lengths (B,) -> probs (T, B, k)
     """
-    if num_passes < 1:
-        raise ValueError(f"num_passes must be >= 1, got {num_passes}")
+    num_passes = as_int(num_passes, "num_passes")
     if dropout:
         with mc_dropout_mode(model):
             return torch.stack([_logits_of(model(points, lengths)).softmax(-1) for _ in range(num_passes)])
@@ -154,7 +153,7 @@ def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
         k: ``1 <= k <= len(scores)``.
     """
     _check_scores(scores)
-    if not 1 <= k <= scores.numel():
+    if as_int(k, "k") > scores.numel():
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
     if not torch.isfinite(scores).all():
         raise ValueError("scores: contains NaN or inf")
@@ -175,7 +174,7 @@ def select_power(
         scores (U,) -> (k,) indices, in draw order (scores non-empty, finite, >= 0; ``1 <= k <= U``)
     """
     _check_scores(scores)
-    if not 1 <= k <= scores.numel():
+    if as_int(k, "k") > scores.numel():
         raise ValueError(f"k must be in [1, {scores.numel()}], got {k}")
     beta = as_real(beta, "beta", low=0.0)
     if not torch.isfinite(scores).all() or (scores < 0).any():
@@ -189,7 +188,7 @@ def select_power(
 
 def random_query(pool_indices: torch.Tensor, k: int, generator: torch.Generator | None = None):
     """``k`` pool indices uniformly without replacement (the random-strategy baseline)."""
-    if not 1 <= k <= pool_indices.numel():
+    if as_int(k, "k") > pool_indices.numel():
         raise ValueError(f"k must be in [1, {pool_indices.numel()}], got {k}")
     return pool_indices[torch.randperm(pool_indices.numel(), generator=generator)[:k]]
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtlearn.validation import as_points, as_real, as_vector
+from vtlearn.validation import as_int, as_points, as_real, as_vector
 
 __all__ = [
     "OccupancyGrid",
@@ -127,15 +127,11 @@ class OccupancyGrid:
         shape_arr = np.asarray(shape)
         if shape_arr.shape != (3,) or not np.issubdtype(shape_arr.dtype, np.integer) or (shape_arr < 1).any():
             raise ValueError(f"shape: expected three positive integers (nx, ny, nz), got {shape}")
-        if not 0.5 < p_hit < 1.0:
-            raise ValueError(f"p_hit: must lie in (0.5, 1), got {p_hit}")
-        if not 0.0 < p_miss < 0.5:
-            raise ValueError(f"p_miss: must lie in (0, 0.5), got {p_miss}")
-        if not 0.0 < clamp_min < 0.5 < clamp_max < 1.0:
-            raise ValueError(
-                "clamp_min, clamp_max: need 0 < clamp_min < 0.5 < clamp_max < 1, "
-                f"got {clamp_min}, {clamp_max}"
-            )
+        p_hit = as_real(p_hit, "p_hit", low=0.5, high=1.0, open_low=True, open_high=True)
+        p_miss = as_real(p_miss, "p_miss", low=0.0, high=0.5, open_low=True, open_high=True)
+        clamp_min = as_real(clamp_min, "clamp_min", low=0.0, high=0.5, open_low=True, open_high=True)
+        clamp_max = as_real(clamp_max, "clamp_max", low=0.5, high=1.0, open_low=True, open_high=True)
+        occupied_threshold = as_real(occupied_threshold, "occupied_threshold")
         if not clamp_min <= occupied_threshold < clamp_max:
             raise ValueError(
                 f"occupied_threshold: must lie in [clamp_min, clamp_max), got {occupied_threshold}"
@@ -169,9 +165,8 @@ class OccupancyGrid:
             raise ValueError(
                 f"upper: must exceed lower on every axis, got lower={lower.tolist()} upper={upper.tolist()}"
             )
-        if int(cells_per_axis) < 1:
-            raise ValueError(f"cells_per_axis: need >= 1, got {cells_per_axis}")
-        res = float((upper - lower).max()) / int(cells_per_axis)
+        cells_per_axis = as_int(cells_per_axis, "cells_per_axis")
+        res = float((upper - lower).max()) / cells_per_axis
         shape = np.maximum(np.ceil((upper - lower) / res - 1e-9).astype(np.int64), 1)
         return cls(lower, res, shape, **kwargs)
 

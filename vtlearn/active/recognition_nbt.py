@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vtlearn.validation import as_int
+
 __all__ = ["CRITERIA", "TEMPLATE_SEED", "ExpectedClassEntropyGain", "fit_to_box"]
 
 CRITERIA = ("mutual_information", "expected_entropy")
@@ -100,12 +102,9 @@ class ExpectedClassEntropyGain:
                  templates_per_class: int = 1) -> None:
         from vtlearn.sim_data.shapes import CATEGORIES
 
-        if int(top_m) < 1:
-            raise ValueError(f"top_m: need >= 1, got {top_m}")
-        if int(templates_per_class) < 1:
-            raise ValueError(f"templates_per_class: need >= 1, got {templates_per_class}")
-        if int(max_points) < 3:
-            raise ValueError(f"max_points: need >= 3, got {max_points}")
+        top_m = as_int(top_m, "top_m")
+        templates_per_class = as_int(templates_per_class, "templates_per_class")
+        max_points = as_int(max_points, "max_points", minimum=3)
         if criterion not in CRITERIA:
             raise ValueError(f"criterion: expected one of {CRITERIA}, got {criterion!r}")
         if weights not in ("uniform", "posterior"):

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["ExpectedBoxFitGain", "box_fit_error", "predict_tactile_contacts"]
 
@@ -102,8 +102,7 @@ def box_fit_error(clouds, extents, percentile: float = 2.0) -> np.ndarray:
         raise ValueError(f"clouds: need finite (B, N >= 1, 3), got shape {X.shape}")
     if e.shape != (3,) or not np.isfinite(e).all() or (e <= 0).any():
         raise ValueError(f"extents: need 3 positive finite extents, got {e.tolist()}")
-    if not 0.0 <= float(percentile) < 50.0:
-        raise ValueError(f"percentile: need 0 <= percentile < 50, got {percentile}")
+    percentile = as_real(percentile, "percentile", low=0.0, high=50.0, open_high=True)
     lo = np.percentile(X, percentile, axis=1)
     hi = np.percentile(X, 100.0 - percentile, axis=1)
     return np.abs(lo + e / 2).sum(1) + np.abs(hi - e / 2).sum(1)
@@ -129,12 +128,10 @@ class ExpectedBoxFitGain:
         contact_tolerance: float = 0.002,
         percentile: float = 2.0,
     ):
-        if int(max_points) < 3:
-            raise ValueError(f"max_points: need >= 3, got {max_points}")
+        max_points = as_int(max_points, "max_points", minimum=3)
         radius_factor = as_real(radius_factor, "radius_factor", low=0.0, open_low=True)
         contact_tolerance = as_real(contact_tolerance, "contact_tolerance", low=0.0, unit="m")
-        if not 0.0 <= float(percentile) < 50.0:
-            raise ValueError(f"percentile: need 0 <= percentile < 50, got {percentile}")
+        percentile = as_real(percentile, "percentile", low=0.0, high=50.0, open_high=True)
         self.model = model
         self.max_points = int(max_points)
         self.radius_factor = float(radius_factor)

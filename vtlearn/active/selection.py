@@ -226,8 +226,7 @@ def detect_transparent(
     Returns:
         (is_transparent, iou); an object whose cloud vanishes with the plane has IoU 0.
     """
-    if not 0.0 < omega <= 1.0:
-        raise ValueError(f"omega: need a threshold in (0, 1], got {omega}")
+    omega = as_real(omega, "omega", low=0.0, high=1.0, open_low=True)
     c_rgb = _check_box(rgb_box_xy, "rgb_box_xy")
     c_pc = cloud_top_down_box(points, plane_distance=plane_distance)
     iou = 0.0 if c_pc is None else box_iou_2d(c_pc, c_rgb)

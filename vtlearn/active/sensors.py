@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtlearn.sim_data.sensors import SENSORS, TaxelSensor, get_sensor
-from vtlearn.validation import as_pair, as_real, to_numpy
+from vtlearn.validation import as_int, as_pair, as_real, to_numpy
 
 __all__ = ["PinchSensor", "Rays", "TactileArray", "ToFCamera", "as_transforms", "cast_rays_on_mesh"]
 
@@ -190,13 +190,11 @@ class ToFCamera:
         stride: int = 16,
         max_range: float = 2.0,
     ):
-        if int(width) < 1 or int(height) < 1:
-            raise ValueError(f"width, height: need positive pixel counts, got {width} x {height}")
+        width, height = as_int(width, "width"), as_int(height, "height")
         fx_deg, fy_deg = as_pair(fov_deg, "fov_deg", "a (horizontal, vertical) pair of angles in degrees")
         if not (0 < fx_deg < 180 and 0 < fy_deg < 180):
             raise ValueError(f"fov_deg: each angle must lie in (0, 180) degrees, got {fov_deg}")
-        if int(stride) < 1:
-            raise ValueError(f"stride: need >= 1, got {stride}")
+        stride = as_int(stride, "stride")
         max_range = as_real(max_range, "max_range", low=0.0, open_low=True, unit="m")
         self.width, self.height, self.stride = int(width), int(height), int(stride)
         self.fov_deg = (fx_deg, fy_deg)

@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from vtlearn.bench_utils import save_figure
 from vtlearn.classical.tiqf import SequentialTIQF, _quat_to_matrix, gaussian_kl, tiqf_update_moment
-from vtlearn.validation import as_transform
+from vtlearn.validation import as_int, as_transform
 
 __all__ = [
     "ActionSampler",
@@ -103,8 +103,7 @@ class ActionSampler:
 
     def sample(self, n: int, T_scene_model: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
         """``n`` rays (origins, unit directions) in the scene frame, uniform over the chosen faces' area."""
-        if n < 1:
-            raise ValueError(f"n: need at least one action, got {n}")
+        n = as_int(n, "n")
         rng = np.random.default_rng(rng)
         pad = self.margin * float((self.hi - self.lo).max())
         lo, hi = self.lo - pad, self.hi + pad

@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.ukf import ManifoldUKF
 from vtlearn.geometry.lie import se3_exp, se3_log
-from vtlearn.validation import as_pair, as_points, as_real, as_transform, to_numpy
+from vtlearn.validation import as_int, as_pair, as_points, as_real, as_transform, to_numpy
 
 __all__ = ["ArtRegTracker", "se3_phi", "se3_phi_inv", "random_walk_se3"]
 
@@ -182,12 +182,10 @@ class ArtRegTracker:
             max_correspondence_distance, "max_correspondence_distance", low=0.0, open_low=True, unit="m"
         )
         self.robust_scale = as_real(robust_scale, "robust_scale", low=0.0, open_low=True, unit="m")
-        if max_points_per_part is not None and max_points_per_part < 3:
-            raise ValueError(f"max_points_per_part must be >= 3 or None, got {max_points_per_part!r}")
+        if max_points_per_part is not None:
+            max_points_per_part = as_int(max_points_per_part, "max_points_per_part", minimum=3)
         self.max_points_per_part = max_points_per_part
-        if int(n_iterations) != n_iterations or n_iterations < 1:
-            raise ValueError(f"n_iterations must be a positive integer, got {n_iterations!r}")
-        self.n_iterations = int(n_iterations)
+        self.n_iterations = as_int(n_iterations, "n_iterations")
         self.rng = np.random.default_rng(seed)
         self.Q = np.diag([process_std[0] ** 2] * 3 + [process_std[1] ** 2] * 3)
         P0 = np.diag([init_std[0] ** 2] * 3 + [init_std[1] ** 2] * 3)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vtlearn.validation import as_int, as_real
+
 __all__ = ["TangentPlanes"]
 
 
@@ -43,10 +45,8 @@ class TangentPlanes:
     def __init__(
         self, model: np.ndarray, tree: cKDTree, k: int = 10, cap_factor: float = 1.0, n_patches: int = 1
     ):
-        if cap_factor < 0:
-            raise ValueError(f"cap_factor: must be >= 0, got {cap_factor}")
-        if n_patches < 1:
-            raise ValueError(f"n_patches: must be >= 1, got {n_patches}")
+        cap_factor = as_real(cap_factor, "cap_factor", low=0.0)
+        n_patches = as_int(n_patches, "n_patches")
         self.n_patches = min(n_patches, len(model))
         d, nbr = tree.query(model, k=min(k, len(model)))
         nb = model[nbr] - model[nbr].mean(1, keepdims=True)  # MxKx3

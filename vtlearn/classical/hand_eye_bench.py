@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from vtlearn.classical.hand_eye import LOCAL_METHODS, in_situ_hand_eye
+from vtlearn.validation import as_int
 
 __all__ = ["run_hand_eye_benchmark", "THESIS_BOUNDS"]
 
@@ -123,8 +124,7 @@ def run_hand_eye_benchmark(meshes, trials: int = 5, views: int = 3, n_visual: in
         raise ValueError(f"methods: unknown {unknown}; choose from {sorted(METHODS)}")
     for name, value, low in (("trials", trials, 1), ("views", views, 1), ("n_tactile", n_tactile, 3),
                              ("n_visual", n_visual, 3)):
-        if int(value) < low:
-            raise ValueError(f"{name}: need >= {low}, got {value}")
+        as_int(value, name, minimum=low)
     rng = np.random.default_rng(seed)
     runs = []
     bar = tqdm(total=len(meshes) * trials, desc="bench hand-eye", disable=not progress)

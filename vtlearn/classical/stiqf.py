@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.correspondences import TangentPlanes
 from vtlearn.classical.tiqf import TIQF, _matrix_to_quat, _quat_to_matrix
-from vtlearn.validation import as_points, as_real, check_not_collinear
+from vtlearn.validation import as_int, as_points, as_real, check_not_collinear
 
 __all__ = [
     "STIQF",
@@ -274,9 +274,10 @@ def simulated_annealing(
     Returns:
         ``(T_scene_model (C, 4, 4), best_cost (C,))`` per chain, best first.
     """
-    if not (0 < zeta < 1):
-        raise ValueError(f"zeta: cooling rate must lie in (0, 1), got {zeta}")
-    if not (t0 > t_min > 0):
+    zeta = as_real(zeta, "zeta", low=0.0, high=1.0, open_low=True, open_high=True)
+    t0 = as_real(t0, "t0")
+    t_min = as_real(t_min, "t_min", low=0.0, open_low=True)
+    if not t0 > t_min:
         raise ValueError(f"t_min: must satisfy 0 < t_min < t0, got t0={t0}, t_min={t_min}")
     rng = np.random.default_rng(rng)
     model = np.asarray(model, dtype=np.float64)
@@ -410,31 +411,24 @@ class STIQF:
     ):
         if sa_field not in ("points", "tangent"):
             raise ValueError(f"sa_field: expected 'points' or 'tangent', got {sa_field!r}")
-        if tangent_cap < 0:
-            raise ValueError(f"tangent_cap: must be >= 0, got {tangent_cap}")
-        if tangent_patches < 1:
-            raise ValueError(f"tangent_patches: must be >= 1, got {tangent_patches}")
-        if tangent_k < 3:
-            raise ValueError(f"tangent_k: must be >= 3, got {tangent_k}")
+        as_real(tangent_cap, "tangent_cap", low=0.0)
+        tangent_patches = as_int(tangent_patches, "tangent_patches")
+        tangent_k = as_int(tangent_k, "tangent_k", minimum=3)
         self.tangent_k = tangent_k
         self.tangent_cap, self.tangent_patches, self.sa_field = tangent_cap, tangent_patches, sa_field
         if sa_cost not in ("field", "kdtree"):
             raise ValueError(f"sa_cost: expected 'field' or 'kdtree', got {sa_cost!r}")
-        if restarts < 1:
-            raise ValueError(f"restarts: must be >= 1, got {restarts}")
-        if chains_per_restart < 1:
-            raise ValueError(f"chains_per_restart: must be >= 1, got {chains_per_restart}")
-        self.chains_per_restart = chains_per_restart
-        if sa_max_points is not None and sa_max_points < 3:
-            raise ValueError(f"sa_max_points: must be >= 3 or None, got {sa_max_points}")
+        restarts = as_int(restarts, "restarts")
+        self.chains_per_restart = as_int(chains_per_restart, "chains_per_restart")
+        if sa_max_points is not None:
+            sa_max_points = as_int(sa_max_points, "sa_max_points", minimum=3)
         self.sa_max_points = sa_max_points
-        if n_refine < 1:
-            raise ValueError(f"n_refine: must be >= 1, got {n_refine}")
+        n_refine = as_int(n_refine, "n_refine")
         if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 2:
             raise ValueError(f"grid: need an integer >= 2 distance-field nodes per side, got {grid!r}")
-        if not 0 < zeta < 1:  # the annealing temperature t <- zeta t must fall to t_min
-            raise ValueError(f"zeta: need a cooling factor in (0, 1), got {zeta}")
-        if not 0 < t_min < t0:
+        # the annealing temperature t <- zeta t must fall to t_min
+        as_real(zeta, "zeta", low=0.0, high=1.0, open_low=True, open_high=True)
+        if not as_real(t_min, "t_min", low=0.0, open_low=True) < as_real(t0, "t0"):
             raise ValueError(f"t0, t_min: need 0 < t_min < t0, got t0={t0}, t_min={t_min}")
         self.estimate_scale = estimate_scale
         self.t0, self.t_min, self.zeta, self.restarts = t0, t_min, zeta, restarts

@@ -47,7 +47,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vtlearn.classical.correspondences import TangentPlanes
-from vtlearn.validation import as_points, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 __all__ = [
     "pseudo_measurement_matrix",
@@ -183,8 +183,7 @@ def measurement_noise_covariance(x, P, rho: float) -> np.ndarray:
     Shapes:
         x: ``(..., 4)``; P: ``(..., 4, 4)`` -> ``(..., 4, 4)``.
     """
-    if not rho > 0:
-        raise ValueError(f"rho: must be > 0, got {rho}")
+    rho = as_real(rho, "rho", low=0.0, open_low=True)
     x = np.asarray(x, dtype=np.float64)
     A = x[..., :, None] * x[..., None, :] + np.asarray(P, dtype=np.float64)
     tr = np.trace(A, axis1=-2, axis2=-1)[..., None, None]
@@ -327,8 +326,7 @@ def make_pairs(
     Returns:
         ``(i, j)`` integer arrays of equal length ``M``.
     """
-    if n < 2:
-        raise ValueError(f"n: need at least 2 correspondences to form a pair, got {n}")
+    n = as_int(n, "n", minimum=2)
     if n <= max_all_pairs:
         i, j = np.triu_indices(n, k=1)
         return i, j
@@ -420,12 +418,9 @@ class TIQF:
         escape_deg: float = 2.0,
         seed: int | None = 0,
     ):
-        if not rho > 0:
-            raise ValueError(f"rho: must be > 0, got {rho}")
-        if not sigma0 > 0:
-            raise ValueError(f"sigma0: must be > 0, got {sigma0}")
-        if max_iter < 1:
-            raise ValueError(f"max_iter: must be >= 1, got {max_iter}")
+        as_real(rho, "rho", low=0.0, open_low=True)
+        as_real(sigma0, "sigma0", low=0.0, open_low=True)
+        max_iter = as_int(max_iter, "max_iter")
         self.rho = rho
         self.sigma0 = sigma0
         self.max_iter = max_iter
@@ -615,8 +610,7 @@ class SequentialTIQF:
         mode: str = "carry",
         seed: int | None = 0,
     ):
-        if not rho > 0:
-            raise ValueError(f"rho: must be > 0, got {rho}")
+        as_real(rho, "rho", low=0.0, open_low=True)
         self.model = as_points(model, "model", min_points=3)
         self.tree = cKDTree(self.model)
         T0 = np.eye(4) if T_init is None else as_transform(T_init, "T_init")

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from vtlearn.classical.artreg import _frame_cloud, _inv, _translation
 from vtlearn.geometry import se3_exp, se3_log
-from vtlearn.validation import as_points, as_real, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 try:  # optional extra
     from probreg import filterreg as _filterreg
@@ -127,9 +127,7 @@ class ParticleFilterTracker(_TrackerBase):
         seed: int = 0,
     ) -> None:
         super().__init__(models, T_world_object0, max_correspondence_distance)
-        if n_particles < 2:
-            raise ValueError(f"n_particles must be >= 2, got {n_particles!r}")
-        self.n_particles = int(n_particles)
+        self.n_particles = as_int(n_particles, "n_particles", minimum=2)
         self.process_std = process_std
         self.likelihood_std, self.truncation = float(likelihood_std), float(truncation)
         self.max_points_per_part = int(max_points_per_part)

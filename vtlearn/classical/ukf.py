@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["ManifoldUKF", "SigmaWeights", "sigma_weights", "sigma_offsets"]
 
@@ -96,11 +96,9 @@ def sigma_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 
     Raises:
         ValueError: naming the argument when n < 1, alpha <= 0 or n + lambda <= 0.
     """
-    if int(n) != n or n < 1:
-        raise ValueError(f"n must be a positive integer, got {n!r}")
+    n = as_int(n, "n")
     alpha = as_real(alpha, "alpha", low=0.0, open_low=True)
     beta, kappa = as_real(beta, "beta"), as_real(kappa, "kappa")
-    n = int(n)
     lam = alpha**2 * (n + kappa) - n
     if n + lam <= 0:
         raise ValueError(f"kappa gives n + lambda = {n + lam} <= 0; choose kappa > -n (kappa={kappa!r})")
@@ -271,8 +269,7 @@ class ManifoldUKF:
             raise ValueError("z is empty")
         if not np.all(np.isfinite(z)):
             raise ValueError("z contains NaN or inf")
-        if int(n_iterations) != n_iterations or n_iterations < 1:
-            raise ValueError(f"n_iterations must be a positive integer, got {n_iterations!r}")
+        n_iterations = as_int(n_iterations, "n_iterations")
         m = z.shape[0]
         R_m = _as_meas_cov(self.R if R is None else R, m)
 

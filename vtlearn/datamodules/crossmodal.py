@@ -33,7 +33,7 @@ from vtlearn.datamodules.shards import (
     split_clouds,
     worker_rng,
 )
-from vtlearn.validation import as_int
+from vtlearn.validation import as_int, as_real
 
 
 def _check_points_range(value, name: str) -> tuple[int, int]:
@@ -82,7 +82,7 @@ class CloudDataset(Dataset):
         normalize_cloud(np.zeros((1, 3)), normalize)  # validates the mode early
         if subsample is not None:
             subsample = _check_points_range(subsample, "subsample")
-        self.subsample, self.fuse_views = subsample, int(fuse_views)
+        self.subsample, self.fuse_views = subsample, as_int(fuse_views, "fuse_views")
         if touch_pitch is not None:
             touch_pitch = np.asarray(touch_pitch, dtype=np.float64)
             if subsample is None or touch_pitch.shape != (len(clouds),) or not (touch_pitch > 0).all():
@@ -90,8 +90,6 @@ class CloudDataset(Dataset):
                                  "per cloud")
         self.touch_pitch = touch_pitch
         self._members: dict[int, np.ndarray] = {}
-        if self.fuse_views < 1:
-            raise ValueError(f"fuse_views: need >= 1, got {fuse_views}")
         if (self.fuse_views > 1 or with_group) and (groups is None or len(groups) != len(clouds)):
             raise ValueError(f"groups: {'with_group' if with_group else 'fuse_views > 1'} needs one instance "
                              f"id per cloud")
@@ -288,9 +286,7 @@ class CrossModalDataModule(ShardedDataModule):
             raise ValueError(
                 f"source_splits: need distinct splits of {sorted(manifest['splits'])}, got {source_splits!r}"
             )
-        self.target_holdout = float(target_holdout)
-        if not 0.0 <= self.target_holdout < 1.0:
-            raise ValueError(f"target_holdout: need a fraction in [0, 1), got {target_holdout!r}")
+        self.target_holdout = as_real(target_holdout, "target_holdout", low=0.0, high=1.0, open_high=True)
         if self.target_holdout > 0 and (target_split != "test" or target_data_dir is not None):
             raise ValueError("target_holdout: holds test tactile clouds out of the target stream, so it "
                              f"needs target_split='test' and no target_data_dir (got {target_split!r}, "

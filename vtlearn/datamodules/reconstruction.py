@@ -32,7 +32,7 @@ from vtlearn.datamodules.shards import (
     split_clouds,
     worker_rng,
 )
-from vtlearn.validation import as_int
+from vtlearn.validation import as_int, as_real
 
 DATASET_KINDS = ("reconstruction", "crossmodal")  # `gen-data` kinds with dense clouds per instance
 
@@ -59,8 +59,7 @@ class ReconstructionDataset(Dataset):
         self.min_points, self.max_points = int(min_points), int(max_points)
         self.train, self.seed, self.rotate_z = train, seed, rotate_z
         self.sparse = sparse
-        if not 0.0 <= tactile_fraction <= 1.0:
-            raise ValueError(f"tactile_fraction: need a value in [0, 1], got {tactile_fraction}")
+        tactile_fraction = as_real(tactile_fraction, "tactile_fraction", low=0.0, high=1.0)
         if tactile_fraction > 0 and (tactile is None or len(tactile) != len(self.dense)):
             raise ValueError("tactile: tactile_fraction > 0 needs one list of tactile clouds per instance")
         self.tactile, self.tactile_fraction = tactile, float(tactile_fraction)

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from vtlearn.geometry._compat import as_tensor, numpy_compatible
+from vtlearn.validation import as_int
 
 __all__ = [
     "quat_mul",
@@ -230,8 +231,8 @@ def random_quaternion(
     Shapes:
         output: ``(4,)`` or ``(n, 4)``.
     """
-    if n is not None and n < 1:
-        raise ValueError(f"n: must be >= 1, got {n}")
+    if n is not None:
+        n = as_int(n, "n")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     m = 1 if n is None else n
     u1, u2, u3 = rng.random((3, m))

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from vtlearn.validation import as_int, as_points
+from vtlearn.validation import as_int, as_points, as_real
 
 __all__ = [
     "sample_surface",
@@ -37,8 +37,7 @@ def sample_surface(
     Shapes:
         output: points ``(n, 3)``, normals ``(n, 3)`` (float64, unit length).
     """
-    if n < 1:
-        raise ValueError(f"n: must be >= 1, got {n}")
+    n = as_int(n, "n")
     faces = getattr(mesh, "faces", None)
     if faces is None or len(faces) == 0:
         raise ValueError("mesh: has no faces")
@@ -66,8 +65,7 @@ def voxel_downsample(points, voxel_size: float) -> np.ndarray:
         points: ``(N, 3)`` -> ``(M, 3)``, ``M <= N``.
     """
     pts = as_points(points, "points")
-    if not voxel_size > 0:
-        raise ValueError(f"voxel_size: must be > 0, got {voxel_size}")
+    voxel_size = as_real(voxel_size, "voxel_size", low=0.0, open_low=True)
     keys = np.floor((pts - pts.min(0)) / voxel_size).astype(np.int64)
     _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
@@ -83,8 +81,7 @@ def random_subsample(points, n: int, seed: int | np.random.Generator | None = No
         points: ``(N, 3)`` -> ``(n, 3)``.
     """
     pts = as_points(points, "points")
-    if n < 1:
-        raise ValueError(f"n: must be >= 1, got {n}")
+    n = as_int(n, "n")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     idx = rng.choice(len(pts), size=n, replace=len(pts) < n)
     return pts[idx]
@@ -99,8 +96,7 @@ def farthest_point_sample(points, n: int) -> np.ndarray:
     import open3d as o3d
 
     pts = as_points(points, "points")
-    if n < 1:
-        raise ValueError(f"n: must be >= 1, got {n}")
+    n = as_int(n, "n")
     if n >= len(pts):
         return pts.copy()
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))

@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from vtlearn.validation import check_class_scores
+from vtlearn.validation import as_real, check_class_scores
 
 __all__ = ["softmax_consistency", "probability_consistency", "confident_cross_entropy"]
 
@@ -80,7 +80,6 @@ def _confident(student_logits: torch.Tensor, teacher_probs: torch.Tensor, thresh
     if student_logits.shape != teacher_probs.shape:
         raise ValueError(f"student_logits {tuple(student_logits.shape)} and {name} "
                          f"{tuple(teacher_probs.shape)} must have the same shape")
-    if not 0 <= threshold < 1:
-        raise ValueError(f"threshold: need a confidence in [0, 1), got {threshold}")
+    threshold = as_real(threshold, "threshold", low=0.0, high=1.0, open_high=True)
     p_teacher = teacher_probs.detach()
     return p_teacher, (p_teacher.amax(-1) >= threshold).to(student_logits.dtype)

@@ -51,8 +51,7 @@ class GradientReversal(nn.Module):
 
 def dann_lambda(progress: float, gamma: float = 10.0) -> float:
     """Ganin et al.'s ramp ``2/(1+exp(−γp)) − 1`` for progress ``p`` in [0, 1]."""
-    if not 0.0 <= progress <= 1.0:
-        raise ValueError(f"progress must be in [0, 1], got {progress}")
+    progress = as_real(progress, "progress", low=0.0, high=1.0)
     return 2.0 / (1.0 + math.exp(-gamma * progress)) - 1.0
 
 

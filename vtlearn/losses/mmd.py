@@ -27,6 +27,8 @@ from collections.abc import Sequence
 
 import torch
 
+from vtlearn.validation import as_int, as_real
+
 __all__ = ["gaussian_bandwidths", "multi_kernel_matrix", "mk_mmd", "check_features", "check_feature_pair",
            "kernel_bandwidths"]
 
@@ -89,10 +91,8 @@ def gaussian_bandwidths(
     Shapes:
         pooled (n, d) -> (b,), detached from the graph.
     """
-    if num_kernels < 1:
-        raise ValueError(f"num_kernels must be >= 1, got {num_kernels}")
-    if kernel_mul <= 0:
-        raise ValueError(f"kernel_mul must be > 0, got {kernel_mul}")
+    num_kernels = as_int(num_kernels, "num_kernels")
+    kernel_mul = as_real(kernel_mul, "kernel_mul", low=0.0, open_low=True)
     with torch.no_grad():
         n = pooled.shape[0]
         sq = torch.cdist(pooled, pooled).pow(2)

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from vtlearn.losses.mmd import check_features
-from vtlearn.validation import check_class_scores
+from vtlearn.validation import as_int, as_real, check_class_scores
 
 __all__ = ["neighbour_probs", "attract_disperse"]
 
@@ -68,7 +68,7 @@ def neighbour_probs(features: torch.Tensor, bank_features: torch.Tensor, bank_pr
                              f"{tuple(self_index.shape)}")
         sim[torch.arange(n, device=sim.device), self_index] = float("-inf")
     available = int(torch.isfinite(sim).sum(1).min())
-    if not 1 <= k <= available:
+    if as_int(k, "k") > available:
         raise ValueError(f"k: need 1 <= k <= {available} (the bank rows each query can have as neighbours), "
                          f"got {k}")
     return bank_probs[sim.topk(k, dim=1).indices]
@@ -93,8 +93,7 @@ def attract_disperse(probs: torch.Tensor, neighbour_probs: torch.Tensor, dispers
                          f"{probs.shape[1]}), got {tuple(neighbour_probs.shape)}")
     if not torch.isfinite(neighbour_probs).all():
         raise ValueError("neighbour_probs contains NaN or inf")
-    if not dispersion >= 0:
-        raise ValueError(f"dispersion: need a weight >= 0, got {dispersion}")
+    dispersion = as_real(dispersion, "dispersion", low=0.0)
     attract = torch.einsum("nc,nkc->n", probs, neighbour_probs.detach())
     gram = probs @ probs.T
     disperse = gram.sum(1) - gram.diagonal()

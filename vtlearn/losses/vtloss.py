@@ -74,8 +74,7 @@ class VTLoss(nn.Module):
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
-            if not v >= 0:
-                raise ValueError(f"{name} must be >= 0, got {v}")
+            as_real(v, name, low=0.0)
         if isinstance(layers, str):
             layers = (layers,)
         if (use_mmd or use_coral) and len(layers) == 0:

@@ -34,7 +34,7 @@ from vtlearn.geometry.metrics import earth_movers_distance
 from vtlearn.models.components.actor_decoder import ActorDecoder
 from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import lengths_to_mask
-from vtlearn.validation import as_points
+from vtlearn.validation import as_points, as_real
 
 __all__ = [
     "ACTOR",
@@ -213,12 +213,10 @@ class ACTOR(L.LightningModule):
             raise ValueError(
                 f"deconv_strides: product {math.prod(deconv_strides)} != num_points {num_points}"
             )
-        if input_scale <= 0:
-            raise ValueError(f"input_scale: must be positive, got {input_scale}")
+        as_real(input_scale, "input_scale", low=0.0, open_low=True)
         if lr_schedule not in ("constant", "cosine"):
             raise ValueError(f"lr_schedule: 'constant' or 'cosine', got {lr_schedule!r}")
-        if not 0.0 <= lr_min_ratio <= 1.0:
-            raise ValueError(f"lr_min_ratio: need a value in [0, 1], got {lr_min_ratio}")
+        as_real(lr_min_ratio, "lr_min_ratio", low=0.0, high=1.0)
         self.save_hyperparameters()
         self.encoder = ActorEncoder(tuple(encoder_channels), attention=attention)
         self.decoder = ActorDecoder(

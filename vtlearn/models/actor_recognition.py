@@ -24,7 +24,7 @@ from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionM
 
 from vtlearn.models.actor import _masked_centre, _plain_hparams, load_actor, read_lightning_checkpoint
 from vtlearn.models.components.actor_encoder import ActorEncoder
-from vtlearn.validation import ConfigMismatchError
+from vtlearn.validation import ConfigMismatchError, as_int, as_real
 
 __all__ = ["ACTORRecognition", "load_recognition", "random_rotation_matrices"]
 
@@ -91,10 +91,8 @@ class ACTORRecognition(L.LightningModule):
         input_scale: float = 1.0,
     ) -> None:
         super().__init__()
-        if num_classes < 2:
-            raise ValueError(f"num_classes: need at least 2, got {num_classes}")
-        if not 0 < dropout_keep <= 1:
-            raise ValueError(f"dropout_keep: must be in (0, 1], got {dropout_keep}")
+        as_int(num_classes, "num_classes", minimum=2)
+        as_real(dropout_keep, "dropout_keep", low=0.0, high=1.0, open_low=True)
         if rotation not in ("z", "so3", "none"):
             raise ValueError(f"rotation: expected 'z', 'so3' or 'none', got {rotation!r}")
         if actor_ckpt is not None:

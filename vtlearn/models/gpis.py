@@ -33,7 +33,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
 from vtlearn.geometry.sampling import sample_surface
-from vtlearn.validation import as_points
+from vtlearn.validation import as_int, as_points, as_real
 
 __all__ = ["GPISResult", "estimate_normals", "fit_gpis", "gpis_reconstruct"]
 
@@ -106,9 +106,7 @@ def fit_gpis(
     extent = float(np.max(pts.max(0) - pts.min(0)))
     if extent <= 0:
         raise ValueError("points: all points coincide")
-    d = 0.05 * extent if offset is None else float(offset)
-    if d <= 0:
-        raise ValueError(f"offset: must be positive, got {offset}")
+    d = 0.05 * extent if offset is None else as_real(offset, "offset", low=0.0, open_low=True)
     ls = 0.3 * extent if length_scale is None else float(length_scale)
     X = np.concatenate([pts, pts + d * nrm, pts - d * nrm])
     y = np.concatenate([np.zeros(len(pts)), np.full(len(pts), d), np.full(len(pts), -d)])
@@ -153,10 +151,8 @@ def gpis_reconstruct(
         points (N, 3), normals (N, 3) or None -> GPISResult.points (num_points, 3).
     """
     pts = as_points(points, "points", min_points=4)
-    if resolution < 4:
-        raise ValueError(f"resolution: need >= 4, got {resolution}")
-    if num_points < 1:
-        raise ValueError(f"num_points: need >= 1, got {num_points}")
+    resolution = as_int(resolution, "resolution", minimum=4)
+    num_points = as_int(num_points, "num_points")
     nrm = estimate_normals(pts) if normals is None else normals
     gp, d = fit_gpis(pts, nrm, offset=offset, nu=nu)
     lo, hi = pts.min(0), pts.max(0)

@@ -18,7 +18,7 @@ import open3d as o3d
 import trimesh
 from scipy.spatial import cKDTree
 
-from vtlearn.validation import as_points
+from vtlearn.validation import as_points, as_real
 
 __all__ = ["ball_pivot_mesh"]
 
@@ -60,8 +60,7 @@ def ball_pivot_mesh(
         if spacing <= 0:
             raise ValueError("points: duplicate points only, cannot choose ball radii")
         radii = [f * spacing for f in radius_factors]
-    if any(r <= 0 for r in radii):
-        raise ValueError(f"radii: must be positive, got {list(radii)}")
+    radii = [as_real(r, "radii", low=0.0, open_low=True) for r in radii]
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
         pcd, o3d.utility.DoubleVector(list(radii))
     )

@@ -127,7 +127,7 @@ from vtlearn.models.components.xavtnet_backbone import (
     XAVTNetOutput,
     check_cloud_batch,
 )
-from vtlearn.validation import ConfigMismatchError, as_real
+from vtlearn.validation import ConfigMismatchError, as_int, as_real
 
 __all__ = ["XAVTNet", "load_xavtnet", "subsample_padded", "normalize_padded"]
 
@@ -451,25 +451,19 @@ class XAVTNet(L.LightningModule):
         input_normalize: str | None = None,
     ) -> None:
         super().__init__()
-        if num_classes < 2:
-            raise ValueError(f"num_classes must be >= 2, got {num_classes}")
+        as_int(num_classes, "num_classes", minimum=2)
         if da_method not in DA_METHODS:
             raise ValueError(f"da_method must be one of {DA_METHODS}, got {da_method!r}")
-        if lr <= 0:
-            raise ValueError(f"lr must be > 0, got {lr}")
+        as_real(lr, "lr", low=0.0, open_low=True)
         if lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
         if da_ramp_gamma is not None:
             as_real(da_ramp_gamma, "da_ramp_gamma", low=0.0, open_low=True)
-        if int(da_memory) != da_memory or da_memory < 0:
-            raise ValueError(f"da_memory: need an integer >= 0 (clouds per domain), got {da_memory!r}")
+        as_int(da_memory, "da_memory", minimum=0)
         as_real(im_weight, "im_weight", low=0.0)
         as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
-        if not 0 <= pseudo_label_start < 1:
-            raise ValueError(f"pseudo_label_start: need a share of the epochs in [0, 1), got "
-                             f"{pseudo_label_start}")
-        if not 0 < pseudo_label_fraction <= 1:
-            raise ValueError(f"pseudo_label_fraction: need a share in (0, 1], got {pseudo_label_fraction}")
+        as_real(pseudo_label_start, "pseudo_label_start", low=0.0, high=1.0, open_high=True)
+        as_real(pseudo_label_fraction, "pseudo_label_fraction", low=0.0, high=1.0, open_low=True)
         if pseudo_label_layer not in FEATURE_LAYERS:
             raise ValueError(f"pseudo_label_layer: need one of {list(FEATURE_LAYERS)}, got "
                              f"{pseudo_label_layer!r}")
@@ -477,26 +471,18 @@ class XAVTNet(L.LightningModule):
             raise ValueError("pseudo_label_groups: needs pseudo_label_weight > 0 (it says how the "
                              "self-training labels are drawn)")
         as_real(consistency_weight, "consistency_weight", low=0.0)
-        if not 0 <= consistency_rampup <= 1:
-            raise ValueError(f"consistency_rampup: need a share of the training in [0, 1], got "
-                             f"{consistency_rampup}")
-        if not 0 <= ema_decay < 1:
-            raise ValueError(f"ema_decay: need a decay in [0, 1), got {ema_decay}")
-        if not 0 < consistency_keep <= 1:
-            raise ValueError(f"consistency_keep: need a share of the points in (0, 1], got "
-                             f"{consistency_keep}")
+        as_real(consistency_rampup, "consistency_rampup", low=0.0, high=1.0)
+        as_real(ema_decay, "ema_decay", low=0.0, high=1.0, open_high=True)
+        as_real(consistency_keep, "consistency_keep", low=0.0, high=1.0, open_low=True)
         as_real(consistency_jitter, "consistency_jitter", low=0.0)
-        if not 0 <= consistency_threshold < 1:
-            raise ValueError(f"consistency_threshold: need a confidence in [0, 1), got "
-                             f"{consistency_threshold}")
+        as_real(consistency_threshold, "consistency_threshold", low=0.0, high=1.0, open_high=True)
         if teacher_norm not in TEACHER_NORMS:
             raise ValueError(f"teacher_norm: expected one of {TEACHER_NORMS}, got {teacher_norm!r}")
         if consistency_loss not in CONSISTENCY_LOSSES:
             raise ValueError(f"consistency_loss: expected one of {CONSISTENCY_LOSSES}, got "
                              f"{consistency_loss!r}")
-        if student_keep is not None and not 0 < student_keep <= 1:
-            raise ValueError(f"student_keep: need a share of the points in (0, 1] or None, got "
-                             f"{student_keep}")
+        if student_keep is not None:
+            as_real(student_keep, "student_keep", low=0.0, high=1.0, open_low=True)
         if student_jitter is not None:
             as_real(student_jitter, "student_jitter", low=0.0)
         as_real(student_scale, "student_scale", low=1.0)
@@ -511,11 +497,9 @@ class XAVTNet(L.LightningModule):
             raise ValueError("consistency_align: needs consistency_weight > 0 (it aligns the teacher's "
                              "targets)")
         as_real(neighbour_weight, "neighbour_weight", low=0.0)
-        if int(neighbour_k) != neighbour_k or neighbour_k < 1:
-            raise ValueError(f"neighbour_k: need an integer >= 1 (neighbours per cloud), got {neighbour_k!r}")
+        as_int(neighbour_k, "neighbour_k")
         as_real(neighbour_dispersion, "neighbour_dispersion", low=0.0)
-        if not 0 <= neighbour_start < 1:
-            raise ValueError(f"neighbour_start: need a share of the epochs in [0, 1), got {neighbour_start}")
+        as_real(neighbour_start, "neighbour_start", low=0.0, high=1.0, open_high=True)
         if neighbour_layer not in FEATURE_LAYERS:
             raise ValueError(f"neighbour_layer: need one of {list(FEATURE_LAYERS)}, got {neighbour_layer!r}")
         if neighbour_bank not in NEIGHBOUR_BANKS:
@@ -538,8 +522,8 @@ class XAVTNet(L.LightningModule):
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
-        if max_points is not None and max_points < 1:
-            raise ValueError(f"max_points must be >= 1 or None, got {max_points}")
+        if max_points is not None:
+            as_int(max_points, "max_points")
         unknown = set(da_layers) - set(DA_LAYERS)
         if unknown:
             raise ValueError(f"da_layers may only contain {list(DA_LAYERS)}, got {sorted(unknown)}")
@@ -676,8 +660,7 @@ class XAVTNet(L.LightningModule):
         """
         if domain not in DOMAINS:
             raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
-        if int(passes) < 1:
-            raise ValueError(f"passes: need >= 1, got {passes}")
+        passes = as_int(passes, "passes")
         if not self.hparams.get("domain_bn", False):
             self._convert_to_domain_bn()
             self.hparams["domain_bn"] = True
@@ -721,8 +704,7 @@ class XAVTNet(L.LightningModule):
         Shapes:
             loader batches: source/target points (B, N, 3), lengths (B,)
         """
-        if int(passes) < 1:
-            raise ValueError(f"passes: need >= 1, got {passes}")
+        passes = as_int(passes, "passes")
         bns = _batch_norms(self.encoder, self.head)
         momenta = [m.momentum for m in bns]
 

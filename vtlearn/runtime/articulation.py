@@ -51,7 +51,7 @@ import numpy as np
 
 from vtlearn.geometry import rotation_error_deg, se3_inverse, so3_exp, so3_log, translation_error
 from vtlearn.runtime.obb import oriented_bounding_box
-from vtlearn.validation import as_points, as_real, as_transform
+from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 __all__ = [
     "RelativeMotion",
@@ -483,9 +483,7 @@ class ArticulationBelief:
             raise ValueError(f"parts: need two part indices, got {parts!r}") from None
         if a == b or a < 0 or b < 0:
             raise ValueError(f"parts: need two different non-negative indices, got {parts!r}")
-        if patience < 1:
-            raise ValueError(f"patience: need >= 1, got {patience}")
-        self.parts, self.patience = (a, b), int(patience)
+        self.parts, self.patience = (a, b), as_int(patience, "patience")
         self.state = "unknown"
         self.unchanged = 0
         self.history: list[tuple[str, str]] = []  # (evidence, state after)
@@ -641,8 +639,7 @@ def detect_articulation(
     """
     if not (callable(observe) and callable(execute)):
         raise ValueError("observe, execute: need two callables")
-    if max_actions < 1:
-        raise ValueError(f"max_actions: need >= 1, got {max_actions}")
+    max_actions = as_int(max_actions, "max_actions")
     belief = ArticulationBelief(parts, patience)
     a, b = belief.parts
     steps: list[ArticulationStep] = []
@@ -842,11 +839,9 @@ class TrackedArticulationSim:
 
         if not isinstance(sim, KinematicArticulationSim):
             raise ValueError(f"sim: need a KinematicArticulationSim, got {type(sim).__name__}")
-        if int(frames_per_action) < 1:
-            raise ValueError(f"frames_per_action: need >= 1, got {frames_per_action}")
-        if int(settle_frames) < 0:
-            raise ValueError(f"settle_frames: need >= 0, got {settle_frames}")
-        self.sim, self.frames_per_action, self.settle_frames = sim, int(frames_per_action), int(settle_frames)
+        frames_per_action = as_int(frames_per_action, "frames_per_action")
+        settle_frames = as_int(settle_frames, "settle_frames", minimum=0)
+        self.sim, self.frames_per_action, self.settle_frames = sim, frames_per_action, settle_frames
         self.camera = camera if camera is not None else RGBDCamera(320, 240, fov_y_deg=50.0)
         size = float(np.max(sim.obj.spec.links[0].mesh().extents))
         self.T_world_camera = (

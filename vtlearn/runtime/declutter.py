@@ -374,9 +374,7 @@ def occupancy_masks(
     """
     pts = _check_clouds(clouds)
     cell = as_real(cell, "cell", low=0.0, open_low=True)
-    margin = as_real(margin, "margin")
-    if margin < 0:
-        raise ValueError(f"margin: need >= 0, got {margin}")
+    margin = as_real(margin, "margin", low=0.0)
     closing = as_int(closing, "closing", minimum=0)
     # the closing must not reach the border, or it would erode footprints touching it
     grid = TableGrid.around(
@@ -427,9 +425,7 @@ def edge_weight(
     Shapes:
         scalars -> (float, "overlap" | "proximity" | None).
     """
-    iou = as_real(iou, "iou")
-    if not 0 <= iou <= 1:
-        raise ValueError(f"iou: need a value in [0, 1], got {iou}")
+    iou = as_real(iou, "iou", low=0.0, high=1.0)
     try:
         distance = float(distance)
     except (TypeError, ValueError):
@@ -797,10 +793,9 @@ class DeclutterGraph:
         if isinstance(target, bool) or not isinstance(target, (int, np.integer)) or int(target) not in pts:
             raise ValueError(f"target: {target!r} is not an object id of clouds ({sorted(pts)})")
         target = int(target)
-        mu_o, mu_d = as_real(mu_o, "mu_o"), as_real(mu_d, "mu_d", low=0.0, open_low=True)
+        mu_o = as_real(mu_o, "mu_o", low=0.0, high=1.0, open_high=True)
+        mu_d = as_real(mu_d, "mu_d", low=0.0, open_low=True)
         mu_q = as_real(mu_q, "mu_q")
-        if not 0 <= mu_o < 1:
-            raise ValueError(f"mu_o: need an IoU threshold in [0, 1), got {mu_o}")
         cell = as_real(cell, "cell", low=0.0, open_low=True)
         push_distance = as_real(push_distance, "push_distance", low=0.0, open_low=True)
         fingertip = _fingertip(fingertip)

@@ -63,7 +63,7 @@ from vtlearn.runtime.pushing import GoalPusher, sensor_frame
 from vtlearn.sim_data.arm import PandaArm
 from vtlearn.sim_data.camera import RGBDCamera, RGBDFrame, backproject
 from vtlearn.sim_data.scene import Scene
-from vtlearn.validation import as_real, as_transform, as_vector, load_named
+from vtlearn.validation import as_int, as_real, as_transform, as_vector, load_named
 
 log = logging.getLogger(__name__)
 
@@ -154,8 +154,7 @@ class IKFeasibility:
             raise ValueError(f"arm: need a PandaArm, got {type(arm).__name__}")
         position_tol = as_real(position_tol, "position_tol", low=0.0, open_low=True, unit="m")
         angle_tol_deg = as_real(angle_tol_deg, "angle_tol_deg", low=0.0, open_low=True, unit="deg")
-        if int(iterations) < 1:
-            raise ValueError(f"iterations: need >= 1, got {iterations}")
+        iterations = as_int(iterations, "iterations")
         self.rolls = tuple(float(r) for r in rolls)
         if not self.rolls or not np.isfinite(self.rolls).all():
             raise ValueError(f"rolls: need at least one finite angle, got {rolls}")
@@ -531,8 +530,7 @@ class TwoArmRuntime:
 
         if target not in self.scene.objects:
             raise ValueError(f"target: {target} is not an object of the scene")
-        if int(max_actions) < 0:
-            raise ValueError(f"max_actions: need >= 0, got {max_actions}")
+        max_actions = as_int(max_actions, "max_actions", minimum=0)
         if policy not in DECLUTTER_POLICIES:
             raise ValueError(f"policy: expected one of {DECLUTTER_POLICIES}, got {policy!r}")
         rng = np.random.default_rng([self.seed, 31])

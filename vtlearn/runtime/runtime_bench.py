@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from vtlearn.active.closed_loop import TOUCH_STRATEGIES
+from vtlearn.validation import as_int
 
 __all__ = ["THESIS", "run_declutter_benchmark", "run_runtime_benchmark"]
 
@@ -68,8 +69,7 @@ def run_runtime_benchmark(
     from vtlearn.runtime.robot import TwoArmRuntime
     from vtlearn.sim_data.shapes import CATEGORIES
 
-    if int(scenes) < 1:
-        raise ValueError(f"scenes: need >= 1, got {scenes}")
+    scenes = as_int(scenes, "scenes")
     strategies = list(strategies)
     bad = [s for s in strategies if s not in TOUCH_STRATEGIES]  # the tactile arm has no pinch
     if not strategies or bad:
@@ -178,9 +178,8 @@ def run_declutter_benchmark(
     from vtlearn.runtime.robot import DECLUTTER_POLICIES, TwoArmRuntime
     from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
 
-    if int(scenes) < 1:
-        raise ValueError(f"scenes: need >= 1, got {scenes}")
-    if not 1 <= int(n_clutter) <= len(CATEGORIES) - 2:
+    scenes = as_int(scenes, "scenes")
+    if as_int(n_clutter, "n_clutter") > len(CATEGORIES) - 2:
         raise ValueError(f"n_clutter: need 1..{len(CATEGORIES) - 2}, got {n_clutter}")
     policies = list(policies)
     if not policies or any(p not in DECLUTTER_POLICIES for p in policies):

@@ -41,7 +41,7 @@ import trimesh
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.sim_data.camera import DepthNoise, RGBDCamera
 from vtlearn.sim_data.scene import Scene, pose_to_matrix
-from vtlearn.validation import as_real, as_vector
+from vtlearn.validation import as_int, as_real, as_vector
 
 __all__ = [
     "CATEGORIES",
@@ -488,8 +488,8 @@ def motion_sequence(
     if kind == "single":
         specs = [make_rigid(rng)]
     elif kind == "multiple":
-        n = int(n_objects) if n_objects is not None else int(rng.integers(3, 8))
-        if not 1 <= n <= 9:
+        n = as_int(n_objects, "n_objects") if n_objects is not None else int(rng.integers(3, 8))
+        if n > 9:
             raise ValueError(f"n_objects must be in 1..9, got {n}")
         specs = [make_rigid(rng) for _ in range(n)]
     else:

@@ -73,9 +73,10 @@ class TransparencyModel:
     deep_max: float = 0.3
 
     def __post_init__(self):
-        if not 0 <= self.p_missing <= 1:
-            raise ValueError(f"p_missing: need a probability, got {self.p_missing}")
-        if not 0 <= self.deep_min <= self.deep_max:
+        as_real(self.p_missing, "p_missing", low=0.0, high=1.0)
+        as_real(self.deep_min, "deep_min", low=0.0)
+        as_real(self.deep_max, "deep_max", low=0.0)
+        if not self.deep_min <= self.deep_max:
             raise ValueError(
                 f"deep_min/deep_max: need 0 <= deep_min <= deep_max, got {self.deep_min}, {self.deep_max}"
             )
@@ -92,10 +93,9 @@ class RGBDFrame:
 
 def intrinsics_from_fov(width: int, height: int, fov_y_deg: float) -> np.ndarray:
     """Pinhole K (3, 3) with square pixels for a vertical field of view in degrees."""
-    if width < 1 or height < 1:
-        raise ValueError(f"width/height: need >= 1, got {width}x{height}")
-    if not 0 < fov_y_deg < 180:
-        raise ValueError(f"fov_y_deg: need 0 < fov < 180, got {fov_y_deg}")
+    width, height = as_int(width, "width"), as_int(height, "height")
+    fov_y_deg = as_real(fov_y_deg, "fov_y_deg", low=0.0, high=180.0, open_low=True, open_high=True,
+                        unit="deg")
     f = height / (2.0 * np.tan(np.deg2rad(fov_y_deg) / 2))
     return np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
 
@@ -329,8 +329,7 @@ def sample_hemisphere_views(
     below ``min_elevation_deg`` (views grazing the table see little of the object). ``o_centroid`` is a
     finite (3,) point, ``radius`` finite and > 0, ``n >= 1`` and ``min_elevation_deg`` finite and < 90.
     """
-    if n < 1:
-        raise ValueError(f"n: need >= 1 views, got {n}")
+    n = as_int(n, "n")
     radius = as_real(radius, "radius", low=0.0, open_low=True)
     min_elevation_deg = as_real(min_elevation_deg, "min_elevation_deg", high=90.0, open_high=True, unit="deg")
     o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) point")

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["touch_cloud"]
 
@@ -75,17 +75,12 @@ def touch_cloud(
         raise ValueError(f"points: expected a non-empty (N, 3) cloud, got shape {pts.shape}")
     if not np.isfinite(pts).all():
         raise ValueError("points: contains NaN or inf")
-    if int(n) < 1:
-        raise ValueError(f"n: need >= 1, got {n}")
+    n = as_int(n, "n")
     pitch = as_real(pitch, "pitch", low=0.0, open_low=True)
-    if int(rows) < 1 or int(cols) < 1:
-        raise ValueError(f"rows, cols: need a positive taxel layout, got {rows}x{cols}")
-    if int(max_touches) < 1:
-        raise ValueError(f"max_touches: need >= 1, got {max_touches}")
+    rows, cols = as_int(rows, "rows"), as_int(cols, "cols")
+    max_touches = as_int(max_touches, "max_touches")
     margin = as_real(margin, "margin", low=0.0, high=1.0)
-    tol = 0.5 * pitch if depth_tol is None else float(depth_tol)
-    if not tol >= 0:
-        raise ValueError(f"depth_tol: need >= 0, got {depth_tol}")
+    tol = 0.5 * pitch if depth_tol is None else as_real(depth_tol, "depth_tol", low=0.0)
     ext = pts.max(0) - pts.min(0)
     top, sides = ext[0] * ext[1], 2.0 * (ext[0] + ext[1]) * ext[2]
     p_top = top / (top + sides) if top + sides > 0 else 0.5

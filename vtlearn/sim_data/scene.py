@@ -16,7 +16,7 @@ import pybullet as p
 import trimesh
 
 from vtlearn.geometry import matrix_to_quat
-from vtlearn.validation import as_points, as_real, as_surface_mesh, as_transform, as_vector
+from vtlearn.validation import as_int, as_points, as_real, as_surface_mesh, as_transform, as_vector
 
 # Bullet pads every collider by a margin (1 mm for meshes by default) and reports contact points on
 # the padded surface; 0.1 mm keeps physical-mode tactile points within 0.1 mm of the mesh.
@@ -161,8 +161,7 @@ class Scene:
 
     def step(self, n: int = 1) -> None:
         """Advance the physics ``n`` steps of pybullet's default 1/240 s (only free objects move)."""
-        if n < 0:
-            raise ValueError(f"n: need >= 0 steps, got {n}")
+        n = as_int(n, "n", minimum=0)
         for _ in range(n):
             p.stepSimulation(physicsClientId=self.client)
 

@@ -483,8 +483,7 @@ def write_shapes(
     """
     from tqdm import tqdm
 
-    if per_category < 1:
-        raise ValueError(f"per_category: need >= 1, got {per_category}")
+    per_category = as_int(per_category, "per_category")
     if len(categories) == 0:
         raise ValueError(f"categories: need at least one of {CATEGORIES}, got none")
     for c in categories:

@@ -94,11 +94,10 @@ class TactileConfig:
             "pad_max_force",
         ):
             as_real(getattr(self, name), name, low=0.0, open_low=True)
-        if not (0 <= self.min_force < self.force_threshold):
+        if not as_real(self.min_force, "min_force", low=0.0) < self.force_threshold:
             raise ValueError(f"min_force: need 0 <= min_force < force_threshold, got {self.min_force}")
         as_real(self.position_noise, "position_noise", low=0.0, unit="m")
-        if not (0 <= self.dropout < 1):
-            raise ValueError(f"dropout: need 0 <= dropout < 1, got {self.dropout}")
+        as_real(self.dropout, "dropout", low=0.0, high=1.0, open_high=True)
         as_int(self.min_contacts, "min_contacts")
 
 
@@ -414,8 +413,8 @@ class TactileSimulator:
         c = np.asarray(center, dtype=np.float64)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
             raise ValueError(f"center: need a finite (3,) point, got {center}")
-        if not (width > 0 and approach_height > 0):
-            raise ValueError(f"width/approach_height: need > 0, got {width}, {approach_height}")
+        width = as_real(width, "width", low=0.0, open_low=True, unit="m")
+        approach_height = as_real(approach_height, "approach_height", low=0.0, open_low=True, unit="m")
         axis_angle = as_real(axis_angle, "axis_angle")
         u = np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0])
         fingers = []
@@ -488,8 +487,7 @@ def sample_touches(
     ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi`` and a positive surface area, ``standoff`` is
     finite and >= 0, ``margin`` (the fraction of each face used) lies in [0, 1].
     """
-    if n < 1:
-        raise ValueError(f"n: need >= 1, got {n}")
+    n = as_int(n, "n")
     if mode not in ("random", "grid"):
         raise ValueError(f"mode: expected 'random' or 'grid', got {mode!r}")
     lo, hi = _check_box(lo, hi)
@@ -523,8 +521,7 @@ def sample_pinches(lo, hi, n: int, rng: np.random.Generator, clearance: float = 
     ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi``; ``clearance`` is finite and >= 0, and the
     resulting finger opening must be positive.
     """
-    if n < 1:
-        raise ValueError(f"n: need >= 1, got {n}")
+    n = as_int(n, "n")
     lo, hi = _check_box(lo, hi)
     clearance = as_real(clearance, "clearance", low=0.0)
     c, h = (lo + hi) / 2, (hi - lo) / 2

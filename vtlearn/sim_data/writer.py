@@ -40,7 +40,7 @@ import numpy as np
 
 from vtlearn.io import atomic_path, atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
-from vtlearn.validation import as_int
+from vtlearn.validation import as_int, as_real
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +113,6 @@ class GenConfig:
             bad = [c for c in self.categories if c not in CATEGORIES]
             if bad or not self.categories:
                 raise ValueError(f"categories: unknown {bad} or empty; expected some of {CATEGORIES}")
-        if self.per_category < 1:
-            raise ValueError(f"per_category: need >= 1, got {self.per_category}")
         for name in ("per_category", "shard_size", "dense_points", "touches", "views", "visual_points",
                      "image_width", "image_height", "tactile_clouds"):
             as_int(getattr(self, name), name, 1)
@@ -124,11 +122,11 @@ class GenConfig:
         f = np.asarray(self.split_fractions, dtype=float)
         if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
-        if self.shard_size < 1:
-            raise ValueError(f"shard_size: need >= 1, got {self.shard_size}")
-        if self.visual_crop_margin is not None and not self.visual_crop_margin >= 0:
-            raise ValueError(f"visual_crop_margin: need >= 0 or None, got {self.visual_crop_margin}")
-        if not 1 <= self.tactile_min_points <= self.tactile_max_points:
+        if self.visual_crop_margin is not None:
+            as_real(self.visual_crop_margin, "visual_crop_margin", low=0.0)
+        as_int(self.tactile_min_points, "tactile_min_points")
+        as_int(self.tactile_max_points, "tactile_max_points")
+        if not self.tactile_min_points <= self.tactile_max_points:
             raise ValueError(
                 "tactile_min_points/tactile_max_points: need 1 <= min <= max, "
                 f"got {self.tactile_min_points}, {self.tactile_max_points}"

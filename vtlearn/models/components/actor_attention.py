@@ -26,6 +26,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from vtlearn.validation import as_int
+
 __all__ = ["MIN_WEIGHT", "SelfAttentionUnit"]
 
 MIN_WEIGHT = 1e-12
@@ -44,9 +46,8 @@ class SelfAttentionUnit(nn.Module):
 
     def __init__(self, channels: int, reduction: int = 8) -> None:
         super().__init__()
-        if channels < 1:
-            raise ValueError(f"channels: must be positive, got {channels}")
-        if reduction < 1 or channels // reduction < 1:
+        channels, reduction = as_int(channels, "channels"), as_int(reduction, "reduction")
+        if channels // reduction < 1:
             raise ValueError(f"reduction: must be in [1, channels], got {reduction} for channels={channels}")
         self.channels = int(channels)
         self.reduction = int(reduction)

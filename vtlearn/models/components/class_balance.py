@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import torch
 
-from vtlearn.validation import check_class_scores
+from vtlearn.validation import as_int, as_real, check_class_scores
 
 __all__ = ["align_distribution", "sinkhorn_balance", "check_prior"]
 
@@ -82,10 +82,8 @@ def sinkhorn_balance(probs: torch.Tensor, prior: torch.Tensor | None = None, ite
     _check_probs(probs, "probs")
     n, k = probs.shape
     prior = torch.full((k,), 1.0 / k) if prior is None else check_prior(prior, k)
-    if int(iters) != iters or iters < 1:
-        raise ValueError(f"iters: need an integer >= 1, got {iters!r}")
-    if not tol > 0:
-        raise ValueError(f"tol: need a tolerance > 0, got {tol}")
+    iters = as_int(iters, "iters")
+    tol = as_real(tol, "tol", low=0.0, open_low=True)
     q = probs.to(torch.float64).clamp_min(1e-12)
     q = q / q.sum(-1, keepdim=True)
     cols = n * prior.to(q)

@@ -32,6 +32,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vtlearn.validation import as_int
+
 __all__ = ["DOMAINS", "DomainBatchNorm", "convert_batchnorm", "set_bn_domain"]
 
 DOMAINS = ("source", "target")
@@ -53,9 +55,8 @@ class DomainBatchNorm(nn.Module):
 
     def __init__(self, num_features: int, eps: float = 1e-5, momentum: float = 0.1) -> None:
         super().__init__()
-        if int(num_features) < 1:
-            raise ValueError(f"num_features: need >= 1, got {num_features}")
-        self.num_features, self.eps, self.momentum = int(num_features), float(eps), float(momentum)
+        self.num_features = as_int(num_features, "num_features")
+        self.eps, self.momentum = float(eps), float(momentum)
         self.weight = nn.Parameter(torch.ones(self.num_features))
         self.bias = nn.Parameter(torch.zeros(self.num_features))
         for d in DOMAINS:

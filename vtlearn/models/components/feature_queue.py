@@ -21,6 +21,8 @@ from collections.abc import Mapping
 
 import torch
 
+from vtlearn.validation import as_int, as_real
+
 __all__ = ["FeatureQueue", "scale_grad"]
 
 
@@ -32,9 +34,7 @@ def scale_grad(x: torch.Tensor, scale: float) -> torch.Tensor:
     """
     if not isinstance(x, torch.Tensor):
         raise ValueError(f"x must be a torch.Tensor, got {type(x).__name__}")
-    scale = float(scale)
-    if not (scale > 0 and scale < float("inf")):
-        raise ValueError(f"scale: need a positive finite factor, got {scale}")
+    scale = as_real(scale, "scale", low=0.0, open_low=True)
     if scale == 1.0:
         return x
     return x * scale - (x * (scale - 1.0)).detach()
@@ -55,9 +55,7 @@ class FeatureQueue:
     """
 
     def __init__(self, capacity: int) -> None:
-        if int(capacity) != capacity or capacity < 1:
-            raise ValueError(f"capacity: need an integer >= 1, got {capacity!r}")
-        self.capacity = int(capacity)
+        self.capacity = as_int(capacity, "capacity")
         self._rows: dict[str, torch.Tensor] = {}
 
     def __len__(self) -> int:

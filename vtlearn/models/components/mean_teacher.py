@@ -24,8 +24,7 @@ __all__ = ["ema_update", "sigmoid_rampup", "perturb_padded"]
 def ema_update(teacher: nn.Module, student: nn.Module, decay: float) -> None:
     """θ' ← d·θ' + (1 − d)·θ for every parameter and floating-point buffer (batch-norm running
     statistics); other buffers (batch counts) are copied. ``decay = 0`` copies the student."""
-    if not 0 <= decay <= 1:
-        raise ValueError(f"decay: need a value in [0, 1], got {decay}")
+    decay = as_real(decay, "decay", low=0.0, high=1.0)
     pairs = []
     for t_items, s_items in ((list(teacher.named_parameters()), list(student.named_parameters())),
                              (list(teacher.named_buffers()), list(student.named_buffers()))):
@@ -45,8 +44,7 @@ def ema_update(teacher: nn.Module, student: nn.Module, decay: float) -> None:
 def sigmoid_rampup(progress: float, length: float) -> float:
     """Tarvainen and Valpola's ramp-up ``exp(−5·(1 − t)²)``, ``t = min(1, progress / length)``; 1 when
     ``length`` is 0 (no ramp)."""
-    if length < 0:
-        raise ValueError(f"length: need >= 0, got {length}")
+    length = as_real(length, "length", low=0.0)
     if length == 0:
         return 1.0
     t = min(1.0, max(0.0, progress) / length)
@@ -71,8 +69,7 @@ def perturb_padded(points: torch.Tensor, lengths: torch.Tensor, keep_min: float,
         raise ValueError(f"points must have shape (B, N, 3), got {tuple(points.shape)}")
     if lengths.shape != points.shape[:1]:
         raise ValueError(f"lengths must have shape ({points.shape[0]},), got {tuple(lengths.shape)}")
-    if not 0 < keep_min <= 1:
-        raise ValueError(f"keep_min: need a share in (0, 1], got {keep_min}")
+    keep_min = as_real(keep_min, "keep_min", low=0.0, high=1.0, open_low=True)
     jitter = as_real(jitter, "jitter", low=0.0)
     scale = as_real(scale, "scale", low=1.0)
     b, n, _ = points.shape

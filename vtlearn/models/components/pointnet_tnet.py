@@ -23,6 +23,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from vtlearn.validation import as_int
+
 __all__ = [
     "lengths_to_mask",
     "random_valid_order",
@@ -128,8 +130,7 @@ class TNet(nn.Module):
 
     def __init__(self, k: int, global_dim: int = 1024) -> None:
         super().__init__()
-        if k < 1 or global_dim < 4:
-            raise ValueError(f"k must be >= 1 and global_dim >= 4, got k={k}, global_dim={global_dim}")
+        k, global_dim = as_int(k, "k"), as_int(global_dim, "global_dim", minimum=4)
         self.k = k
         self.mlp = MaskedPointMLP((k, 64, 128, global_dim))
         self.fc = nn.Sequential(

@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask
+from vtlearn.validation import as_real
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
 
@@ -101,8 +102,7 @@ class XAVTNetHead(nn.Module):
         super().__init__()
         if len(fc_dims) != 2:
             raise ValueError(f"fc_dims must give the sizes of fc1 and fc2, got {fc_dims}")
-        if not 0.0 <= dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {dropout}")
+        dropout = as_real(dropout, "dropout", low=0.0, high=1.0, open_high=True)
         self.fc1 = nn.Sequential(nn.Linear(in_dim, fc_dims[0]), nn.BatchNorm1d(fc_dims[0]), nn.ReLU())
         self.fc2 = nn.Sequential(nn.Linear(fc_dims[0], fc_dims[1]), nn.BatchNorm1d(fc_dims[1]), nn.ReLU())
         self.dropout = nn.Dropout(dropout)
