@@ -11,6 +11,14 @@ or ``predict`` with ``--ckpt_path last`` when the config's checkpoint folder hol
 would otherwise score untrained weights). ``fit --ckpt_path last`` without one starts from scratch, as in
 Lightning. Errors raised while training keep their traceback, except the model's and the datamodule's
 disagreeing (a :class:`~vtlearn.validation.ConfigMismatchError` from ``setup``), reported the same way.
+
+Checkpoints and the config: a checkpoint file's hyper-parameters replace the config's model arguments (as in
+Lightning), and each one replaced is said in a ``train.py: note:`` line; a checkpoint of another model class
+is refused. ``--ckpt_path last`` loads into the model the config builds: a ``last.ckpt`` whose weights do not
+fit it (the config changed the architecture) is refused in one line naming the settings that differ.
+``validate``/``test``/``predict`` without ``--ckpt_path`` run freshly initialised weights, and say so.
+``predict`` writes its outputs to ``predictions.npz`` in the run's log folder
+(:class:`~vtlearn.prediction_writer.NpzPredictionWriter`) unless the config has a prediction writer.
 """
 
 from __future__ import annotations
@@ -91,21 +99,85 @@ class VtlearnCLI(LightningCLI):
         if not Path(ckpt).is_file():
             raise ConfigError(f"ckpt_path: no checkpoint file at {ckpt}")
         try:
-            read_lightning_checkpoint(ckpt)
+            self._ckpt_data = read_lightning_checkpoint(ckpt)
         except ValueError as exc:
             raise ConfigError(f"ckpt_path: {str(exc).removeprefix('ckpt: ')}") from None
 
+    def _model_args(self) -> dict:
+        """The config's model arguments (``init_args``) as a plain dict."""
+        model = self.config[self.config.subcommand].get("model")
+        init = getattr(model, "init_args", None) if model is not None else None
+        return dict(init.as_dict()) if init is not None else {}
+
     def _parse_ckpt_path(self) -> None:
-        # Lightning merges the checkpoint's hyper-parameters into the config here; another model's fail to
-        # parse (a usage dump, then "Parsing of ckpt_path hyperparameters failed!")
+        """Lightning merges a checkpoint file's hyper-parameters into the config here, its model class
+        included. A checkpoint of another model class is refused (Lightning would build that model and fail
+        deep inside training); hyper-parameters that replace the config's are said, one line each (they
+        were replaced silently); another model's that fail to parse are one line, not a usage dump."""
+        data = getattr(self, "_ckpt_data", None)
+        sub = self.config.get("subcommand")
+        ckpt = self.config[sub].get("ckpt_path") if sub else None
+        before = {}
+        if data is not None:
+            theirs = (data.get("hyper_parameters") or {}).get("_class_path")
+            model = self.config[sub].get("model")
+            ours = getattr(model, "class_path", None)
+            if theirs and ours and theirs != ours:
+                raise ConfigError(f"ckpt_path: {ckpt} is a checkpoint of {theirs}; the config's model is "
+                                  f"{ours} (give the matching config, or a checkpoint of this model)")
+            before = self._model_args()
         try:
             super()._parse_ckpt_path()
         except ArgumentError as exc:
-            ckpt = self.config[self.config.subcommand].get("ckpt_path")
             raise ConfigError(
                 f"ckpt_path: the hyper-parameters of {ckpt} do not fit the config's model (a checkpoint of "
                 f"another model?): {_reason(exc)}"
             ) from None
+        if data is not None:
+            after = self._model_args()
+            for key in after:
+                if before.get(key) is not None and before[key] != after[key]:
+                    print(f"train.py: note: model.{key}: {after[key]!r} from {ckpt} replaces the config's "
+                          f"{before[key]!r} (a checkpoint keeps the hyper-parameters it was trained with)",
+                          file=sys.stderr)
+
+    def _check_last_fits(self, subcommand: str) -> None:
+        """``--ckpt_path last``: Lightning loads the file into the model the config built, without its
+        hyper-parameters; one of another class, or whose weights do not fit (the config changed the
+        architecture), is refused in one line naming the settings that differ, instead of a state-dict
+        traceback. Settings that differ without changing the weights' shapes apply, and are said."""
+        from vtlearn.models.actor import read_lightning_checkpoint
+
+        if self.config_init[subcommand].get("ckpt_path") != "last":
+            return
+        _, found = _last_checkpoints(self.trainer)
+        if not found:
+            return
+        path = max(found, key=lambda f: f.stat().st_mtime)
+        try:
+            data = read_lightning_checkpoint(path)
+        except ValueError as exc:
+            raise ConfigError(f"ckpt_path: last: {str(exc).removeprefix('ckpt: ')}") from None
+        hp = dict(data.get("hyper_parameters") or {})
+        theirs = hp.pop("_class_path", None)
+        hp.pop("_instantiator", None)
+        ours = f"{type(self.model).__module__}.{type(self.model).__qualname__}"
+        if theirs and theirs != ours:
+            raise ConfigError(f"ckpt_path: last ({path}) is a checkpoint of {theirs}; the config's model is "
+                              f"{ours}")
+        mine = dict(self.model.hparams)
+        # a None here is a value the model fills in at setup (class names, the input normalisation)
+        differ = {k: (v, mine[k]) for k, v in hp.items() if mine.get(k) is not None and mine[k] != v}
+        shapes = {k: tuple(v.shape) for k, v in self.model.state_dict().items()}
+        stored = {k: tuple(v.shape) for k, v in data["state_dict"].items()}
+        said = ", ".join(f"{k}={a!r} there, {b!r} here" for k, (a, b) in differ.items())
+        if shapes != stored:
+            raise ConfigError(f"ckpt_path: last ({path}) does not fit the config's model"
+                              f"{': ' + said if said else ''}; resume with the settings it was trained with, "
+                              "or train from scratch in another checkpoint folder")
+        for k, (a, b) in differ.items():
+            print(f"train.py: note: model.{k}: the config's {b!r} applies on resuming from {path} (trained "
+                  f"with {a!r})", file=sys.stderr)
 
     def instantiate_classes(self) -> None:
         try:
@@ -123,14 +195,35 @@ class VtlearnCLI(LightningCLI):
                 "score untrained weights (train first with fit, or pass a checkpoint file)"
             )
 
+    def _untrained_note(self, subcommand: str) -> None:
+        if self.config_init[subcommand].get("ckpt_path") is None:
+            print(f"train.py: note: {subcommand} without --ckpt_path runs the config's freshly initialised "
+                  "weights; pass --ckpt_path last (or a checkpoint file) for a trained model",
+                  file=sys.stderr)
+
+    def before_fit(self) -> None:
+        self._check_last_fits("fit")
+
     def before_validate(self) -> None:
         self._require_last("validate")
+        self._check_last_fits("validate")
+        self._untrained_note("validate")
 
     def before_test(self) -> None:
         self._require_last("test")
+        self._check_last_fits("test")
+        self._untrained_note("test")
 
     def before_predict(self) -> None:
+        from lightning.pytorch.callbacks import BasePredictionWriter
+
+        from vtlearn.prediction_writer import NpzPredictionWriter
+
         self._require_last("predict")
+        self._check_last_fits("predict")
+        self._untrained_note("predict")
+        if not any(isinstance(cb, BasePredictionWriter) for cb in self.trainer.callbacks):
+            self.trainer.callbacks.append(NpzPredictionWriter())  # predictions.npz in the run's log folder
 
 
 def cli_main(args=None) -> LightningCLI:
@@ -139,7 +232,8 @@ def cli_main(args=None) -> LightningCLI:
         subclass_mode_model=True,
         subclass_mode_data=True,
         save_config_kwargs={"overwrite": True},
-        parser_kwargs={"exit_on_error": False},  # parse errors raise, and main() prints them on one line
+        # parse errors raise, and main() prints them on one line; no --trainer.max_epoch for max_epochs
+        parser_kwargs={"exit_on_error": False, "allow_abbrev": False},
         args=args,
     )
 

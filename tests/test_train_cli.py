@@ -37,6 +37,7 @@ def run(cross_dir, tmp_path, monkeypatch, capsys):
         text = re.sub(r"--- Logging error ---.*?\nArguments:[^\n]*\n", "", text, flags=re.S)
         err = [ln for ln in text.splitlines() if ln.strip()]
         assert not any("Traceback" in ln or ln.startswith("usage:") for ln in err), "\n".join(err)
+        call.lines = err
         return code, (err[-1] if err else "")
 
     return call
@@ -77,3 +78,47 @@ def test_last_before_training_is_refused_and_fit_resumes(run, tmp_path):
     assert run("fit", "--trainer.max_epochs=2", "--ckpt_path=last")[0] == 0
     assert torch.load(last, weights_only=True)["epoch"] == 1  # resumed: the second epoch, not a new first one
     assert run("validate", "--ckpt_path=last")[0] == 0
+    # predict keeps what it computes: the class probabilities of the test tactile clouds, with their labels
+    import numpy as np
+
+    assert run("predict", "--ckpt_path=last")[0] == 0
+    with np.load(ckpts.parent / "predictions.npz", allow_pickle=False) as out:  # no logger: the root folder
+        probs, label, names = out["predictions"], out["label"], out["class_names"]
+    assert probs.ndim == 2 and probs.shape == (len(label), len(names))
+    np.testing.assert_allclose(probs.sum(1), 1.0, atol=1e-5)
+
+
+def test_a_checkpoint_of_another_model_class_is_refused(run, tmp_path):
+    """Lightning would build the checkpoint's class in place of the config's and fail deep in training."""
+    other = {"state_dict": {"w": torch.ones(2)},
+             "hyper_parameters": {"_class_path": "vtlearn.models.actor.ACTOR", "num_points": 64}}
+    torch.save(other, tmp_path / "actor.ckpt")
+    for sub in ("fit", "test"):
+        code, err = run(sub, f"--ckpt_path={tmp_path / 'actor.ckpt'}")
+        assert code == 2 and err.startswith(f"train.py: error: ckpt_path: {tmp_path / 'actor.ckpt'} is a "
+                                            "checkpoint of vtlearn.models.actor.ACTOR; the config's model is "
+                                            "vtlearn.models.xavtnet.XAVTNet")
+
+
+def test_resuming_with_another_architecture_is_said_not_silent(run, tmp_path):
+    """--ckpt_path last with a changed architecture is one line naming the setting (was a state-dict
+    traceback); a checkpoint file's hyper-parameters replace the config's, and each replaced one is said
+    (was silent); validate/test without a checkpoint say they run untrained weights."""
+    assert run("fit", "--trainer.max_epochs=1")[0] == 0
+    code, err = run("fit", "--trainer.max_epochs=2", "--ckpt_path=last", "--model.init_args.global_dim=64")
+    assert code == 2 and "ckpt_path: last (" in err
+    assert "does not fit the config's model: global_dim=32 there, 64 here; resume with the settings it was " \
+        "trained with" in err
+    last = tmp_path / "runs" / "xavtnet_quick" / "checkpoints" / "last.ckpt"
+    code, _ = run("validate", f"--ckpt_path={last}", "--model.init_args.global_dim=64")
+    assert code == 0
+    assert (f"train.py: note: model.global_dim: 32 from {last} replaces the config's 64 (a checkpoint keeps "
+            "the hyper-parameters it was trained with)") in run.lines
+    assert run("test")[0] == 0
+    assert any(ln.startswith("train.py: note: test without --ckpt_path runs the config's freshly initialised")
+               for ln in run.lines)
+
+
+def test_an_abbreviated_option_is_not_taken_for_the_full_one(run):
+    code, err = run("fit", "--trainer.max_epoch=1")
+    assert code == 2 and "--trainer.max_epoch" in err

@@ -17,8 +17,9 @@ def default_logger(save_dir: str = "runs", name: str = "vtlearn", project: str =
     """Build the default experiment logger.
 
     * ``WANDB_MODE=disabled`` (tests) or wandb not importable -> ``CSVLogger(save_dir, name)``.
-    * otherwise ``WandbLogger`` in **offline** mode unless the user configured wandb (``WANDB_MODE`` set to
-      ``online`` or an ``WANDB_API_KEY`` present); nothing is uploaded without that.
+    * otherwise ``WandbLogger`` in **offline** mode unless ``WANDB_MODE=online``; nothing is uploaded without
+      that (an API key alone does not switch it on, as in ``train.py``, which sets ``WANDB_MODE=offline``
+      when it is unset).
     """
     from lightning.pytorch.loggers import CSVLogger
 
@@ -30,6 +31,5 @@ def default_logger(save_dir: str = "runs", name: str = "vtlearn", project: str =
         from lightning.pytorch.loggers import WandbLogger
     except Exception:  # noqa: BLE001 - any import problem means: fall back to CSV
         return CSVLogger(save_dir=save_dir, name=name)
-    configured = mode == "online" or bool(os.environ.get("WANDB_API_KEY"))
     os.makedirs(save_dir, exist_ok=True)
-    return WandbLogger(project=project, name=name, save_dir=save_dir, offline=not configured)
+    return WandbLogger(project=project, name=name, save_dir=save_dir, offline=mode != "online")
