@@ -176,3 +176,50 @@ def test_info_lists_each_package_once_and_reports_one_that_does_not_import(capsy
     assert all(isinstance(v, str) for k, v in info["packages"].items() if k != "scikit-learn")
     assert not {"numpy", "open3d", "pybullet"} & set(info)  # versions live under "packages" only
     assert list(info["import_errors"]) == ["open3d"] and "libusb" in info["import_errors"]["open3d"]
+
+
+def _interrupt(args):
+    raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("argv, handler, expected", [
+    (["gen-data", "crossmodal", "--out", "ds"], ("vtlearn.sim_data.cli", "_cmd_gen_data"),
+     "vtlearn gen-data: interrupted; finished shards are kept, run the same command again to resume"),
+    (["gen-episodes", "--source", "ds", "--out", "ep"],
+     ("vtlearn.active.experiments_cli", "_cmd_gen_episodes"),
+     "vtlearn gen-episodes: interrupted; finished shards are kept, run the same command again to resume"),
+    (["info"], ("vtlearn.cli", "_cmd_info"), "vtlearn info: interrupted"),
+])
+def test_ctrl_c_prints_one_line_and_exits_130(argv, handler, expected, capsys, monkeypatch):
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module(handler[0]), handler[1], _interrupt)
+    assert main(argv) == 130
+    captured = capsys.readouterr()
+    assert captured.err == expected + "\n" and "Traceback" not in captured.out + captured.err
+
+
+def test_ctrl_c_in_a_bench_names_the_benchmark(tmp_path, capsys, monkeypatch):
+    import vtlearn.sim_data.bench as sim_bench
+
+    monkeypatch.setattr(sim_bench, "run", _interrupt)
+    assert main(["bench", "sim", "--json", str(tmp_path / "sim.json")]) == 130
+    assert capsys.readouterr().err == "vtlearn bench sim: interrupted\n"
+
+
+def test_gen_data_help_explains_every_option_and_states_its_default(capsys):
+    import argparse
+
+    actions = [a for path, a in _parser_actions(build_parser())
+               if path == ("vtlearn", "gen-data") and not isinstance(a, argparse._HelpAction)]
+    assert len(actions) > 20
+    for action in actions:
+        assert action.help, f"gen-data {action.option_strings or action.dest}: no help text"
+        if action.option_strings and not action.required and action.default is not False:
+            assert "default" in action.help, f"gen-data {action.option_strings}: no default in its help"
+    with pytest.raises(SystemExit):
+        main(["gen-data", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for shown in ("--sections SECTIONS angular resolution", "(default: 48)", "(default: 0.7,0.15,0.15)",
+                  "(default: xela_4x4)", "instances per category (default: 10)"):
+        assert shown in text

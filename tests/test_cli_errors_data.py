@@ -202,6 +202,19 @@ def test_reconstruct_checks_output_paths_first(recon_dir, actor_ckpt, tmp_path, 
     assert not dense.exists()  # nothing written by any refused run
 
 
+def test_reconstruct_names_input_for_a_missing_or_bad_file(actor_ckpt, tmp_path, capsys):
+    """`reconstruct --input nope.ply` said `nope.ply: no such file` without the flag."""
+    base = ["reconstruct", "--ckpt", actor_ckpt, "--out", str(tmp_path / "dense.ply")]
+    err = _error(capsys, [*base, "--input", str(tmp_path / "nope.ply")])
+    assert err == f"vtlearn: error: --input: no such file: {tmp_path / 'nope.ply'}\n"
+    err = _error(capsys, [*base, "--input", str(tmp_path)])
+    assert err.startswith("vtlearn: error: --input: ") and "not a regular file" in err
+    (tmp_path / "bad.xyz").write_text("1 2\nnot numbers\n")
+    err = _error(capsys, [*base, "--input", str(tmp_path / "bad.xyz")])
+    assert err.startswith("vtlearn: error: --input: ")
+    assert not (tmp_path / "dense.ply").exists()
+
+
 def test_bench_actor_checks_markdown_first(recon_dir, actor_ckpt, tmp_path, capsys):
     err = _error(capsys, ["bench", "actor", "--ckpt", actor_ckpt, "--data", str(recon_dir), "--markdown",
                           str(tmp_path), "--json", str(tmp_path / "a.json")])

@@ -70,6 +70,27 @@ def test_shards_format_and_manifest(tmp_path):
         )
 
 
+def test_another_config_in_the_folder_names_the_settings_that_differ(tmp_path, capsys):
+    from dataclasses import asdict
+
+    from vtlearn.cli import main
+    from vtlearn.sim_data.writer import claim_out_dir
+
+    out = tmp_path / "ds"
+    folder_cfg = GenConfig(kind="reconstruction", categories=["can", "box", "cup"], per_category=6)
+    claim_out_dir(out, asdict(folder_cfg))
+    argv = ["gen-data", "reconstruction", "--out", str(out), "--categories", "can,box,cup"]
+    assert main([*argv, "--per-category", "5", "--seed", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vtlearn: error: --out: {out} holds a dataset made with another config")
+    assert "per_category: 6 in the folder, 5 asked; seed: 0 in the folder, 3 asked)" in err
+    assert err.count(" in the folder, ") == 2  # only the settings that differ
+    assert not list(out.glob("*.npz"))
+    from vtlearn.sim_data.writer import config_differences
+
+    assert config_differences({"a": 1}, {"a": 1, "b": [1, 2]}) == "b: not set in the folder, [1, 2] asked"
+
+
 def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     """Acceptance: kill gen-data halfway, rerun it: the manifest equals an uninterrupted run's."""
     ref = generate_dataset(_cfg(), tmp_path / "ref", progress=False)
@@ -158,3 +179,41 @@ def test_crop_to_box_and_bad_margin():
     assert len(crop_to_box(pts, np.zeros(3), np.ones(3), None)) == 4
     with pytest.raises(ValueError, match="visual_crop_margin"):
         GenConfig(kind="crossmodal", visual_crop_margin=-0.1).validate()
+
+
+_SLOW_WORKER = """
+import time
+
+
+def work(job, out):
+    time.sleep(1.0)
+    return {"file": job["name"]}
+"""
+
+
+def test_ctrl_c_stops_a_multi_worker_run_at_once(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group) during ``--workers 2``: the run stops within seconds
+    with one KeyboardInterrupt (leaving the pool used to wait for every queued shard, or hang), and the
+    workers print no traceback of their own."""
+    (tmp_path / "slow_worker.py").write_text(_SLOW_WORKER)
+    code = (
+        "import sys; from pathlib import Path; import slow_worker; "
+        "from vtlearn.sim_data.writer import run_shard_jobs; "
+        "run_shard_jobs(Path(sys.argv[1]), [{'name': f'train-{i:05d}.npz'} for i in range(60)], "
+        "slow_worker.work, (), workers=2, progress=False)"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        time.sleep(4.0)  # the workers start and take their first jobs
+        assert proc.poll() is None
+        os.killpg(proc.pid, signal.SIGINT)
+        start = time.monotonic()
+        _, err = proc.communicate(timeout=15)
+        assert time.monotonic() - start < 10
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode != 0 and err.count("KeyboardInterrupt") == 1, err

@@ -152,6 +152,21 @@ def _check_output_options(args: argparse.Namespace) -> None:
             check_output_path(value, "--" + attr.replace("_", "-"), what, folder=folder)
 
 
+# commands that write shards atomically and skip the finished ones on a rerun
+_RESUMABLE_COMMANDS = frozenset({"gen-data", "gen-episodes"})
+
+
+def _interrupted_message(args: argparse.Namespace) -> str:
+    """The one line printed for Ctrl-C instead of a KeyboardInterrupt traceback."""
+    command = getattr(args, "command", None) or ""
+    if command == "bench" and getattr(args, "bench", None):
+        command = f"bench {args.bench}"
+    name = f"vtlearn {command}".rstrip()
+    if command in _RESUMABLE_COMMANDS:
+        return f"{name}: interrupted; finished shards are kept, run the same command again to resume"
+    return f"{name}: interrupted"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -175,6 +190,10 @@ def main(argv: list[str] | None = None) -> int:
         reason = (exc.strerror or str(exc)).lower()
         print(f"vtlearn: error: cannot use {exc.filename}: {reason}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # Ctrl-C: one line, not a traceback; 130 = 128 + SIGINT, as a shell reports it
+        print(_interrupted_message(args), file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

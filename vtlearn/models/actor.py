@@ -28,7 +28,7 @@ import lightning as L
 import numpy as np
 import torch
 from torch import Tensor
-from torchmetrics import MeanMetric, MinMetric
+from torchmetrics import MeanMetric
 
 from vtlearn.geometry.metrics import earth_movers_distance
 from vtlearn.models.components.actor_decoder import ActorDecoder
@@ -45,6 +45,10 @@ __all__ = [
     "read_lightning_checkpoint",
     "bn_momentum_at",
 ]
+
+#: The checkpoint-dict key holding the best-so-far validation metrics (``{"val/cd_mm_best": float}``, plain
+#: floats), written by ``on_save_checkpoint`` and read back on a resume. Not in the state dict.
+BEST_METRICS_KEY = "vtlearn_best_metrics"
 
 
 def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -231,7 +235,9 @@ class ACTOR(L.LightningModule):
         self.test_cd = MeanMetric()
         self.test_hd = MeanMetric()
         self.test_emd = MeanMetric()
-        self.val_cd_best = MinMetric()
+        # The best validation CD so far: a plain float, carried across resumes in the checkpoint under
+        # BEST_METRICS_KEY (not in the state dict, so that older checkpoints still load with strict=True).
+        self.val_cd_best = math.inf
         self._figure_batch: dict[str, Tensor] | None = None
 
     # ---------------------------------------------------------------- forward
@@ -325,9 +331,14 @@ class ACTOR(L.LightningModule):
         self._figure_batch = None
 
     def on_validation_epoch_end(self) -> None:
-        cd = self.val_cd.compute()
-        self.val_cd_best(cd)
-        self.log("val/cd_mm_best", self.val_cd_best.compute(), sync_dist=True, prog_bar=True)
+        cd = float(self.val_cd.compute())
+        # the sanity check evaluates the untrained model, or the checkpoint's weights again on a resume:
+        # neither is an epoch of this run, so it must not move the best
+        if self.trainer.sanity_checking:
+            return
+        if not math.isnan(cd):
+            self.val_cd_best = min(self.val_cd_best, cd)
+        self.log("val/cd_mm_best", self.val_cd_best, sync_dist=True, prog_bar=True)
         if (
             self.hparams.log_figures
             and self._figure_batch is not None
@@ -339,6 +350,15 @@ class ACTOR(L.LightningModule):
             fb = self._figure_batch
             fig = reconstruction_figure([[fb["sparse"].numpy(), fb["pred"].numpy(), fb["dense"].numpy()]])
             log_figure(self.logger, "val/reconstruction", fig, self.global_step)
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint.setdefault(BEST_METRICS_KEY, {})["val/cd_mm_best"] = float(self.val_cd_best)
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        # checkpoints written before the best was saved have no entry: the best restarts from this run
+        best = checkpoint.get(BEST_METRICS_KEY, {}).get("val/cd_mm_best")
+        if best is not None:
+            self.val_cd_best = float(best)
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         loss, pred = self.model_step(batch)

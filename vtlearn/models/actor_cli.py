@@ -79,6 +79,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
     if args.gt and not Path(args.gt).is_file():
         raise FileNotFoundError(f"--gt: no such file: {args.gt}")
+    if args.input is not None:
+        if not Path(args.input).exists():
+            raise FileNotFoundError(f"--input: no such file: {args.input}")
+        input_cloud = load_named(read_cloud, args.input, "--input")  # a folder or a malformed file
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is not None:
@@ -87,7 +91,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     gt = None
     centre, scale = np.zeros(3), 1.0  # canonical -> output frame
     if args.input is not None:
-        sparse = read_cloud(args.input)
+        sparse = input_cloud
         if args.extent_m is not None:
             # metres -> the canonical box frame of the training data, and the reconstruction back to metres
             from vtlearn.geometry.transforms import canonical_box

@@ -14,15 +14,22 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 import numpy as np
 import torch
 from torch import Tensor, nn
-from torchmetrics import MaxMetric, MeanMetric
+from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
-from vtlearn.models.actor import _masked_centre, _plain_hparams, load_actor, read_lightning_checkpoint
+from vtlearn.models.actor import (
+    BEST_METRICS_KEY,
+    _masked_centre,
+    _plain_hparams,
+    load_actor,
+    read_lightning_checkpoint,
+)
 from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.validation import ConfigMismatchError, as_int, as_real
 
@@ -138,7 +145,8 @@ class ACTORRecognition(L.LightningModule):
         self.test_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_confusion = MulticlassConfusionMatrix(num_classes)
         self.test_confusion = MulticlassConfusionMatrix(num_classes)
-        self.val_acc_best = MaxMetric()
+        # best validation accuracy so far: a plain float carried in the checkpoint (not the state dict)
+        self.val_acc_best = -math.inf
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -197,11 +205,23 @@ class ACTORRecognition(L.LightningModule):
         self.log("val/acc", self.val_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
 
     def on_validation_epoch_end(self) -> None:
-        self.val_acc_best(self.val_acc.compute())
-        self.log("val/acc_best", self.val_acc_best.compute(), prog_bar=True)
+        acc = float(self.val_acc.compute())
+        # the sanity check is no epoch of this run (on a resume it re-evaluates the checkpoint's weights)
+        if not self.trainer.sanity_checking:
+            if not math.isnan(acc):
+                self.val_acc_best = max(self.val_acc_best, acc)
+            self.log("val/acc_best", self.val_acc_best, prog_bar=True)
         matrix = self.val_confusion.compute().cpu().numpy()
         self.val_confusion.reset()
         self._log_confusion("val/confusion", matrix)
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint.setdefault(BEST_METRICS_KEY, {})["val/acc_best"] = float(self.val_acc_best)
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        best = checkpoint.get(BEST_METRICS_KEY, {}).get("val/acc_best")  # absent in older checkpoints
+        if best is not None:
+            self.val_acc_best = float(best)
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         loss, preds, targets = self.model_step(batch)

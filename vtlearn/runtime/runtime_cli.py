@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from vtlearn.bench_utils import csv_list
 from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench"]
+
+log = logging.getLogger(__name__)
 
 
 # the files a `vtlearn quickstart --out` directory (``--models``) supplies, and the flag that overrides each
@@ -137,6 +140,31 @@ def _scene_figure(path: Path, before, after, titles: tuple[str, str]) -> None:
     plt.close(fig)
 
 
+def _warn_unknown_target(target: str, names: list[str] | None, source) -> None:
+    """One warning, before the scene is built, when ``--target``'s category is not one of the xAVTNet's
+    classes (``names``, from ``source``: ``(path, flag)``): its recognition then cannot be right."""
+    if names is None or target in names:
+        return
+    where = f" ({source[1]} {source[0]})" if source else ""
+    log.warning(
+        "--target %s is not one of the xAVTNet's %d classes%s: %s; its recognition cannot be right "
+        "(pass a --target among them, or models trained with %s)",
+        target, len(names), where, ", ".join(names), target,
+    )
+
+
+def _explore_progress(bar):
+    """A ``progress(done, total)`` callback of the exploration that keeps ``bar`` at ``done`` of ``total``:
+    the episode's own total (a transparent target gets no views), so the bar ends full."""
+
+    def update(done: int, total: int) -> None:
+        if bar.total != total:
+            bar.total = total
+        bar.update(done - bar.n)
+
+    return update
+
+
 def _cmd_runtime(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -146,6 +174,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
 
     actor, xav, names = _load_models(paths)
+    _warn_unknown_target(target_cat, names, paths[2] or paths[1])
     target_obj, clutter = clutter_scene(target_cat, clutter_cats, transparent=transparent, seed=args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -156,7 +185,8 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             rt.add_object(c)
         rt.scene.step(120)  # let the free clutter settle
         before = rt.observe().frame.rgb
-        bar = tqdm(total=args.n_touches + 3, desc="explore", leave=False)
+        # the total is the episode's own: --n-touches, plus 3 views only for a target detected as opaque
+        bar = tqdm(total=args.n_touches, desc="explore", leave=False)
         report = rt.run(
             target,
             n_touches=args.n_touches,
@@ -164,7 +194,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             n_candidates=args.n_candidates,
             strategy=args.strategy,
             declutter_figure=out / "declutter.png",
-            progress=lambda i, n: bar.update(),
+            progress=_explore_progress(bar),
         )
         bar.close()
         after = rt.observe().frame.rgb

@@ -87,44 +87,70 @@ def register(sub) -> None:
     p.add_argument("--sections", type=count(1), default=48, help="angular resolution of revolved parts")
     p.set_defaults(func=_cmd_gen_shapes)
 
-    p = sub.add_parser("gen-data", help="sharded synthetic datasets (reconstruction | crossmodal)")
-    p.add_argument("kind", choices=["reconstruction", "crossmodal"])
-    p.add_argument("--out", required=True)
-    p.add_argument("--categories", type=csv_list, default=list(CATEGORIES))
-    p.add_argument("--per-category", type=count(1), default=10)
-    p.add_argument("--seed", type=count(0), default=0)
+    p = sub.add_parser(
+        "gen-data",
+        help="sharded synthetic datasets (reconstruction | crossmodal)",
+        description="Sharded synthetic datasets, resumable: a rerun with the same settings skips the "
+        "finished shards, which a Ctrl-C keeps.",
+    )
+    p.add_argument("kind", choices=["reconstruction", "crossmodal"],
+                   help="reconstruction: dense + tactile clouds (ACTOR); crossmodal: visual + tactile clouds "
+                   "(xAVTNet)")
+    p.add_argument("--out", required=True, help="dataset folder (a rerun into it resumes)")
+    p.add_argument("--categories", type=csv_list, default=list(CATEGORIES),
+                   help=f"comma-separated categories (default: all {len(CATEGORIES)}: "
+                   f"{', '.join(CATEGORIES)})")
+    p.add_argument("--per-category", type=count(1), default=10,
+                   help="instances per category (default: %(default)s)")
+    p.add_argument("--seed", type=count(0), default=0,
+                   help="seed of the shapes and the sensing (default: %(default)s)")
     p.add_argument(
         "--splits",
         type=lambda s: [float(x) for x in s.split(",")],
         default=[0.7, 0.15, 0.15],
-        help="train,val,test instance fractions",
+        help="train,val,test instance fractions (default: 0.7,0.15,0.15)",
     )
-    p.add_argument("--shard-size", type=count(1), default=16, help="instances per shard")
-    p.add_argument("--sections", type=count(1), default=48)
+    p.add_argument("--shard-size", type=count(1), default=16,
+                   help="instances per shard (default: %(default)s)")
+    p.add_argument("--sections", type=count(1), default=48,
+                   help="angular resolution of the procedural meshes' revolved parts, in segments per turn "
+                   "(default: %(default)s)")
     p.add_argument(
-        "--sensor", default="xela_4x4", help="xela_4x4 | xela_6x4 | xela_6x1 | contactile_3x3 | RxC@Pmm"
+        "--sensor", default="xela_4x4",
+        help="tactile sensor: xela_4x4 | xela_6x4 | xela_6x1 | contactile_3x3 | RxC@Pmm "
+        "(default: %(default)s)",
     )
-    p.add_argument("--touches", type=count(1), default=40, help="reconstruction: touches per instance")
-    p.add_argument("--pinches", type=count(0), default=10, help="reconstruction: pinches per instance")
-    p.add_argument("--position-noise", type=float, default=0.0, help="tactile position noise std (m)")
-    p.add_argument("--dropout", type=float, default=0.0, help="taxel dropout probability")
-    p.add_argument("--views", type=count(1), default=4, help="crossmodal: visual clouds per instance")
+    p.add_argument("--touches", type=count(1), default=40,
+                   help="reconstruction: touches per instance (default: %(default)s)")
+    p.add_argument("--pinches", type=count(0), default=10,
+                   help="reconstruction: pinches per instance (default: %(default)s)")
+    p.add_argument("--position-noise", type=float, default=0.0,
+                   help="tactile position noise std in metres (default: %(default)s)")
+    p.add_argument("--dropout", type=float, default=0.0,
+                   help="taxel dropout probability (default: %(default)s)")
+    p.add_argument("--views", type=count(1), default=4,
+                   help="crossmodal: visual clouds per instance (default: %(default)s)")
     p.add_argument("--tactile-clouds", type=count(1), default=4,
-                   help="crossmodal: tactile clouds per instance")
-    p.add_argument("--width", type=count(1), default=320)
-    p.add_argument("--height", type=count(1), default=240)
-    p.add_argument("--no-depth-noise", action="store_true")
+                   help="crossmodal: tactile clouds per instance (default: %(default)s)")
+    p.add_argument("--width", type=count(1), default=320,
+                   help="crossmodal: depth-camera image width in pixels (default: %(default)s)")
+    p.add_argument("--height", type=count(1), default=240,
+                   help="crossmodal: depth-camera image height in pixels (default: %(default)s)")
+    p.add_argument("--no-depth-noise", action="store_true",
+                   help="crossmodal: exact depth images (default: with depth noise)")
     p.add_argument("--visual-crop-margin", type=float, default=0.05,
-                   help="crossmodal: keep visual points inside the object's box grown by this fraction")
+                   help="crossmodal: keep visual points inside the object's box grown by this fraction "
+                   "(default: %(default)s)")
     p.add_argument("--no-visual-crop", action="store_true",
                    help="crossmodal: keep the whole segmentation mask (transparent see-through returns too)")
     p.add_argument(
         "--meshes",
         default=None,
         help="use real meshes instead of procedural ones: a ShapeNetCore v2, ModelNet40 or "
-        "category-per-folder directory, or 'pybullet_data'",
+        "category-per-folder directory, or 'pybullet_data' (default: procedural meshes)",
     )
-    p.add_argument("--workers", type=count(1), default=1)
+    p.add_argument("--workers", type=count(1), default=1,
+                   help="worker processes writing shards (default: %(default)s)")
     p.set_defaults(func=_cmd_gen_data)
 
     p = sub.add_parser("preview", help="PNG grid per category: mesh, dense, tactile and visual clouds")

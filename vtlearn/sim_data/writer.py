@@ -247,6 +247,28 @@ def _shard_done(out: Path, name: str) -> dict | None:
     return meta if meta.get("sha256") == sha256_file(shard) else None
 
 
+_MISSING = object()
+
+
+def _short(value, limit: int = 60) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def config_differences(old: dict, new: dict) -> str:
+    """The settings that differ between a folder's ``config.json`` (``old``) and the run asked for (``new``),
+    one ``key: A in the folder, B asked`` each, ``;``-separated (e.g. ``per_category: 6 in the folder, 5
+    asked``)."""
+    parts = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key, _MISSING), new.get(key, _MISSING)
+        if a != b:
+            a = "not set" if a is _MISSING else _short(a)
+            b = "not set" if b is _MISSING else _short(b)
+            parts.append(f"{key}: {a} in the folder, {b} asked")
+    return "; ".join(parts)
+
+
 def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, what: str = "dataset") -> None:
     """Create ``out`` and record ``config.json``, or refuse (ValueError) a folder made with another config.
 
@@ -258,12 +280,48 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
     cfg_path = out / "config.json"
     if cfg_path.exists():
         old = {**(old_defaults or {}), **json.loads(cfg_path.read_text())}
-        if old != json.loads(json.dumps(cfg_dict)):
-            raise ValueError(f"out_dir: {out} holds a {what} made with another config; use a new directory")
+        new = json.loads(json.dumps(cfg_dict))
+        if old != new:
+            raise ValueError(
+                f"out_dir: {out} holds a {what} made with another config ({config_differences(old, new)}); "
+                "use a new directory, or the folder's settings to resume it"
+            )
     else:
         write_json_atomic(cfg_path, cfg_dict)
     for stale in out.glob("*.tmp*"):
         stale.unlink()
+
+
+def _ignore_sigint() -> None:
+    """Shard-worker initializer: Ctrl-C reaches the whole process group, and only the parent handles it
+    (it stops the workers), so a worker prints no KeyboardInterrupt traceback of its own."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, workers: int, done: dict,
+                 bar) -> None:
+    """:func:`run_shard_jobs`'s jobs in ``workers`` spawned processes, filling ``done``."""
+    import multiprocessing as mp
+
+    ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
+    try:
+        futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
+        for f in as_completed(futs):
+            meta = f.result()
+            done[meta["file"]] = meta
+            bar.update()
+    except KeyboardInterrupt:
+        # Ctrl-C: stop now. Leaving the pool normally waited for every queued shard (or hung): the
+        # workers are stopped instead; the shards they were writing leave only *.tmp* files, which the
+        # rerun removes and redoes, and the finished shards are kept.
+        for proc in list((getattr(ex, "_processes", None) or {}).values()):
+            proc.terminate()
+        ex.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        ex.shutdown(wait=True)  # as a `with` block: a failing shard is raised once the others are done
 
 
 def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, workers: int = 1,
@@ -282,20 +340,15 @@ def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, work
         todo = todo[: int(max_shards)]
     log.info("%s: %d shards, %d already done", desc, len(jobs), len(jobs) - len(todo))
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, disable=not progress)
-    if workers <= 1:
-        for j in todo:
-            done[j["name"]] = worker(*worker_args, j, str(out))
-            bar.update()
-    else:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(int(workers), mp_context=mp.get_context("spawn")) as ex:
-            futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
-            for f in as_completed(futs):
-                meta = f.result()
-                done[meta["file"]] = meta
+    try:
+        if workers <= 1:
+            for j in todo:
+                done[j["name"]] = worker(*worker_args, j, str(out))
                 bar.update()
-    bar.close()
+        else:
+            _run_in_pool(todo, worker, worker_args, out, int(workers), done, bar)
+    finally:
+        bar.close()  # also on Ctrl-C, so that the CLI's "interrupted" line starts a line of its own
     if any(v is None for v in done.values()):
         return None
     return [done[j["name"]] for j in jobs]
