@@ -158,7 +158,8 @@ class ACTORRecognition(L.LightningModule):
         n = getattr(dm, "num_classes", None)
         if n is not None and int(n) != self.hparams.num_classes:
             raise ConfigMismatchError(
-                f"num_classes: model has {self.hparams.num_classes}, datamodule has {n}")
+                f"num_classes: model has {self.hparams.num_classes}, datamodule has {n} (set "
+                f"model.init_args.num_classes: {n} in the config, or --model.init_args.num_classes {n})")
 
     def _class_names(self) -> list[str]:
         if self.hparams.class_names:

@@ -597,7 +597,8 @@ class XAVTNet(L.LightningModule):
         if len(names) != self.hparams.num_classes:
             raise ConfigMismatchError(
                 f"datamodule: {len(names)} classes {names}, "
-                f"the model has num_classes={self.hparams.num_classes}"
+                f"the model has num_classes={self.hparams.num_classes} (set model.init_args.num_classes: "
+                f"{len(names)} in the config, or --model.init_args.num_classes {len(names)})"
             )
         if self.hparams.class_names is None:
             self.hparams.class_names = names
