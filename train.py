@@ -175,9 +175,16 @@ class VtlearnCLI(LightningCLI):
             raise ConfigError(f"ckpt_path: last ({path}) does not fit the config's model"
                               f"{': ' + said if said else ''}; resume with the settings it was trained with, "
                               "or train from scratch in another checkpoint folder")
+        groups = (data.get("optimizer_states") or [{}])[0].get("param_groups") or [{}]
+        restored = set(groups[0]) if subcommand == "fit" else set()  # fit restores the optimizer's state
         for k, (a, b) in differ.items():
-            print(f"train.py: note: model.{k}: the config's {b!r} applies on resuming from {path} (trained "
-                  f"with {a!r})", file=sys.stderr)
+            if k in restored:
+                print(f"train.py: note: model.{k}: {a!r} from the optimizer state resumed from {path} "
+                      f"applies, not the config's {b!r} (the checkpoint records the config's)",
+                      file=sys.stderr)
+            else:
+                print(f"train.py: note: model.{k}: the config's {b!r} applies on resuming from {path} "
+                      f"(trained with {a!r})", file=sys.stderr)
 
     def instantiate_classes(self) -> None:
         try:

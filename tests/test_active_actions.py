@@ -139,3 +139,6 @@ def test_bad_input_raises_value_error():
         sample_touch_actions(box, 3, max_rounds=0)
     with pytest.raises(ValueError, match="max_reach"):
         ReachFeasibility([0, 0, 0], max_reach=0.1, min_reach=0.2)
+    far = np.eye(4)[None].repeat(2, 0)
+    far[1, :3, 3] = [100.0, 0.0, 0.0]
+    assert ReachFeasibility([0, 0, 0], max_reach=np.inf, min_reach=0.3)(far).tolist() == [False, True]

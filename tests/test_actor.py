@@ -296,6 +296,11 @@ def test_reconstruct_refuses_clouds_that_are_not_canonical():
         assert reconstruct(model, batch, lengths=[40, 20]).shape[0] == 2
     with pytest.warns(UserWarning, match="pass lengths for a padded batch"):
         reconstruct(model, batch)
+    # a model trained in its data's own units (input_scale) takes clouds of that size
+    scaled = ACTOR(**{**TINY, "input_scale": 170.0})
+    assert reconstruct(scaled, canon * 150.0).shape[-1] == 3
+    with pytest.raises(ValueError, match="spans 170 .the model's input_scale"):
+        reconstruct(scaled, canon * 1000.0)
 
 
 def test_actor_loss_equals_foundation_chamfer_with_padding():

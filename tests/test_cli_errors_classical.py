@@ -200,3 +200,11 @@ def test_pose_files_with_four_decimals_are_read_as_exact_rotations(track_inputs,
     (tmp_path / "bad2.json").write_text(json.dumps([np.eye(4).tolist(), T.tolist()]))
     with pytest.raises(ValueError, match=r"--init-poses \(pose 1\): the 3x3 block is not a proper rotation"):
         read_poses(str(tmp_path / "bad2.json"), "--init-poses")
+
+
+def test_track_leaves_a_csv_beside_the_frames_alone(track_inputs, capsys):
+    """A timestamps.csv beside the frame clouds is metadata, not a frame (.csv is also a cloud format)."""
+    tmp, argv = track_inputs
+    (tmp / "frames" / "timestamps.csv").write_text("frame,t\n0,0.0\n1,0.1\n")
+    assert main([*argv, "--method", "icp"]) == 0
+    assert "\n2 frames, " in capsys.readouterr().out

@@ -293,4 +293,9 @@ def test_lists_in_give_numpy_out_and_torch_in_gives_torch_out():
     assert isinstance(moved, np.ndarray) and np.allclose(moved, P @ T[:3, :3].T + T[:3, 3])
     assert isinstance(chamfer_distance(P.tolist(), moved.tolist()), float)
     assert isinstance(transform_points(torch.as_tensor(T), P), torch.Tensor)
+    from vtlearn.geometry import make_transform, quat_to_matrix
+
+    # lists of whole numbers are float64 vectors, not float32 through an integer tensor
+    assert quat_to_matrix((1, 0, 0, 0)).dtype == np.float64
+    assert make_transform([[1, 0, 0], [0, 1, 0], [0, 0, 1]], [0.1, 0.2, 123456.789])[2, 3] == 123456.789
     assert isinstance(chamfer_distance(torch.as_tensor(P), P), torch.Tensor)

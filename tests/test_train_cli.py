@@ -110,6 +110,12 @@ def test_resuming_with_another_architecture_is_said_not_silent(run, tmp_path):
     assert "does not fit the config's model: global_dim=32 there, 64 here; resume with the settings it was " \
         "trained with" in err
     last = tmp_path / "runs" / "xavtnet_quick" / "checkpoints" / "last.ckpt"
+    # the learning rate lives in the optimizer state that fit restores: the checkpoint's applies, and is said
+    trained_lr = torch.load(last, weights_only=True)["optimizer_states"][0]["param_groups"][0]["lr"]
+    assert run("fit", "--trainer.max_epochs=2", "--ckpt_path=last", "--model.init_args.lr=0.05")[0] == 0
+    assert (f"train.py: note: model.lr: {trained_lr!r} from the optimizer state resumed from {last} applies, "
+            "not the config's 0.05 (the checkpoint records the config's)") in run.lines
+    assert torch.load(last, weights_only=True)["optimizer_states"][0]["param_groups"][0]["lr"] == trained_lr
     code, _ = run("validate", f"--ckpt_path={last}", "--model.init_args.global_dim=64")
     assert code == 0
     assert (f"train.py: note: model.global_dim: 32 from {last} replaces the config's 64 (a checkpoint keeps "

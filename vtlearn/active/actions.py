@@ -125,7 +125,8 @@ class ReachFeasibility:
         if self.base.shape != (3,) or not np.isfinite(self.base).all():
             raise ValueError(f"base: expected a finite (3,) position, got {self.base.tolist()}")
         min_reach = as_real(min_reach, "min_reach", low=0.0, unit="m")
-        max_reach = as_real(max_reach, "max_reach", unit="m")
+        if max_reach != np.inf:  # inf: no outer limit
+            max_reach = as_real(max_reach, "max_reach", unit="m")
         if not min_reach < max_reach:
             raise ValueError(f"max_reach: need 0 <= min_reach < max_reach, got {min_reach}, {max_reach}")
         self.max_reach, self.min_reach = max_reach, min_reach

@@ -118,7 +118,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     files = sorted(
         f
         for f in frames_dir.iterdir()
-        if f.suffix.lower() in CLOUD_SUFFIXES
+        if f.suffix.lower() in CLOUD_SUFFIXES and f.suffix.lower() != ".csv"  # a .csv here is metadata
     )
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")

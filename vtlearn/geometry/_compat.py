@@ -42,7 +42,7 @@ def numpy_compatible(fn: Callable) -> Callable:
                     a = np.asarray(v)
                 except (TypeError, ValueError):  # ragged: left to the kernel's own check
                     return v
-                v = a if a.dtype.kind in "iubf" else v
+                v = a.astype(np.float64) if a.dtype.kind in "iubf" else v  # [1, 0, 0] is a float64 vector
             if isinstance(v, np.ndarray):
                 was_numpy = True
                 if v.dtype.kind in "iub":

@@ -539,23 +539,34 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
         valid = x.detach().cpu().numpy().astype(np.float64)
         if lt is not None and lt.shape == (len(valid),):
             valid[np.arange(valid.shape[1])[None, :] >= lt.cpu().numpy()[:, None]] = np.nan  # the padding
-        _check_canonical(valid)
+        _check_canonical(valid, _input_scale(model))
         return run(x.to(device), lt)
     pts = as_points(points, "points", min_points=3)
-    _check_canonical(pts[None])
+    _check_canonical(pts[None], _input_scale(model))
     x = torch.as_tensor(pts, dtype=torch.float32, device=device)[None]
     return run(x)[0]
 
 
-def _check_canonical(clouds: np.ndarray) -> None:
+def _input_scale(model) -> float:
+    """The units per canonical unit of ``model``'s input (``ACTOR(input_scale=...)``; 1 for the canonical
+    frame and for stand-ins without the hyper-parameter)."""
+    try:
+        return float(dict(getattr(model, "hparams", {}) or {}).get("input_scale", 1.0) or 1.0)
+    except (TypeError, ValueError):
+        return 1.0
+
+
+def _check_canonical(clouds: np.ndarray, input_scale: float = 1.0) -> None:
     """A ValueError naming ``points`` when a cloud of ``clouds`` (B, N, 3; NaN rows are padding) spans more
-    than 2 along an axis: ACTOR's canonical frame puts a whole object within 1."""
+    than 2 along an axis, in units of ``input_scale`` (a model trained with ``input_scale`` takes its data's
+    own units): ACTOR's canonical frame puts a whole object within 1."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-padding cloud
         span = np.nanmax(np.nanmax(clouds, axis=1) - np.nanmin(clouds, axis=1), axis=-1)
     worst = int(np.nanargmax(span)) if np.isfinite(span).any() else 0
-    if np.isfinite(span[worst]) and span[worst] > 2.0:
+    if np.isfinite(span[worst]) and span[worst] > 2.0 * input_scale:
         where = "" if len(clouds) == 1 else f" (cloud {worst})"
         raise ValueError(f"points: spans {span[worst]:.4g}{where}, but ACTOR takes clouds in its canonical "
-                         "frame, where a whole object spans 1 (are they in millimetres?); map a cloud in "
-                         "metres with vtlearn.geometry.transforms.canonical_box(points, extent_m)")
+                         f"frame, where a whole object spans {input_scale:g} (the model's input_scale; are "
+                         "they in millimetres?); map a cloud in metres with "
+                         "vtlearn.geometry.transforms.canonical_box(points, extent_m)")
