@@ -299,8 +299,10 @@ def test_reconstruct_refuses_clouds_that_are_not_canonical():
     # a model trained in its data's own units (input_scale) takes clouds of that size
     scaled = ACTOR(**{**TINY, "input_scale": 170.0})
     assert reconstruct(scaled, canon * 150.0).shape[-1] == 3
-    with pytest.raises(ValueError, match="spans 170 .the model's input_scale"):
+    with pytest.raises(ValueError, match=r"spans 170 \(1, or the model's input_scale"):
         reconstruct(scaled, canon * 1000.0)
+    small = ACTOR(**{**TINY, "input_scale": 0.25})  # a divisor below 1: canonical clouds are still taken
+    assert reconstruct(small, canon).shape[-1] == 3
 
 
 def test_actor_loss_equals_foundation_chamfer_with_padding():

@@ -53,6 +53,11 @@ def test_a_predict_step_that_returns_no_tensor_is_said_and_does_not_stop_predict
     with caplog.at_level(logging.WARNING, logger="vtlearn.prediction_writer"):
         out = _trainer(tmp_path, writer).predict(_Doubler(as_dict=True), dataloaders=_loader(range(3)))
     assert len(out) == 2 and writer.written is None and not (tmp_path / "predictions.npz").exists()
+    trainer = _trainer(tmp_path, writer)
+    trainer.predict(_Doubler(), dataloaders=_loader(range(3)))
+    assert writer.written == tmp_path / "predictions.npz"
+    trainer.predict(_Doubler(as_dict=True), dataloaders=_loader(range(3)))
+    assert writer.written is None  # not the earlier run's file
     assert "predict_step returned a dict, not a tensor" in caplog.text
 
 

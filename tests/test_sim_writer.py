@@ -89,6 +89,12 @@ def test_another_config_in_the_folder_names_the_settings_that_differ(tmp_path, c
     from vtlearn.sim_data.writer import config_differences
 
     assert config_differences({"a": 1}, {"a": 1, "b": [1, 2]}) == "b: not set in the folder, [1, 2] asked"
+    # long values: the difference itself, not two equal truncated prefixes
+    many = [f"category_{i}" for i in range(12)]
+    assert config_differences({"c": many}, {"c": many[:-1]}) == 'c: ["category_11"] only in the folder'
+    a, b = "/data/meshes/" + "x" * 80 + "/v1", "/data/meshes/" + "x" * 80 + "/v2"
+    said = config_differences({"m": a}, {"m": b})
+    assert '/v1" in the folder' in said and '/v2" asked' in said
 
 
 def test_killed_then_rerun_gives_identical_manifest(tmp_path):

@@ -51,6 +51,7 @@ class NpzPredictionWriter(BasePredictionWriter):
         self._outputs: dict[int, list[np.ndarray]] = defaultdict(list)
         self._labels: dict[int, list[np.ndarray]] = defaultdict(list)
         self._skipped: str | None = None
+        self.written = None  # this run's file, once written
 
     def on_predict_epoch_start(self, trainer, pl_module) -> None:
         self._reset()

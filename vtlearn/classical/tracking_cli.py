@@ -103,6 +103,20 @@ def run_tracker(
 
 
 # ---------------------------------------------------------------------------------------------- track
+def _is_frame(path: Path) -> bool:
+    """A ``.csv`` beside the frames may be metadata (``timestamps.csv``): it is a frame only if it reads as a
+    cloud. Every other cloud suffix is a frame, and reading it later reports any error."""
+    from vtlearn.io import read_cloud
+
+    if path.suffix.lower() != ".csv":
+        return True
+    try:
+        read_cloud(path)
+    except ValueError:
+        return False
+    return True
+
+
 def _cmd_track(args: argparse.Namespace) -> int:
     import json
 
@@ -115,11 +129,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
         raise ValueError(f"--frames must be a directory of point clouds, got {args.frames}")
-    files = sorted(
-        f
-        for f in frames_dir.iterdir()
-        if f.suffix.lower() in CLOUD_SUFFIXES and f.suffix.lower() != ".csv"  # a .csv here is metadata
-    )
+    files = sorted(f for f in frames_dir.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and _is_frame(f))
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
     tactile_files = _tactile_files(args.tactile, files)

@@ -558,15 +558,15 @@ def _input_scale(model) -> float:
 
 def _check_canonical(clouds: np.ndarray, input_scale: float = 1.0) -> None:
     """A ValueError naming ``points`` when a cloud of ``clouds`` (B, N, 3; NaN rows are padding) spans more
-    than 2 along an axis, in units of ``input_scale`` (a model trained with ``input_scale`` takes its data's
-    own units): ACTOR's canonical frame puts a whole object within 1."""
+    than 2 along an axis, in units of ``input_scale`` when that is above 1 (a model trained with it takes its
+    data's own units): ACTOR's canonical frame puts a whole object within 1."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-padding cloud
         span = np.nanmax(np.nanmax(clouds, axis=1) - np.nanmin(clouds, axis=1), axis=-1)
     worst = int(np.nanargmax(span)) if np.isfinite(span).any() else 0
-    if np.isfinite(span[worst]) and span[worst] > 2.0 * input_scale:
+    if np.isfinite(span[worst]) and span[worst] > 2.0 * max(1.0, input_scale):
         where = "" if len(clouds) == 1 else f" (cloud {worst})"
         raise ValueError(f"points: spans {span[worst]:.4g}{where}, but ACTOR takes clouds in its canonical "
-                         f"frame, where a whole object spans {input_scale:g} (the model's input_scale; are "
-                         "they in millimetres?); map a cloud in metres with "
+                         f"frame, where a whole object spans {max(1.0, input_scale):g} (1, or the model's "
+                         "input_scale; are they in millimetres?); map a cloud in metres with "
                          "vtlearn.geometry.transforms.canonical_box(points, extent_m)")

@@ -255,6 +255,25 @@ def _short(value, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def _difference(a, b) -> str:
+    """How ``b`` (asked) differs from ``a`` (in the folder), readably: the items added and removed for two
+    lists, the differing ends of two long strings, else both values (shortened)."""
+    if isinstance(a, list) and isinstance(b, list):
+        removed = [x for x in a if x not in b]
+        added = [x for x in b if x not in a]
+        if removed or added:
+            parts = ([f"{_short(removed)} only in the folder"] if removed else []) + (
+                [f"{_short(added)} only asked"] if added else [])
+            return ", ".join(parts)
+    if isinstance(a, str) and isinstance(b, str) and max(len(a), len(b)) > 60:
+        k = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+        start = max(0, k - 20)
+        return f"...{_short(a[start:])} in the folder, ...{_short(b[start:])} asked"
+    a = "not set" if a is _MISSING else _short(a)
+    b = "not set" if b is _MISSING else _short(b)
+    return f"{a} in the folder, {b} asked"
+
+
 def config_differences(old: dict, new: dict) -> str:
     """The settings that differ between a folder's ``config.json`` (``old``) and the run asked for (``new``),
     one ``key: A in the folder, B asked`` each, ``;``-separated (e.g. ``per_category: 6 in the folder, 5
@@ -263,9 +282,7 @@ def config_differences(old: dict, new: dict) -> str:
     for key in sorted(set(old) | set(new)):
         a, b = old.get(key, _MISSING), new.get(key, _MISSING)
         if a != b:
-            a = "not set" if a is _MISSING else _short(a)
-            b = "not set" if b is _MISSING else _short(b)
-            parts.append(f"{key}: {a} in the folder, {b} asked")
+            parts.append(f"{key}: {_difference(a, b)}")
     return "; ".join(parts)
 
 
@@ -300,9 +317,19 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _stop_pool(ex) -> None:
+    """Stop ``ex`` now: its worker processes are terminated and its queued jobs cancelled. The shards they
+    were writing leave only ``*.tmp*`` files, which a rerun removes and redoes; finished shards are kept."""
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+        proc.terminate()
+    ex.shutdown(wait=True, cancel_futures=True)
+
+
 def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, workers: int, done: dict,
                  bar) -> None:
-    """:func:`run_shard_jobs`'s jobs in ``workers`` spawned processes, filling ``done``."""
+    """:func:`run_shard_jobs`'s jobs in ``workers`` spawned processes, filling ``done``. A failed shard
+    cancels the queued ones and is raised once the running ones are written; Ctrl-C, then or at any time,
+    stops the workers at once (leaving the pool normally waited for every queued shard)."""
     import multiprocessing as mp
 
     ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
@@ -313,15 +340,18 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
             done[meta["file"]] = meta
             bar.update()
     except KeyboardInterrupt:
-        # Ctrl-C: stop now. Leaving the pool normally waited for every queued shard (or hung): the
-        # workers are stopped instead; the shards they were writing leave only *.tmp* files, which the
-        # rerun removes and redoes, and the finished shards are kept.
-        for proc in list((getattr(ex, "_processes", None) or {}).values()):
-            proc.terminate()
-        ex.shutdown(wait=True, cancel_futures=True)
+        _stop_pool(ex)
         raise
-    finally:
-        ex.shutdown(wait=True)  # as a `with` block: a failing shard is raised once the others are done
+    except BaseException as exc:
+        log.error("a shard failed (%s: %s); waiting for the running shards, the queued ones are dropped",
+                  type(exc).__name__, exc)
+        try:
+            ex.shutdown(wait=True, cancel_futures=True)
+        except KeyboardInterrupt:
+            _stop_pool(ex)
+            raise exc from None  # the shard's error, not the interrupt, is what the user must see
+        raise
+    ex.shutdown(wait=True)
 
 
 def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, workers: int = 1,
