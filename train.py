@@ -74,6 +74,17 @@ def _last_checkpoints(trainer) -> tuple[list[Path], list[Path]]:
     return dirs, [f for d in dirs if d.is_dir() for f in d.glob("last*.ckpt")]
 
 
+def _read_checkpoint(path, label: str) -> dict:
+    """The checkpoint at ``path`` (``weights_only=True``, finite weights), or a :class:`ConfigError` starting
+    with ``label`` (``ckpt_path``)."""
+    from vtlearn.models.actor import read_lightning_checkpoint
+
+    try:
+        return read_lightning_checkpoint(path)
+    except ValueError as exc:
+        raise ConfigError(f"{label}: {str(exc).removeprefix('ckpt: ')}") from None
+
+
 class VtlearnCLI(LightningCLI):
     """LightningCLI that turns a config it cannot parse or build, or a checkpoint it cannot use, into a
     :class:`ConfigError`."""
@@ -88,8 +99,6 @@ class VtlearnCLI(LightningCLI):
     def _check_ckpt_path(self) -> None:
         """A ``--ckpt_path`` file must be a readable Lightning checkpoint with finite weights (checked with
         ``weights_only=True`` before Lightning reads its hyper-parameters into the config)."""
-        from vtlearn.models.actor import read_lightning_checkpoint
-
         sub = self.config.get("subcommand")
         ckpt = self.config[sub].get("ckpt_path") if sub else None
         if ckpt is None or ckpt in ("last", "best", "hpc"):
@@ -98,10 +107,7 @@ class VtlearnCLI(LightningCLI):
             return  # Lightning's model registry and remote (fsspec) files: left to Lightning
         if not Path(ckpt).is_file():
             raise ConfigError(f"ckpt_path: no checkpoint file at {ckpt}")
-        try:
-            self._ckpt_data = read_lightning_checkpoint(ckpt)
-        except ValueError as exc:
-            raise ConfigError(f"ckpt_path: {str(exc).removeprefix('ckpt: ')}") from None
+        self._ckpt_data = _read_checkpoint(ckpt, "ckpt_path")
 
     def _model_args(self) -> dict:
         """The config's model arguments (``init_args``) as a plain dict."""
@@ -141,23 +147,25 @@ class VtlearnCLI(LightningCLI):
                           f"{before[key]!r} (a checkpoint keeps the hyper-parameters it was trained with)",
                           file=sys.stderr)
 
-    def _check_last_fits(self, subcommand: str) -> None:
-        """``--ckpt_path last``: Lightning loads the file into the model the config built, without its
-        hyper-parameters; one of another class, or whose weights do not fit (the config changed the
+    def _check_last(self, subcommand: str) -> None:
+        """``--ckpt_path last``. With no ``last.ckpt`` in the config's checkpoint folders, ``validate``,
+        ``test`` and ``predict`` are refused (they would score untrained weights; ``fit`` starts from
+        scratch, as in Lightning). Lightning loads the file into the model the config built, without its
+        hyper-parameters: one of another class, or whose weights do not fit (the config changed the
         architecture), is refused in one line naming the settings that differ, instead of a state-dict
         traceback. Settings that differ without changing the weights' shapes apply, and are said."""
-        from vtlearn.models.actor import read_lightning_checkpoint
-
         if self.config_init[subcommand].get("ckpt_path") != "last":
             return
-        _, found = _last_checkpoints(self.trainer)
+        dirs, found = _last_checkpoints(self.trainer)
         if not found:
+            if dirs and subcommand != "fit":
+                raise ConfigError(
+                    f"ckpt_path: 'last' found no last.ckpt in {', '.join(map(str, dirs))}; {subcommand} "
+                    "would score untrained weights (train first with fit, or pass a checkpoint file)"
+                )
             return
         path = max(found, key=lambda f: f.stat().st_mtime)
-        try:
-            data = read_lightning_checkpoint(path)
-        except ValueError as exc:
-            raise ConfigError(f"ckpt_path: last: {str(exc).removeprefix('ckpt: ')}") from None
+        data = _read_checkpoint(path, "ckpt_path: last")
         hp = dict(data.get("hyper_parameters") or {})
         theirs = hp.pop("_class_path", None)
         hp.pop("_instantiator", None)
@@ -192,43 +200,30 @@ class VtlearnCLI(LightningCLI):
         except (ValueError, TypeError, FileNotFoundError) as exc:
             raise ConfigError(_reason(exc)) from exc
 
-    def _require_last(self, subcommand: str) -> None:
-        if self.config_init[subcommand].get("ckpt_path") != "last":
-            return
-        dirs, found = _last_checkpoints(self.trainer)
-        if dirs and not found:
-            raise ConfigError(
-                f"ckpt_path: 'last' found no last.ckpt in {', '.join(map(str, dirs))}; {subcommand} would "
-                "score untrained weights (train first with fit, or pass a checkpoint file)"
-            )
-
-    def _untrained_note(self, subcommand: str) -> None:
+    def _before_evaluation(self, subcommand: str) -> None:
+        """``validate``/``test``/``predict``: the ``last`` checks, and a note when no checkpoint is given
+        (the config's freshly initialised weights are run)."""
+        self._check_last(subcommand)
         if self.config_init[subcommand].get("ckpt_path") is None:
             print(f"train.py: note: {subcommand} without --ckpt_path runs the config's freshly initialised "
                   "weights; pass --ckpt_path last (or a checkpoint file) for a trained model",
                   file=sys.stderr)
 
     def before_fit(self) -> None:
-        self._check_last_fits("fit")
+        self._check_last("fit")
 
     def before_validate(self) -> None:
-        self._require_last("validate")
-        self._check_last_fits("validate")
-        self._untrained_note("validate")
+        self._before_evaluation("validate")
 
     def before_test(self) -> None:
-        self._require_last("test")
-        self._check_last_fits("test")
-        self._untrained_note("test")
+        self._before_evaluation("test")
 
     def before_predict(self) -> None:
         from lightning.pytorch.callbacks import BasePredictionWriter
 
         from vtlearn.prediction_writer import NpzPredictionWriter
 
-        self._require_last("predict")
-        self._check_last_fits("predict")
-        self._untrained_note("predict")
+        self._before_evaluation("predict")
         if not any(isinstance(cb, BasePredictionWriter) for cb in self.trainer.callbacks):
             self.trainer.callbacks.append(NpzPredictionWriter())  # predictions.npz in the run's log folder
 

@@ -114,9 +114,8 @@ _STIQF_OPTIONS = (
     "sa_field",
     "chains_per_restart",
     "sa_max_points",
-    "model_normals",
-    "scene_normals",
 )
+_STIQF_REGISTER_OPTIONS = ("model_normals", "scene_normals")  # arguments of STIQF.register, not of STIQF
 
 
 def _run_tiqf(model, scene, rng, opts):
@@ -127,7 +126,7 @@ def _run_tiqf(model, scene, rng, opts):
 
 
 def _run_stiqf(model, scene, rng, opts):
-    kw = {k: opts[k] for k in _STIQF_OPTIONS[:-2] if k in opts}
+    kw = {k: opts[k] for k in _STIQF_OPTIONS if k in opts}
     if "restarts_sa" in kw:
         kw["restarts"] = kw.pop("restarts_sa")
     res = STIQF(seed=int(rng.integers(1 << 31)), **kw).register(
@@ -228,7 +227,7 @@ _NEEDS_PROBREG = {"filterreg", "cpd"}
 # error rather than a silent default
 METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
     "tiqf": _TIQF_OPTIONS,
-    "stiqf": _STIQF_OPTIONS,
+    "stiqf": _STIQF_OPTIONS + _STIQF_REGISTER_OPTIONS,
     "icp": ("max_iter", "max_correspondence_distance"),
     "icp_plane": ("max_iter", "max_correspondence_distance"),
     "sparse_icp": ("p", "mu", "max_iter"),
