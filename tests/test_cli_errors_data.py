@@ -245,3 +245,29 @@ def test_gen_episodes_refuses_an_empty_source_split(cross_dir, tmp_path, capsys)
     assert main(["gen-episodes", "--source", str(src), "--split", "test", "--out", str(tmp_path / "ep")]) == 2
     assert f"source: split 'test' of {src} is empty" in capsys.readouterr().err
     assert not (tmp_path / "ep").exists()
+
+
+def test_gen_data_mesh_folder_errors_name_the_flag_once(tmp_path, capsys):
+    """A missing folder, a folder without meshes, a category it lacks and an empty category folder each
+    give one line naming the flag; without --categories every category of the folder is taken."""
+    import trimesh
+
+    err = _error(capsys, ["gen-data", "reconstruction", "--out", str(tmp_path / "o"), "--meshes",
+                          str(tmp_path / "nope")])
+    assert err.startswith("vtlearn: error: --meshes: no such mesh directory")
+    (tmp_path / "m" / "empty" / "train").mkdir(parents=True)
+    err = _error(capsys, ["gen-data", "reconstruction", "--out", str(tmp_path / "o"), "--meshes",
+                          str(tmp_path / "m")])
+    assert err.startswith("vtlearn: error: --meshes: no meshes found in") and "spec" not in err
+    (tmp_path / "m" / "box" / "train").mkdir(parents=True)
+    for i in range(3):
+        trimesh.creation.box(extents=(1, 2, 3 + i)).export(tmp_path / "m" / "box" / "train" / f"box_{i}.off")
+    for cats in ("box,empty", "box,mug"):
+        err = _error(capsys, ["gen-data", "reconstruction", "--out", str(tmp_path / "o"), "--meshes",
+                              str(tmp_path / "m"), "--categories", cats])
+        assert err.startswith(f"vtlearn: error: --categories: no meshes of ['{cats[4:]}']")
+        assert "(it has: box)" in err
+    assert not (tmp_path / "o").exists()
+    assert main(["gen-data", "reconstruction", "--out", str(tmp_path / "o"), "--meshes", str(tmp_path / "m"),
+                 "--per-category", "3", "--touches", "4", "--pinches", "1"]) == 0
+    assert load_manifest(tmp_path / "o")["class_names"] == ["box"]

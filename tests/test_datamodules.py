@@ -366,3 +366,13 @@ def test_active_pool_query(cross_dir):
     assert set(next(iter(dm.test_dataloader()))) == {"points", "lengths", "label"}
     with pytest.raises(ValueError, match="initial_labels"):
         ActivePoolDataModule(str(cross_dir), initial_labels=n + 1)
+
+
+def test_a_large_split_loads_under_a_progress_bar(recon_dir, monkeypatch, capsys):
+    import vtlearn.datamodules.shards as shards
+
+    load_split(recon_dir, "train")
+    assert "loading train" not in capsys.readouterr().err  # small: no bar
+    monkeypatch.setattr(shards, "PROGRESS_BYTES", 1)
+    a = load_split(recon_dir, "train")
+    assert "loading train" in capsys.readouterr().err and len(a["label"]) > 0

@@ -1,12 +1,14 @@
 """Real-dataset loaders: ShapeNet / ModelNet / category folders / pybullet_data; broken meshes skipped
 with a reason."""
 
+import json
 import logging
 
 import numpy as np
+import pytest
 import trimesh
 
-from vtlearn.sim_data.loaders import check_mesh, scan_mesh_folder, scan_pybullet_data
+from vtlearn.sim_data.loaders import check_mesh, load_mesh_item, scan_mesh_folder, scan_pybullet_data
 from vtlearn.sim_data.writer import GenConfig, generate_dataset
 
 
@@ -68,3 +70,108 @@ def test_gen_data_from_mesh_folder(tmp_path):
     )
     m = generate_dataset(cfg, tmp_path / "out", progress=False)
     assert m["class_names"] == ["tall", "flat"] and sum(s["instances"] for s in m["splits"].values()) == 6
+
+
+# ------------------------------------------------------------------ real layouts (ShapeNet, ModelNet quirks)
+def _tall(path, scale=1.0, up="y", double_sided=False):
+    """A 1 x 1 x 4 box, long along ``up`` (ShapeNet files are y-up), at ``scale`` units."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    m = trimesh.creation.box(extents=(1, 4, 1) if up == "y" else (1, 1, 4))
+    v, f = m.vertices * scale, m.faces
+    if double_sided:  # ShapeNet often stores each face once per winding
+        f = np.vstack([f, f[:, ::-1]])
+    trimesh.Trimesh(v, f, process=False).export(path)
+
+
+def test_shapenet_v2_taxonomy_names_and_z_up(tmp_path):
+    """Synsets missing from the built-in table take their taxonomy.json name; y-up files are turned z-up."""
+    root = tmp_path / "ShapeNetCore.v2"
+    root.mkdir()
+    (root / "taxonomy.json").write_text(json.dumps([
+        {"synsetId": "99990000", "name": "toy robot,robot", "children": [], "numInstances": 1},
+        {"synsetId": "02876657", "name": "bottle", "children": [], "numInstances": 1}]))
+    _tall(root / "99990000" / "a1" / "models" / "model_normalized.obj", double_sided=True)
+    _tall(root / "02691156" / "b2" / "models" / "model_normalized.obj")
+    (root / "02773838").mkdir()  # an empty synset folder
+    items = scan_mesh_folder(root)
+    assert sorted(i["category"] for i in items) == ["airplane", "toy_robot"]
+    for it in items:  # the duplicate-winding faces are not "non-manifold"; the long y axis is now z
+        mesh = load_mesh_item(it)
+        assert np.allclose(mesh.extents, [0.25, 0.25, 1.0])
+
+
+def test_shapenet_v1_layout(tmp_path):
+    _tall(tmp_path / "03797390" / "m1" / "model.obj")
+    items = scan_mesh_folder(tmp_path)
+    assert [i["category"] for i in items] == ["mug"]
+    assert np.allclose(load_mesh_item(items[0]).extents, [0.25, 0.25, 1.0])
+
+
+def test_modelnet_off_header_quirk_hidden_files_and_odd_scales(tmp_path, caplog):
+    """ModelNet's 'OFF<counts>' first line reads; macOS '._*' copies are ignored, not warned about; meshes
+    in mm or at 1e-9 / 1e20 scale give the same canonical mesh (trimesh's absolute merge tolerance once
+    collapsed tiny ones and overflowed on huge ones, both reported as 'zero surface area')."""
+    box = trimesh.creation.box(extents=(1, 2, 4))
+    d = tmp_path / "chair" / "train"
+    d.mkdir(parents=True)
+    for k, scale in enumerate((1.0, 1e3, 1e-9, 1e20)):
+        body = [f"{len(box.vertices)} {len(box.faces)} 0"] + [" ".join(repr(float(x)) for x in v * scale)
+                                                              for v in box.vertices]
+        body += ["3 " + " ".join(map(str, f)) for f in box.faces]
+        (d / f"chair_{k:04d}.off").write_text("OFF" + "\n".join(body) + "\n")
+    (d / "._chair_0000.off").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    with caplog.at_level(logging.WARNING):
+        items = scan_mesh_folder(tmp_path)
+    assert len(items) == 4 and not caplog.text
+    for it in items:
+        assert np.allclose(load_mesh_item(it).extents, [0.25, 0.5, 1.0])
+
+
+def test_skipped_meshes_are_counted_and_scan_reads_only_what_it_needs(tmp_path, caplog, capsys):
+    for k in range(3):
+        _tall(tmp_path / "can" / "train" / f"can_{k:04d}.off", up="z")
+    (tmp_path / "can" / "train" / "can_0009.off").write_text("OFF\n0 0 0\n")
+    (tmp_path / "can" / "train" / "can_0010.off").write_text("garbage")
+    _tall(tmp_path / "cup" / "train" / "cup_0001.off", up="z")
+    with caplog.at_level(logging.WARNING):
+        assert len(scan_mesh_folder(tmp_path)) == 4
+    assert "skipped 2 of 6 meshes" in caplog.text and "can/train/can_0009.off" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # two usable cans are found before the broken files are read
+        items = scan_mesh_folder(tmp_path, categories=["can"], per_category=2, progress=True)
+    assert [i["file"][-12:] for i in items] == ["can_0000.off", "can_0001.off"] and not caplog.text
+    assert "checking meshes" in capsys.readouterr().err
+
+
+def _two_category_folder(root, n=3):
+    for cat, ext in (("tall", (0.05, 0.05, 0.2)), ("flat", (0.2, 0.2, 0.03))):
+        for i in range(n):
+            _box(root / cat / f"{i}.obj", np.asarray(ext) * (1 + 0.1 * i))
+
+
+def test_gen_data_from_meshes_takes_every_category_and_records_each_instance_file(tmp_path):
+    _two_category_folder(tmp_path / "meshes")
+    cfg = GenConfig(kind="reconstruction", categories=None, per_category=3, touches=4, pinches=1,
+                    mesh_source=str(tmp_path / "meshes"))
+    m = generate_dataset(cfg, tmp_path / "out", progress=False)
+    assert m["class_names"] == ["flat", "tall"] and m["config"]["categories"] == ["flat", "tall"]
+    rows = json.loads((tmp_path / "out" / "meshes.json").read_text())["instances"]
+    assert sorted(r["file"] for r in rows) == \
+        sorted(f"{c}/{i}.obj" for c in ("flat", "tall") for i in range(3))
+    assert len({r["instance"] for r in rows}) == 6  # each file is one instance, in one split
+    assert {(r["category"], r["split"]) for r in rows} == {(c, s) for c in ("flat", "tall")
+                                                           for s in ("train", "val", "test")}
+
+
+def test_resuming_after_the_mesh_folder_changed_is_refused(tmp_path):
+    """Finished shards hold the old plan's instances: resuming on a changed folder could put one mesh in
+    two splits, so it is refused, naming mesh_source."""
+    _two_category_folder(tmp_path / "meshes", n=4)
+    cfg = GenConfig(kind="reconstruction", categories=["tall", "flat"], per_category=4, shard_size=1,
+                    touches=4, pinches=1, mesh_source=str(tmp_path / "meshes"))
+    assert generate_dataset(cfg, tmp_path / "out", progress=False, max_shards=2) == {}
+    _box(tmp_path / "meshes" / "tall" / "00.obj", (0.05, 0.06, 0.2))  # sorts first: shifts the plan
+    with pytest.raises(ValueError, match=r"mesh_source: the usable meshes in .* are not those"):
+        generate_dataset(cfg, tmp_path / "out", progress=False)
+    (tmp_path / "meshes" / "tall" / "00.obj").unlink()
+    assert generate_dataset(cfg, tmp_path / "out", progress=False)["splits"]["train"]["instances"] > 0

@@ -154,6 +154,11 @@ def check_split(manifest: dict, data_dir, split: str, name: str = "data_dir") ->
         raise empty_split_error(manifest, data_dir, split, name)
 
 
+# splits of at least this many bytes of shards load under a progress bar (sha256 and decompression take
+# seconds per GB)
+PROGRESS_BYTES = 256 << 20
+
+
 def load_split(
     data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir",
     kind: str | tuple[str, ...] | None = None,
@@ -164,7 +169,8 @@ def load_split(
     in the manifest but missing, a ValueError for a checksum mismatch or a shard numpy cannot read, for a
     split that holds no samples (``split 'test' of DIR is empty (...)``) and, with ``kind`` (one dataset
     kind or several accepted ones, see :func:`check_kind`), for a dataset of another kind. A split the
-    manifest does not list is a ValueError naming ``split``.
+    manifest does not list is a ValueError naming ``split``. Splits of :data:`PROGRESS_BYTES` or more load
+    under a progress bar.
     """
     from vtlearn.sim_data.writer import sha256_file
 
@@ -172,12 +178,16 @@ def load_split(
     if kind is not None:
         check_kind(manifest, data_dir, kind, name)
     check_split(manifest, data_dir, split, name)
+    from tqdm.auto import tqdm
+
     data_dir_path = Path(data_dir)
+    metas = [m for m in manifest["shards"] if m["split"] == split]
+    files = [data_dir_path / m["file"] for m in metas]
+    size = sum(f.stat().st_size for f in files if f.is_file())
     parts: dict[str, list[np.ndarray]] = {}
     base = 0
-    for meta in manifest["shards"]:
-        if meta["split"] != split:
-            continue
+    for meta in tqdm(metas, desc=f"loading {split} of {data_dir_path.name}", unit="shard", leave=False,
+                     disable=size < PROGRESS_BYTES):
         path = data_dir_path / meta["file"]
         if not path.is_file():
             raise FileNotFoundError(

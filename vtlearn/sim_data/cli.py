@@ -97,9 +97,9 @@ def register(sub) -> None:
                    help="reconstruction: dense + tactile clouds (ACTOR); crossmodal: visual + tactile clouds "
                    "(xAVTNet)")
     p.add_argument("--out", required=True, help="dataset folder (a rerun into it resumes)")
-    p.add_argument("--categories", type=csv_list, default=list(CATEGORIES),
-                   help=f"comma-separated categories (default: all {len(CATEGORIES)}: "
-                   f"{', '.join(CATEGORIES)})")
+    p.add_argument("--categories", type=csv_list, default=None,
+                   help=f"comma-separated categories (default: all {len(CATEGORIES)} procedural ones: "
+                   f"{', '.join(CATEGORIES)}; with --meshes, every category found there)")
     p.add_argument("--per-category", type=count(1), default=10,
                    help="instances per category (default: %(default)s)")
     p.add_argument("--seed", type=count(0), default=0,

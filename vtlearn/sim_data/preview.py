@@ -9,24 +9,18 @@ import numpy as np
 from vtlearn.bench_utils import save_figure
 
 
-def _instance_meshes(manifest: dict) -> dict[int, object]:
+def _instance_meshes(dataset: Path, manifest: dict) -> dict[int, object]:
     """instance id -> canonical mesh, by replaying the generator's deterministic plan."""
-    from vtlearn.sim_data.shapes import generate_shape, normalize_mesh
-    from vtlearn.sim_data.writer import GenConfig, plan_instances
+    from vtlearn.sim_data.loaders import load_mesh_item
+    from vtlearn.sim_data.shapes import generate_shape
+    from vtlearn.sim_data.writer import GenConfig, mesh_items_of, plan_instances
 
     cfg = GenConfig(**manifest["config"])
-    items = None
-    if cfg.mesh_source != "procedural":
-        from vtlearn.sim_data.loaders import scan_mesh_folder
-
-        items = [m for m in scan_mesh_folder(cfg.mesh_source) if m["category"] in cfg.categories]
     out = {}
-    for split_items in plan_instances(cfg, items).values():
+    for split_items in plan_instances(cfg, mesh_items_of(dataset, cfg)).values():
         for it in split_items:
             if "file" in it:
-                from vtlearn.io import read_mesh
-
-                out[it["instance"]] = lambda it=it: normalize_mesh(read_mesh(it["file"]))[0]
+                out[it["instance"]] = lambda it=it: load_mesh_item(it)
             else:
                 out[it["instance"]] = lambda it=it: generate_shape(it["category"], it["seed"], cfg.sections)[
                     0
@@ -61,7 +55,7 @@ def write_preview(
             d = load_split(dataset, split, verify=False)
             tac_clouds += split_clouds(d["tactile_points"], d["tactile_offsets"])
             tac_inst += d["tactile_instance"].tolist()
-    meshes = _instance_meshes(manifest)
+    meshes = _instance_meshes(dataset, manifest)
     cols = ["mesh", "dense (2048)", "tactile", "visual"]
     fig = plt.figure(figsize=(3 * len(cols), 3 * len(names)))
     rng = np.random.default_rng(seed)

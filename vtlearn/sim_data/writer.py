@@ -58,10 +58,12 @@ class GenConfig:
     ``image_height``, ``tactile_clouds`` are integers >= 1, ``pinches`` and ``seed`` integers >= 0,
     ``sections`` >= 8. :meth:`validate` (called by :func:`generate_dataset`) also checks ``sensor`` and
     that ``mesh_source`` is ``"procedural"``, ``"pybullet_data"`` or an existing directory.
+    ``categories=None`` means all: the 12 procedural ones, or every category of ``mesh_source`` with a usable
+    mesh (:func:`generate_dataset` records the list it found).
     """
 
     kind: str = "reconstruction"
-    categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
+    categories: list[str] | None = field(default_factory=lambda: list(CATEGORIES))
     per_category: int = 10
     seed: int = 0
     split_fractions: list[float] = field(default_factory=lambda: [0.7, 0.15, 0.15])
@@ -88,6 +90,8 @@ class GenConfig:
     mesh_source: str = "procedural"  # or a directory of meshes, one subfolder per category
 
     def __post_init__(self):
+        if self.categories is None and self.mesh_source == "procedural":
+            self.categories = list(CATEGORIES)
         self._check_fields()
 
     def validate(self) -> None:
@@ -110,9 +114,14 @@ class GenConfig:
         if self.kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
         if self.mesh_source == "procedural":
-            bad = [c for c in self.categories if c not in CATEGORIES]
+            bad = [c for c in self.categories or [] if c not in CATEGORIES]
             if bad or not self.categories:
                 raise ValueError(f"categories: unknown {bad} or empty; expected some of {CATEGORIES}")
+        elif self.categories is not None and (
+                not isinstance(self.categories, list | tuple) or not self.categories
+                or not all(isinstance(c, str) and c for c in self.categories)):
+            raise ValueError(f"categories: need a non-empty list of category names or None (all), got "
+                             f"{self.categories!r}")
         for name in ("per_category", "shard_size", "dense_points", "touches", "views", "visual_points",
                      "image_width", "image_height", "tactile_clouds"):
             as_int(getattr(self, name), name, 1)
@@ -317,11 +326,19 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _stop_pool(ex) -> None:
+def _stop_pool(ex, workers_before: set[int]) -> None:
     """Stop ``ex`` now: its worker processes are terminated and its queued jobs cancelled. The shards they
-    were writing leave only ``*.tmp*`` files, which a rerun removes and redoes; finished shards are kept."""
-    for proc in list((getattr(ex, "_processes", None) or {}).values()):
-        proc.terminate()
+    were writing leave only ``*.tmp*`` files, which a rerun removes and redoes; finished shards are kept.
+
+    The workers are this process's children that were not running before the pool was made
+    (``workers_before``, pids from ``multiprocessing.active_children()``): Python < 3.14 has no public call
+    that terminates an executor's workers, and ``shutdown`` alone waits for the running shards.
+    """
+    import multiprocessing as mp
+
+    for proc in mp.active_children():
+        if proc.pid not in workers_before:
+            proc.terminate()
     ex.shutdown(wait=True, cancel_futures=True)
 
 
@@ -332,6 +349,7 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
     stops the workers at once (leaving the pool normally waited for every queued shard)."""
     import multiprocessing as mp
 
+    before = {p.pid for p in mp.active_children()}
     ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
     try:
         futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
@@ -340,7 +358,7 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
             done[meta["file"]] = meta
             bar.update()
     except KeyboardInterrupt:
-        _stop_pool(ex)
+        _stop_pool(ex, before)
         raise
     except BaseException as exc:
         log.error("a shard failed (%s: %s); waiting for the running shards, the queued ones are dropped",
@@ -348,7 +366,7 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
         try:
             ex.shutdown(wait=True, cancel_futures=True)
         except KeyboardInterrupt:
-            _stop_pool(ex)
+            _stop_pool(ex, before)
             raise exc from None  # the shard's error, not the interrupt, is what the user must see
         raise
     ex.shutdown(wait=True)
@@ -387,11 +405,9 @@ def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, work
 # --------------------------------------------------------------------------- one shard
 def _load_mesh(item: dict, cfg: GenConfig):
     if "file" in item:
-        from vtlearn.io import read_mesh
-        from vtlearn.sim_data.shapes import normalize_mesh
+        from vtlearn.sim_data.loaders import load_mesh_item
 
-        mesh, _ = normalize_mesh(read_mesh(item["file"]))
-        return mesh, float(item.get("scale_m", 0.2)), bool(item.get("transparent", False))
+        return load_mesh_item(item), float(item.get("scale_m", 0.2)), bool(item.get("transparent", False))
     mesh, rec = generate_shape(item["category"], item["seed"], cfg.sections)
     return mesh, rec.scale_m, rec.transparent
 
@@ -575,6 +591,106 @@ def _run_job(cfg_dict: dict, job: dict, out_dir: str) -> dict:
     return meta
 
 
+# --------------------------------------------------------------------------- real meshes
+MESH_LIST = "meshes.json"
+
+
+def _usable_meshes(cfg: GenConfig, progress: bool) -> tuple[GenConfig, list[dict]]:
+    """``cfg`` with its categories resolved (all of ``mesh_source`` when None), and the first
+    ``per_category`` usable meshes of each category (ValueError / FileNotFoundError naming the field)."""
+    from dataclasses import replace
+
+    from vtlearn.sim_data.loaders import scan_mesh_folder
+
+    try:
+        scanned = scan_mesh_folder(cfg.mesh_source, check=False, categories=cfg.categories)
+    except ValueError as exc:
+        raise ValueError(f"mesh_source: {str(exc).removeprefix('spec: ')}") from None
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"mesh_source: {str(exc).removeprefix('spec: ')}") from None
+    found = list(dict.fromkeys(m["category"] for m in scanned))
+    if cfg.categories is not None:
+        missing = [c for c in cfg.categories if c not in found]
+        if missing:
+            every = sorted({m["category"] for m in scan_mesh_folder(cfg.mesh_source, check=False)})
+            raise ValueError(f"categories: no meshes of {missing} in mesh_source {cfg.mesh_source} (it has: "
+                             f"{', '.join(every)})")
+    mesh_items = scan_mesh_folder(cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category,
+                                  progress=progress, check=True)
+    usable = list(dict.fromkeys(m["category"] for m in mesh_items))
+    categories = cfg.categories
+    if categories is None:
+        unusable = [c for c in found if c not in usable]
+        if unusable:
+            log.warning("categories %s of %s have no usable mesh and are left out", unusable, cfg.mesh_source)
+        categories = sorted(usable)
+    missing = [c for c in categories if c not in usable]
+    if missing or not categories:
+        raise ValueError(f"categories: no usable meshes of {missing or 'any category'} in mesh_source "
+                         f"{cfg.mesh_source} (the skipped meshes are logged above)")
+    for cat in categories:
+        have = sum(m["category"] == cat for m in mesh_items)
+        if have < cfg.per_category:
+            _check_split_sizes(cfg, have, "mesh_source",
+                               f"{cfg.mesh_source} has only {have} usable mesh(es) of {cat!r}: ")
+            log.warning("%s has only %d usable mesh(es) of %r, fewer than per_category=%d: using them all",
+                        cfg.mesh_source, have, cat, cfg.per_category)
+    return replace(cfg, categories=list(categories)), mesh_items
+
+
+def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> None:
+    """Record which mesh file each instance comes from in ``out/meshes.json``, or refuse (ValueError naming
+    ``mesh_source``) to resume a dataset whose mesh folder has changed since: its finished shards hold
+    another plan's instances, so kept shards and new ones could share an instance across splits."""
+    from vtlearn.sim_data.loaders import mesh_root
+
+    root = mesh_root(cfg.mesh_source)
+    rows = []
+    for split, items in plan.items():
+        for it in items:
+            f = Path(it["file"])
+            rows.append({"instance": it["instance"], "split": split, "category": it["category"],
+                         "file": str(f.relative_to(root)) if f.is_relative_to(root) else str(f),
+                         "bytes": f.stat().st_size})
+    new = {"mesh_source": str(cfg.mesh_source), "instances": rows}
+    path = out / MESH_LIST
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old.get("instances") != rows:
+            was = {(r["file"], r["bytes"]) for r in old.get("instances", [])}
+            now = {(r["file"], r["bytes"]) for r in rows}
+            diff = sorted(now ^ was)[:3]
+            raise ValueError(
+                f"mesh_source: the usable meshes in {cfg.mesh_source} are not those {out} was made from "
+                f"({len(now - was)} new or changed, {len(was - now)} gone or changed, e.g. "
+                f"{', '.join(f for f, _ in diff) or 'a different order'}); use a new output folder, or "
+                "restore the mesh folder"
+            )
+    else:
+        write_json_atomic(path, new)
+
+
+def mesh_items_of(data_dir: str | Path, cfg: GenConfig) -> list[dict] | None:
+    """The mesh items a dataset was planned from (None for procedural meshes): from its ``meshes.json``,
+    else (datasets made before it) by scanning ``mesh_source`` again."""
+    from vtlearn.sim_data.loaders import DEFAULT_SIZE_M, NOMINAL_SIZE_M, mesh_root, scan_mesh_folder
+
+    if cfg.mesh_source == "procedural":
+        return None
+    path = Path(data_dir) / MESH_LIST
+    if not path.exists():
+        return scan_mesh_folder(cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category)
+    root = mesh_root(cfg.mesh_source)
+    scanned = scan_mesh_folder(cfg.mesh_source, check=False, categories=cfg.categories)
+    scanned = {m["file"]: m for m in scanned}
+    items = []
+    for r in sorted(json.loads(path.read_text())["instances"], key=lambda r: r["instance"]):
+        f = str(root / r["file"])
+        items.append(scanned.get(f) or {"category": r["category"], "file": f,
+                                         "scale_m": NOMINAL_SIZE_M.get(r["category"], DEFAULT_SIZE_M)})
+    return items
+
+
 # --------------------------------------------------------------------------- driver
 def generate_dataset(
     cfg: GenConfig,
@@ -594,28 +710,15 @@ def generate_dataset(
     if max_shards is not None:
         as_int(max_shards, "max_shards", 0)
     _check_split_sizes(cfg, cfg.per_category)
-    cfg_dict = asdict(cfg)
     mesh_items = None
     if cfg.mesh_source != "procedural":
-        from vtlearn.sim_data.loaders import scan_mesh_folder
-
-        try:
-            scanned = scan_mesh_folder(cfg.mesh_source)
-        except ValueError as exc:
-            raise ValueError(f"mesh_source: {exc}") from None
-        except FileNotFoundError as exc:
-            raise FileNotFoundError(f"mesh_source: {exc}") from None
-        mesh_items = [m for m in scanned if m["category"] in cfg.categories]
-        missing = sorted(set(cfg.categories) - {m["category"] for m in mesh_items})
-        if missing:
-            raise ValueError(f"categories: no usable meshes of {missing} in mesh_source {cfg.mesh_source}")
-        for cat in cfg.categories:
-            have = sum(m["category"] == cat for m in mesh_items)
-            if have < cfg.per_category:
-                _check_split_sizes(cfg, have, "mesh_source",
-                                   f"{cfg.mesh_source} has only {have} usable mesh(es) of {cat!r}: ")
+        cfg, mesh_items = _usable_meshes(cfg, progress)
+    cfg_dict = asdict(cfg)
     claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
-    jobs = plan_shards(cfg, plan_instances(cfg, mesh_items))
+    plan = plan_instances(cfg, mesh_items)
+    if mesh_items is not None:
+        _claim_mesh_list(out, cfg, plan)
+    jobs = plan_shards(cfg, plan)
     shards = run_shard_jobs(out, jobs, _run_job, (cfg_dict,), workers, max_shards,
                             desc=f"gen-data {cfg.kind}", progress=progress)
     if shards is None:
