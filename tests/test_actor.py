@@ -8,6 +8,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from _tiny_models import TINY_ACTOR as TINY
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
@@ -19,15 +20,6 @@ from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import MaskedBatchNorm1d, PointNetFeatures
 
 torch.set_num_threads(1)
-
-TINY = dict(
-    num_points=64,
-    encoder_channels=(8, 8, 16, 32),
-    fc_channels=32,
-    deconv_channels=(16, 16, 8, 8),
-    deconv_strides=(2, 2, 2, 2, 4),
-    emd_points=32,
-)
 
 
 def _pad(cloud: torch.Tensor, n: int, fill: float) -> torch.Tensor:
@@ -294,8 +286,11 @@ def test_reconstruct_refuses_clouds_that_are_not_canonical():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # padded and lengths given: nothing to say
         assert reconstruct(model, batch, lengths=[40, 20]).shape[0] == 2
-    with pytest.warns(UserWarning, match="pass lengths for a padded batch"):
+    with pytest.warns(UserWarning, match="pass lengths for a padded batch") as record:
         reconstruct(model, batch)
+    assert record[0].filename == __file__  # the warning points at the caller's line
+    with pytest.raises(ValueError, match="^lengths: expected integer point counts"):
+        reconstruct(model, batch, lengths=[40.0, 20.5])  # a cast would silently make it 20
     # a model trained in its data's own units (input_scale) takes clouds of that size
     scaled = ACTOR(**{**TINY, "input_scale": 170.0})
     assert reconstruct(scaled, canon * 150.0).shape[-1] == 3

@@ -10,20 +10,14 @@ os.environ.setdefault("WANDB_MODE", "disabled")
 
 import pytest
 import torch
+from _tiny_models import TINY_ACTOR, cli_args
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 torch.set_num_threads(1)
 
-TINY_ARGS = [
-    "--model.init_args.num_points=64",
-    "--model.init_args.encoder_channels=[8,8,16,32]",
-    "--model.init_args.fc_channels=32",
-    "--model.init_args.deconv_channels=[16,16,8,8]",
-    "--model.init_args.deconv_strides=[2,2,2,2,4]",
-    "--model.init_args.emd_points=32",
-]
+TINY_ARGS = cli_args(TINY_ACTOR)  # ["--model.init_args.num_points=64", ...]
 
 
 @pytest.fixture(scope="module")

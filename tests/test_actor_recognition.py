@@ -5,25 +5,23 @@ import os
 os.environ.setdefault("WANDB_MODE", "disabled")
 
 import lightning as L
+import numpy as np
 import pytest
 import torch
+from _tiny_models import TINY_ACTOR as TINY
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
 from vtlearn.models.actor import ACTOR
-from vtlearn.models.actor_recognition import ACTORRecognition, load_recognition, random_rotation_matrices
+from vtlearn.models.actor_recognition import (
+    ACTORRecognition,
+    classify,
+    load_recognition,
+    random_rotation_matrices,
+)
 from vtlearn.models.actor_synthetic import PrimitiveDataModule
 
 torch.set_num_threads(1)
-
-TINY = dict(
-    num_points=64,
-    encoder_channels=(8, 8, 16, 32),
-    fc_channels=32,
-    deconv_channels=(16, 16, 8, 8),
-    deconv_strides=(2, 2, 2, 2, 4),
-    emd_points=32,
-)
 
 
 def _dm() -> PrimitiveDataModule:
@@ -59,12 +57,16 @@ def test_rotations_are_rotations():
     torch.testing.assert_close(Rz[:, 2], torch.tensor([0.0, 0.0, 1.0]).expand(3, 3))
     with pytest.raises(ValueError, match="mode"):
         random_rotation_matrices(2, "x")
+    assert random_rotation_matrices(0).shape == (0, 3, 3)
+    for n in (-1, 1.5, "2"):
+        with pytest.raises(ValueError, match="^n: "):
+            random_rotation_matrices(n)
 
 
 def test_head_shape_and_encoder_loaded(actor_ckpt):
     actor = ACTOR.load_from_checkpoint(actor_ckpt, weights_only=True).eval()
     rec = ACTORRecognition(actor_ckpt=str(actor_ckpt), num_classes=3)
-    assert rec.hparams.encoder_channels == [8, 8, 16, 32]
+    assert rec.hparams.encoder_channels == list(TINY["encoder_channels"])
     x, lengths = torch.randn(4, 30, 3), torch.tensor([30, 20, 25, 30])
     assert rec(x, lengths).shape == (4, 3)
     with torch.no_grad():
@@ -140,5 +142,39 @@ def test_logs_and_checkpoint_round_trip(actor_ckpt, tmp_path):
     rec.eval()
     with torch.no_grad():
         torch.testing.assert_close(loaded(x), rec(x))
-    with pytest.raises(ValueError, match="not an ACTORRecognition checkpoint"):
+    # the datamodule's class names are recorded in the checkpoint, for classify() users
+    assert loaded.hparams.class_names == _dm().class_names
+    with pytest.raises(ValueError, match="is an ACTOR reconstruction checkpoint, not an ACTORRecognition"
+                                         " checkpoint .*load_actor"):
         load_recognition(actor_ckpt)
+
+
+def test_classify_matches_the_head_and_refuses_bad_clouds(actor_ckpt):
+    torch.manual_seed(0)
+    rec = ACTORRecognition(actor_ckpt=str(actor_ckpt), num_classes=3).eval()
+    cloud = 0.3 * torch.rand(30, 3) - 0.15
+    with torch.no_grad():
+        expected = rec(cloud[None]).softmax(dim=1)[0].numpy()
+    p = classify(rec, cloud.numpy())
+    assert p.shape == (3,) and abs(p.sum() - 1.0) < 1e-6
+    np.testing.assert_allclose(p, expected, atol=1e-6)
+    # a padded batch: the padding does not change a cloud's probabilities
+    padded = torch.zeros(2, 40, 3)
+    padded[0, :30], padded[1, :20] = cloud, cloud[:20]
+    pb = classify(rec, padded, torch.tensor([30, 20]))
+    assert pb.shape == (2, 3)
+    np.testing.assert_allclose(pb[0], expected, atol=1e-6)
+    np.testing.assert_allclose(pb[1], classify(rec, cloud[:20].numpy()), atol=1e-6)
+    for bad, match in [
+        (np.zeros((0, 3)), "^points: .*empty"),
+        (np.full((10, 3), np.nan), "^points: .*NaN"),
+        (np.zeros((10, 2)), r"^points: expected shape \(N, 3\)"),
+        (np.zeros((2, 0, 3)), "^points: the batch has no clouds or the clouds are empty"),
+        (100.0 * np.random.default_rng(0).random((20, 3)), "^points: spans .* canonical"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            classify(rec, bad)
+    with pytest.raises(ValueError, match="^lengths: expected integer"):
+        classify(rec, padded, np.array([30.0, 20.5]))
+    with pytest.raises(ValueError, match="^model: expected an ACTORRecognition"):
+        classify(ACTOR(**TINY), cloud.numpy())

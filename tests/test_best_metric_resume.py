@@ -10,6 +10,7 @@ os.environ.setdefault("WANDB_MODE", "disabled")
 import lightning as L
 import pytest
 import torch
+from _tiny_models import TINY_ACTOR as TINY
 from lightning.pytorch.callbacks import ModelCheckpoint
 
 from vtlearn.models.actor import ACTOR, BEST_METRICS_KEY, load_actor
@@ -18,14 +19,6 @@ from vtlearn.models.actor_synthetic import PrimitiveDataModule
 
 torch.set_num_threads(1)
 
-TINY = dict(
-    num_points=64,
-    encoder_channels=(8, 8, 16, 32),
-    fc_channels=32,
-    deconv_channels=(16, 16, 8, 8),
-    deconv_strides=(2, 2, 2, 2, 4),
-    emd_points=32,
-)
 FIRST_EPOCHS, ALL_EPOCHS = 3, 5
 
 
@@ -100,17 +93,27 @@ def test_actor_cd_best_ignores_sanity_check_and_survives_resume(tmp_path, sanity
     load_actor(last)  # strict state-dict load still works
 
 
-def test_actor_checkpoint_without_best_loads_and_state_dict_is_unchanged():
-    model = ACTOR(**TINY)
+@pytest.mark.parametrize(
+    "make, key, attr, start",
+    [
+        (lambda: ACTOR(**TINY), "val/cd_mm_best", "val_cd_best", float("inf")),
+        (lambda: ACTORRecognition(num_classes=3, encoder_channels=TINY["encoder_channels"]),
+         "val/acc_best", "val_acc_best", float("-inf")),
+    ],
+    ids=["actor", "recognition"],
+)
+def test_checkpoint_without_best_loads_and_state_dict_is_unchanged(make, key, attr, start):
+    model = make()
     assert not any("best" in k for k in model.state_dict())
     model.on_load_checkpoint({"state_dict": {}})  # a checkpoint written before the best was saved
-    assert model.val_cd_best == float("inf")
+    assert getattr(model, attr) == start
     ckpt: dict = {}
-    model.val_cd_best = 3.5
+    setattr(model, attr, 0.5)
     model.on_save_checkpoint(ckpt)
-    other = ACTOR(**TINY)
+    assert ckpt == {BEST_METRICS_KEY: {key: 0.5}} and isinstance(ckpt[BEST_METRICS_KEY][key], float)
+    other = make()
     other.on_load_checkpoint(ckpt)
-    assert other.val_cd_best == 3.5 and isinstance(ckpt[BEST_METRICS_KEY]["val/cd_mm_best"], float)
+    assert getattr(other, attr) == 0.5
 
 
 # ------------------------------------------------------------------ ACTORRecognition: val/acc_best
@@ -134,7 +137,7 @@ def test_recognition_acc_best_ignores_sanity_check_and_survives_resume(tmp_path,
     torch.manual_seed(0)
 
     def make():
-        m = _ScriptedRecognition(num_classes=3, encoder_channels=(8, 8, 16, 32), lr=1e-2)
+        m = _ScriptedRecognition(num_classes=3, encoder_channels=TINY["encoder_channels"], lr=1e-2)
         m.sanity_acc = sanity_acc
         return m
 

@@ -10,15 +10,13 @@ os.environ.setdefault("WANDB_MODE", "disabled")
 import lightning as L
 import pytest
 import torch
+from _tiny_models import TINY_ACTOR_256 as TINY  # 256 output points, as test_actor_cli's
 
 from vtlearn.cli import main
 from vtlearn.datamodules import ActivePoolDataModule, CrossModalDataModule, ReconstructionDataModule
 from vtlearn.datamodules.shards import check_kind, load_manifest, load_split
 from vtlearn.models.actor import ACTOR
 from vtlearn.sim_data.writer import GenConfig, generate_dataset, min_per_category
-
-TINY = dict(num_points=256, encoder_channels=(8, 8, 16, 32), fc_channels=32, deconv_channels=(16, 16, 8, 8),
-            deconv_strides=(2, 2, 4, 4, 4), emd_points=32)
 
 
 def _save(model: L.LightningModule, path) -> str:

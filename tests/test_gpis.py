@@ -64,3 +64,40 @@ def test_ball_pivot_mesh_on_sphere():
         ball_pivot_mesh(points, normals[:3])
     with pytest.raises(ValueError, match="radii"):
         ball_pivot_mesh(points, radii=[-1.0])
+
+
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda p, n: estimate_normals(p, k=0), "k"),
+        (lambda p, n: estimate_normals(p, k=2), "k"),  # two neighbours do not span a plane
+        (lambda p, n: estimate_normals(p, k=2.5), "k"),
+        (lambda p, n: fit_gpis(p, n, nu=0.0), "nu"),
+        (lambda p, n: fit_gpis(p, n, nu="a"), "nu"),
+        (lambda p, n: fit_gpis(p, n, length_scale=-0.01), "length_scale"),
+        (lambda p, n: gpis_reconstruct(p, n, margin=-1.0), "margin"),
+        (lambda p, n: gpis_reconstruct(p, n, margin=float("nan")), "margin"),
+    ],
+)
+def test_invalid_parameters_are_named(call, name):
+    points, normals = _sphere(20, 0.05)
+    with pytest.raises(ValueError, match=f"^{name}: "):
+        call(points, normals)
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"knn": 0}, "knn"),  # reached Open3D before, which crashed the interpreter
+        ({"knn": 2}, "knn"),
+        ({"knn": 1.5}, "knn"),
+        ({"radii": []}, "radii"),
+        ({"radius_factors": ()}, "radius_factors"),
+    ],
+)
+def test_ball_pivot_mesh_invalid_parameters_are_named(kwargs, name):
+    from vtlearn.models.meshing import ball_pivot_mesh
+
+    points, _ = _sphere(200, 0.05, seed=3)
+    with pytest.raises(ValueError, match=f"^{name}: "):
+        ball_pivot_mesh(points, **kwargs)

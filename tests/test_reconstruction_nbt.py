@@ -126,3 +126,46 @@ def test_box_fit_gain_in_the_closed_loop_and_bad_input():
         ExpectedBoxFitGain(_CentroidSphere(), radius_factor=0.0)
     with pytest.raises(ValueError, match="candidates"):
         gain.gains(obj, np.zeros((4, 3)), [], TactileConfig())
+
+
+# ------------------------------------------------------------------ touch/pinch exploration inputs
+# (vtlearn.active.exploration; here because its own tests, test_active_actions_exploration.py, are
+# outside this change)
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"n_candidates": 0}, "n_candidates"),
+        ({"n_candidates": 1, "pinch": True}, "n_candidates"),  # half touches, half pinches: needs 2
+        ({"cells": 0}, "cells"),  # was a ZeroDivisionError
+        ({"cells": 1.5}, "cells"),
+        ({"coverage_radius": -0.01}, "coverage_radius"),  # was accepted: coverage 0 throughout
+        ({"coverage_radius": float("nan")}, "coverage_radius"),
+        ({"standoff": -0.01}, "standoff"),
+        ({"compliance": -0.001}, "compliance"),
+        ({"gain_mode": "greedy"}, "gain_mode"),
+        ({"pinch": True, "pinch_opening": 0.0}, "pinch_opening"),
+    ],
+)
+def test_explore_names_a_bad_argument_before_touching(kwargs, name):
+    import trimesh
+
+    from vtlearn.active.exploration import explore
+
+    strategy = "active" if "n_candidates" in kwargs or "gain_mode" in kwargs else "random"
+    with pytest.raises(ValueError, match=f"^{name}: "):
+        explore(trimesh.creation.box(extents=[0.1, 0.1, 0.1]), strategy, 3, **kwargs)
+
+
+def test_uniform_schedules_take_n_touches():
+    from vtlearn.active.actions import OrientedBox
+    from vtlearn.active.exploration import uniform_pinch_schedule, uniform_touch_schedule
+
+    box = OrientedBox.from_points(np.random.default_rng(0).uniform(-0.05, 0.05, (50, 3)))
+    assert len(uniform_touch_schedule(box, 7, 0.02)) == 7 and len(uniform_pinch_schedule(box, 7)) == 7
+    for bad in (0, -1, 2.5):
+        with pytest.raises(ValueError, match="^n: "):
+            uniform_touch_schedule(box, bad, 0.02)
+        with pytest.raises(ValueError, match="^n: "):
+            uniform_pinch_schedule(box, bad)
+    with pytest.raises(ValueError, match="^standoff: "):
+        uniform_touch_schedule(box, 3, -0.01)

@@ -53,6 +53,14 @@ STRATEGIES = ("active", "random", "uniform")
 
 @dataclass
 class ExplorationResult:
+    """One episode of :func:`explore`: the ``strategy``; the grid ``entropy`` (eq. 7.9, nats), surface
+    ``coverage`` and contact count ``n_points`` before any action and after each; every ``contacts`` point
+    (world frame, m); and each action's box face (-1 for a pinch) and kind (``"touch"`` or ``"pinch"``).
+
+    Shapes:
+        entropy, coverage, n_points (n_touches + 1,); contacts (M, 3); chosen_faces, chosen_kinds: n_touches.
+    """
+
     strategy: str
     entropy: np.ndarray
     coverage: np.ndarray
@@ -93,7 +101,18 @@ def simulate_touch(
 
 def uniform_touch_schedule(box: OrientedBox, n: int, standoff: float) -> ActionSet:
     """``n`` touches spread evenly over the five faces: a square lattice per face (about ``n / 5``
-    points, at cell centres), visited round-robin across faces so that any prefix is spread too."""
+    points, at cell centres), visited round-robin across faces so that any prefix is spread too.
+
+    Args:
+        box: the object's box (world frame, metres); the bottom face is never touched.
+        n: number of touches, >= 1.
+        standoff: distance of each pad from its face before the approach (m, >= 0).
+
+    Shapes:
+        -> ActionSet of ``n`` touches: ``T_world_sensor`` (n, 4, 4), ``face`` (n,).
+    """
+    n = as_int(n, "n")
+    standoff = as_real(standoff, "standoff", low=0.0, unit="m")
     per_face = int(np.ceil(n / 5))
     k = int(np.ceil(np.sqrt(per_face)))
     u = (np.arange(k) + 0.5) / k * 2 - 1  # lattice in [-1, 1]
@@ -123,9 +142,14 @@ def uniform_touch_schedule(box: OrientedBox, n: int, standoff: float) -> ActionS
 
 def uniform_pinch_schedule(box: OrientedBox, n: int) -> ActionSet:
     """``n`` pinches on a square lattice over the box footprint at mid-height, visited in a spread-out
-    order, with the closing axis alternating between the box x and y axes."""
+    order, with the closing axis alternating between the box x and y axes.
+
+    Shapes:
+        -> ActionSet of ``n`` >= 1 pinches: ``T_world_sensor`` (n, 4, 4), face -1 each.
+    """
     from vtlearn.active.actions import _frames_from_z
 
+    n = as_int(n, "n")
     k = int(np.ceil(np.sqrt(n)))
     u = (np.arange(k) + 0.5) / k * 2 - 1
     uu, vv = np.meshgrid(u, u, indexing="ij")
@@ -172,7 +196,30 @@ def explore(
 
     The first ``n_init`` touches are random and identical for every strategy with the same ``seed``.
     With ``pinch`` the action space holds touches and pinches in equal numbers (thesis 8.2.3): active
-    scores both, random draws either with probability 1/2, uniform alternates the two schedules.
+    scores both, random draws either with probability 1/2, uniform alternates the two schedules. The
+    active strategy takes the candidate of largest expected information gain (eq. 7.11-7.12 / 8.4-8.5)
+    on the occupancy grid, whose entropy (eq. 7.9) is reported.
+
+    Args:
+        mesh: the object standing on the table (metres, world frame, z up).
+        strategy: ``"active"``, ``"random"`` or ``"uniform"`` (module docstring).
+        n_touches: actions in the episode, >= 1 (touches, or touches and pinches).
+        n_candidates: Monte-Carlo candidates scored per active step (>= 2 with ``pinch``: half of each).
+        cells: occupancy-grid cells per axis (>= 2), over the box's largest side plus 12 mm.
+        sensor: the touch sensor (default a Xela 4x4 whose rays reach across the box).
+        standoff: pad distance from a face before a touch (m, >= 0).
+        n_init: random first touches shared by every strategy, ``0 <= n_init <= n_touches``.
+        coverage_radius: a surface point is covered within this of a contact (m, > 0).
+        compliance: taxels within this of their pad's stop report contact (m, >= 0).
+        gain_mode: ``"raycast"`` (thesis) or ``"probabilistic"``, see
+            :meth:`~vtlearn.active.occupancy.OccupancyGrid.expected_information_gain`.
+        pinch: touches and pinches in equal numbers (thesis 8.2.3).
+        pinch_opening: gripper opening before a pinch closes (m, > 0).
+        seed: seed of the candidates, the random choices and the coverage surface samples.
+
+    Shapes:
+        result.entropy, result.coverage, result.n_points (n_touches + 1,); result.contacts (M, 3) world
+        frame, m; result.chosen_faces, result.chosen_kinds: n_touches entries.
     """
     import trimesh
 
@@ -183,6 +230,16 @@ def explore(
         raise ValueError(
             f"n_touches, n_init: need n_touches >= 1 and 0 <= n_init <= n_touches, got {n_touches}, {n_init}"
         )
+    # every argument is checked here, before any ray is cast (a bad one used to surface mid-episode as
+    # "n: ..." from a sampler, or as a ZeroDivisionError for cells=0)
+    n_candidates = as_int(n_candidates, "n_candidates", minimum=2 if pinch else 1)
+    cells = as_int(cells, "cells", minimum=2)
+    standoff = as_real(standoff, "standoff", low=0.0, unit="m")
+    coverage_radius = as_real(coverage_radius, "coverage_radius", low=0.0, open_low=True, unit="m")
+    compliance = as_real(compliance, "compliance", low=0.0, unit="m")
+    pinch_opening = as_real(pinch_opening, "pinch_opening", low=0.0, open_low=True, unit="m")
+    if gain_mode not in ("raycast", "probabilistic"):
+        raise ValueError(f"gain_mode: expected 'raycast' or 'probabilistic', got {gain_mode!r}")
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError("mesh: expected a non-empty trimesh.Trimesh")
     box = OrientedBox.from_points(mesh.vertices, margin=0.003)

@@ -34,6 +34,7 @@ from vtlearn.geometry.metrics import earth_movers_distance
 from vtlearn.models.components.actor_decoder import ActorDecoder
 from vtlearn.models.components.actor_encoder import ActorEncoder
 from vtlearn.models.components.actor_pointnet import lengths_to_mask
+from vtlearn.models.components.best_metric import BEST_METRICS_KEY, BestMetricMixin  # noqa: F401 (re-export)
 from vtlearn.validation import as_points, as_real
 
 __all__ = [
@@ -45,10 +46,6 @@ __all__ = [
     "read_lightning_checkpoint",
     "bn_momentum_at",
 ]
-
-#: The checkpoint-dict key holding the best-so-far validation metrics (``{"val/cd_mm_best": float}``, plain
-#: floats), written by ``on_save_checkpoint`` and read back on a resume. Not in the state dict.
-BEST_METRICS_KEY = "vtlearn_best_metrics"
 
 
 def _nearest_indices(x: Tensor, y: Tensor, y_lengths: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -160,7 +157,7 @@ def _masked_centre(points: Tensor, lengths: Tensor) -> Tensor:
     return (points * mask).sum(dim=1, keepdim=True) / lengths.to(points.dtype)[:, None, None]
 
 
-class ACTOR(L.LightningModule):
+class ACTOR(BestMetricMixin, L.LightningModule):
     """ACTOR reconstruction auto-encoder (thesis Sec. 8.2.2, eq. 8.1).
 
     Args:
@@ -189,6 +186,9 @@ class ACTOR(L.LightningModule):
         forward: sparse (B, N, 3) padded, lengths (B,) int64 or None -> dense (B, num_points, 3).
         batches: dict with "sparse" (B, N, 3), "lengths" (B,), "dense" (B, M, 3); optional "label".
     """
+
+    # the best validation CD so far, ``self.val_cd_best``, carried across resumes (BestMetricMixin)
+    best_metric_name, best_metric_attr, best_metric_mode = "val/cd_mm_best", "val_cd_best", "min"
 
     def __init__(
         self,
@@ -235,9 +235,7 @@ class ACTOR(L.LightningModule):
         self.test_cd = MeanMetric()
         self.test_hd = MeanMetric()
         self.test_emd = MeanMetric()
-        # The best validation CD so far: a plain float, carried across resumes in the checkpoint under
-        # BEST_METRICS_KEY (not in the state dict, so that older checkpoints still load with strict=True).
-        self.val_cd_best = math.inf
+        self.reset_best_metric()
         self._figure_batch: dict[str, Tensor] | None = None
 
     # ---------------------------------------------------------------- forward
@@ -252,6 +250,11 @@ class ACTOR(L.LightningModule):
         return self.encoder(x, lengths), centre
 
     def forward(self, sparse: Tensor, lengths: Tensor | None = None) -> Tensor:
+        """Dense reconstruction (Sec. 8.2.2, Fig. 8.2a): encoder, decoder, and the input normalisation undone.
+
+        Shapes:
+            sparse (B, N, 3) padded, lengths (B,) int64 or None (every row a point) -> (B, num_points, 3).
+        """
         z, centre = self.encode(sparse, lengths)
         return self.decoder(z) * self.hparams.input_scale + centre
 
@@ -331,34 +334,15 @@ class ACTOR(L.LightningModule):
         self._figure_batch = None
 
     def on_validation_epoch_end(self) -> None:
-        cd = float(self.val_cd.compute())
-        # the sanity check evaluates the untrained model, or the checkpoint's weights again on a resume:
-        # neither is an epoch of this run, so it must not move the best
-        if self.trainer.sanity_checking:
+        # the sanity check is no epoch of this run: it neither moves the best nor logs a figure
+        if not self.update_best_metric(float(self.val_cd.compute())):
             return
-        if not math.isnan(cd):
-            self.val_cd_best = min(self.val_cd_best, cd)
-        self.log("val/cd_mm_best", self.val_cd_best, sync_dist=True, prog_bar=True)
-        if (
-            self.hparams.log_figures
-            and self._figure_batch is not None
-            and not self.trainer.sanity_checking
-            and self.logger is not None
-        ):
+        if self.hparams.log_figures and self._figure_batch is not None and self.logger is not None:
             from vtlearn.models.actor_figures import log_figure, reconstruction_figure
 
             fb = self._figure_batch
             fig = reconstruction_figure([[fb["sparse"].numpy(), fb["pred"].numpy(), fb["dense"].numpy()]])
             log_figure(self.logger, "val/reconstruction", fig, self.global_step)
-
-    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        checkpoint.setdefault(BEST_METRICS_KEY, {})["val/cd_mm_best"] = float(self.val_cd_best)
-
-    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        # checkpoints written before the best was saved have no entry: the best restarts from this run
-        best = checkpoint.get(BEST_METRICS_KEY, {}).get("val/cd_mm_best")
-        if best is not None:
-            self.val_cd_best = float(best)
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         loss, pred = self.model_step(batch)
@@ -503,7 +487,6 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
     if not isinstance(model, torch.nn.Module):
         raise ValueError(f"model: expected an ACTOR (e.g. from load_actor), got {type(model).__name__}")
     model.eval()
-    device = next(model.parameters(), torch.empty(0)).device
 
     def run(x, *lt):
         out = model(x, *lt)
@@ -515,6 +498,19 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
             )
         return out.cpu().numpy()
 
+    x, lt, single = _model_input(model, points, lengths, "reconstruct")
+    return run(x)[0] if single else run(x, lt)
+
+
+def _model_input(model, points, lengths, caller: str) -> tuple[Tensor, Tensor | None, bool]:
+    """``points`` (and ``lengths``) checked as :func:`reconstruct` documents them, for an ACTOR or a model on
+    its encoder: float32 on the model's device, the lengths as int64 (None without), and whether ``points``
+    was one cloud. ``caller`` names the function in the warning about unpadded zero rows.
+
+    Shapes:
+        (N, 3) -> (1, N, 3), None, True; (B, N, 3) and (B,) or None -> (B, N, 3), (B,) or None, False.
+    """
+    device = next(model.parameters(), torch.empty(0)).device
     if (
         isinstance(points, Tensor)
         and points.dim() == 3
@@ -533,18 +529,22 @@ def reconstruct(model: ACTOR, points, lengths=None) -> np.ndarray:
         if not torch.isfinite(x).all():
             raise ValueError("points: contains NaN or inf")
         if lengths is None and bool((x[:, -1] == 0).all(-1).any()):
-            warnings.warn("reconstruct: a cloud of the batch ends in all-zero rows, which count as points "
-                          "without lengths; pass lengths for a padded batch", stacklevel=2)
+            warnings.warn(f"{caller}: a cloud of the batch ends in all-zero rows, which count as points "
+                          "without lengths; pass lengths for a padded batch",
+                          stacklevel=4)  # the caller of reconstruct / classify, past torch.no_grad's wrapper
+        if lengths is not None:
+            lengths_np = np.asarray(lengths.cpu() if isinstance(lengths, Tensor) else lengths)
+            if not np.issubdtype(lengths_np.dtype, np.integer):  # a cast would truncate 1.5 to 1
+                raise ValueError(f"lengths: expected integer point counts, got dtype {lengths_np.dtype}")
         lt = None if lengths is None else torch.as_tensor(lengths, dtype=torch.long).to(device)
         valid = x.detach().cpu().numpy().astype(np.float64)
         if lt is not None and lt.shape == (len(valid),):
             valid[np.arange(valid.shape[1])[None, :] >= lt.cpu().numpy()[:, None]] = np.nan  # the padding
         _check_canonical(valid, _input_scale(model))
-        return run(x.to(device), lt)
+        return x.to(device), lt, False
     pts = as_points(points, "points", min_points=3)
     _check_canonical(pts[None], _input_scale(model))
-    x = torch.as_tensor(pts, dtype=torch.float32, device=device)[None]
-    return run(x)[0]
+    return torch.as_tensor(pts, dtype=torch.float32, device=device)[None], None, True
 
 
 def _input_scale(model) -> float:

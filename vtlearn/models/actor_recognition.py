@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import lightning as L
 import numpy as np
@@ -24,21 +23,23 @@ from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
 from vtlearn.models.actor import (
-    BEST_METRICS_KEY,
     _masked_centre,
+    _model_input,
     _plain_hparams,
     load_actor,
     read_lightning_checkpoint,
 )
 from vtlearn.models.components.actor_encoder import ActorEncoder
+from vtlearn.models.components.best_metric import BestMetricMixin
 from vtlearn.validation import ConfigMismatchError, as_int, as_real
 
-__all__ = ["ACTORRecognition", "load_recognition", "random_rotation_matrices"]
+__all__ = ["ACTORRecognition", "classify", "load_recognition", "random_rotation_matrices"]
 
 
 def random_rotation_matrices(n: int, mode: str = "z", generator: torch.Generator | None = None) -> Tensor:
     """Random rotations for augmentation: about the world z axis (``"z"``, objects stay upright) or
     uniform on SO(3) (``"so3"``, via unit quaternions (w, x, y, z), Hamilton). Shapes: (n, 3, 3)."""
+    n = as_int(n, "n", minimum=0)
     if mode == "z":
         theta = torch.rand(n, generator=generator) * 2 * math.pi
         c, s = torch.cos(theta), torch.sin(theta)
@@ -65,7 +66,7 @@ def random_rotation_matrices(n: int, mode: str = "z", generator: torch.Generator
     raise ValueError(f"mode: expected 'z' or 'so3', got {mode!r}")
 
 
-class ACTORRecognition(L.LightningModule):
+class ACTORRecognition(BestMetricMixin, L.LightningModule):
     """Frozen ACTOR encoder + FC 512-256-n classifier (thesis Sec. 8.2.2, Table 8.1).
 
     Args:
@@ -73,7 +74,8 @@ class ACTORRecognition(L.LightningModule):
             from the arguments below (used when restoring a recognition checkpoint, whose state dict
             already holds the encoder weights).
         num_classes: number of categories n; checked against the datamodule's ``num_classes``.
-        class_names: optional names for the confusion-matrix figure (else the datamodule's).
+        class_names: optional category names (else the datamodule's, recorded here at ``setup`` so that the
+            checkpoint carries them); used by the confusion-matrix figure.
         lr: Adam learning rate of the head.
         dropout_keep: keep probability of the dropout on fc-256 (thesis 0.7).
         rotation: training augmentation, ``"z"``, ``"so3"`` or ``"none"``.
@@ -84,6 +86,9 @@ class ACTORRecognition(L.LightningModule):
         forward: sparse (B, N, 3) padded, lengths (B,) or None -> logits (B, num_classes).
         batches: dict with "sparse", "lengths", "label" (B,) int64.
     """
+
+    # the best validation accuracy so far, ``self.val_acc_best``, carried across resumes (BestMetricMixin)
+    best_metric_name, best_metric_attr, best_metric_mode = "val/acc_best", "val_acc_best", "max"
 
     def __init__(
         self,
@@ -145,8 +150,7 @@ class ACTORRecognition(L.LightningModule):
         self.test_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_confusion = MulticlassConfusionMatrix(num_classes)
         self.test_confusion = MulticlassConfusionMatrix(num_classes)
-        # best validation accuracy so far: a plain float carried in the checkpoint (not the state dict)
-        self.val_acc_best = -math.inf
+        self.reset_best_metric()
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -160,6 +164,10 @@ class ACTORRecognition(L.LightningModule):
             raise ConfigMismatchError(
                 f"num_classes: model has {self.hparams.num_classes}, datamodule has {n} (set "
                 f"model.init_args.num_classes: {n} in the config, or --model.init_args.num_classes {n})")
+        names = getattr(dm, "class_names", None)
+        if not self.hparams.class_names and names and len(names) == self.hparams.num_classes:
+            # recorded in the checkpoint, so that load_recognition / classify users get the names too
+            self.hparams.class_names = [str(c) for c in names]
 
     def _class_names(self) -> list[str]:
         if self.hparams.class_names:
@@ -169,6 +177,12 @@ class ACTORRecognition(L.LightningModule):
         return list(names) if names else [str(i) for i in range(self.hparams.num_classes)]
 
     def forward(self, sparse: Tensor, lengths: Tensor | None = None) -> Tensor:
+        """Class logits of the FC 512-256-n head on the frozen encoder's global vector (Sec. 8.2.2); the
+        softmax of Table 8.1 is :func:`classify`'s.
+
+        Shapes:
+            sparse (B, N, 3) padded, lengths (B,) int64 or None (every row a point) -> (B, num_classes).
+        """
         if sparse.dim() != 3 or sparse.shape[-1] != 3:
             raise ValueError(f"sparse: expected (B, N, 3), got {tuple(sparse.shape)}")
         if lengths is None:
@@ -206,23 +220,10 @@ class ACTORRecognition(L.LightningModule):
         self.log("val/acc", self.val_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=bs)
 
     def on_validation_epoch_end(self) -> None:
-        acc = float(self.val_acc.compute())
-        # the sanity check is no epoch of this run (on a resume it re-evaluates the checkpoint's weights)
-        if not self.trainer.sanity_checking:
-            if not math.isnan(acc):
-                self.val_acc_best = max(self.val_acc_best, acc)
-            self.log("val/acc_best", self.val_acc_best, prog_bar=True)
+        self.update_best_metric(float(self.val_acc.compute()))  # not moved by the sanity check
         matrix = self.val_confusion.compute().cpu().numpy()
         self.val_confusion.reset()
         self._log_confusion("val/confusion", matrix)
-
-    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        checkpoint.setdefault(BEST_METRICS_KEY, {})["val/acc_best"] = float(self.val_acc_best)
-
-    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        best = checkpoint.get(BEST_METRICS_KEY, {}).get("val/acc_best")  # absent in older checkpoints
-        if best is not None:
-            self.val_acc_best = float(best)
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         loss, preds, targets = self.model_step(batch)
@@ -265,6 +266,12 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
     map_location = _check_map_location(map_location)
     data = read_lightning_checkpoint(ckpt)
     state = data["state_dict"]
+    if not any(k.startswith("head.") for k in state) and any(k.startswith("decoder.") for k in state):
+        raise ValueError(
+            f"ckpt: {ckpt} is an ACTOR reconstruction checkpoint, not an ACTORRecognition checkpoint (load "
+            "it with vtlearn.models.actor.load_actor; a recognition head is trained on it with "
+            "configs/quick/actor_recognition.yaml)"
+        )
     if not any(k.startswith("head.") for k in state) or not any(k.startswith("encoder.") for k in state):
         raise ValueError(
             f"ckpt: {ckpt} is not an ACTORRecognition checkpoint (no head.* / encoder.* weights)"
@@ -297,3 +304,29 @@ def load_recognition(ckpt: str | Path, map_location: str | torch.device = "cpu")
     except (RuntimeError, TypeError, ValueError) as exc:
         raise ValueError(f"ckpt: {ckpt} does not match ACTORRecognition: {str(exc).splitlines()[0]}") from exc
     return _to_device(model, map_location).eval()
+
+
+@torch.no_grad()
+def classify(model: ACTORRecognition, points, lengths=None) -> np.ndarray:
+    """Category probabilities of one sparse cloud or a padded batch: the softmax of the head on ACTOR's
+    frozen encoder (thesis Sec. 8.2.2, Table 8.1), as numpy.
+
+    The clouds are in ACTOR's canonical frame (see :func:`vtlearn.models.actor.reconstruct`, which takes the
+    same input and refuses the same bad input: empty, NaN or inf, wrong shape, not canonical).
+
+    Args:
+        model: an :class:`ACTORRecognition` (e.g. from :func:`load_recognition`); put in eval mode here.
+        points: one cloud (N, 3) with N >= 3, or a padded batch (B, N, 3) with ``lengths``.
+        lengths: (B,) valid points per cloud, batch input only.
+
+    Shapes:
+        (N, 3) -> (num_classes,); (B, N, 3) -> (B, num_classes). Class names: ``model.hparams.class_names``.
+    """
+    if not isinstance(model, ACTORRecognition):
+        raise ValueError(
+            f"model: expected an ACTORRecognition (e.g. from load_recognition), got {type(model).__name__}"
+        )
+    model.eval()
+    x, lt, single = _model_input(model, points, lengths, "classify")
+    probs = model(x, lt).softmax(dim=1).cpu().numpy()
+    return probs[0] if single else probs

@@ -78,7 +78,12 @@ class PrimitiveClouds(Dataset):
 
 
 def collate_padded(samples: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-    """Pad variable-size sparse clouds with zeros (the ReconstructionDataModule batch format)."""
+    """Pad variable-size sparse clouds with zeros (the ReconstructionDataModule batch format).
+
+    Shapes:
+        samples[b]["sparse"] (N_b, 3), ["dense"] (M, 3) -> "sparse" (B, max N_b, 3), "lengths" (B,),
+        "dense" (B, M, 3), "label" (B,).
+    """
     lengths = torch.tensor([len(s["sparse"]) for s in samples], dtype=torch.long)
     sparse = torch.zeros(len(samples), int(lengths.max()), 3)
     for b, s in enumerate(samples):

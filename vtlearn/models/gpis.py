@@ -52,11 +52,15 @@ class GPISResult:
 def estimate_normals(points, k: int = 10) -> np.ndarray:
     """Unit normals by PCA of the k nearest neighbours, oriented away from the centroid.
 
+    Args:
+        points: the cloud, at least 4 points.
+        k: neighbours per point, each point included (>= 3, the fewest that span a plane; at most N are used).
+
     Shapes:
         points (N, 3) -> (N, 3)
     """
     pts = as_points(points, "points", min_points=4)
-    k = min(k, len(pts))
+    k = min(as_int(k, "k", minimum=3), len(pts))
     _, idx = cKDTree(pts).query(pts, k=k)
     nbrs = pts[idx]  # N x k x 3
     centred = nbrs - nbrs.mean(axis=1, keepdims=True)
@@ -106,8 +110,10 @@ def fit_gpis(
     extent = float(np.max(pts.max(0) - pts.min(0)))
     if extent <= 0:
         raise ValueError("points: all points coincide")
+    nu = as_real(nu, "nu", low=0.0, open_low=True)
     d = 0.05 * extent if offset is None else as_real(offset, "offset", low=0.0, open_low=True)
-    ls = 0.3 * extent if length_scale is None else float(length_scale)
+    ls = (0.3 * extent if length_scale is None
+          else as_real(length_scale, "length_scale", low=0.0, open_low=True))
     X = np.concatenate([pts, pts + d * nrm, pts - d * nrm])
     y = np.concatenate([np.zeros(len(pts)), np.full(len(pts), d), np.full(len(pts), -d)])
     kernel = ConstantKernel(d**2, (1e-4 * d**2, 1e4 * d**2)) * Matern(
@@ -153,6 +159,7 @@ def gpis_reconstruct(
     pts = as_points(points, "points", min_points=4)
     resolution = as_int(resolution, "resolution", minimum=4)
     num_points = as_int(num_points, "num_points")
+    margin = as_real(margin, "margin", low=0.0)
     nrm = estimate_normals(pts) if normals is None else normals
     gp, d = fit_gpis(pts, nrm, offset=offset, nu=nu)
     lo, hi = pts.min(0), pts.max(0)

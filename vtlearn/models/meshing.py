@@ -18,7 +18,7 @@ import open3d as o3d
 import trimesh
 from scipy.spatial import cKDTree
 
-from vtlearn.validation import as_points, as_real
+from vtlearn.validation import as_int, as_points, as_real
 
 __all__ = ["ball_pivot_mesh"]
 
@@ -33,7 +33,7 @@ def ball_pivot_mesh(
         normals: outward normals; estimated (k nearest neighbours, oriented outward) when None.
         radii: explicit ball radii in input units; default ``radius_factors`` times the mean spacing.
         radius_factors: multiples of the mean nearest-neighbour distance used when ``radii`` is None.
-        knn: neighbours for normal estimation.
+        knn: neighbours for normal estimation (>= 3, the fewest that span a plane).
 
     Raises:
         ValueError: bad input, or when no triangle could be built.
@@ -42,6 +42,7 @@ def ball_pivot_mesh(
         points (N, 3) with N >= 4 -> mesh with vertices (N', 3), faces (F, 3).
     """
     pts = as_points(points, "points", min_points=4)
+    knn = as_int(knn, "knn", minimum=3)  # Open3D's normal estimation crashes the interpreter on knn = 0
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     if normals is None:
         pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn))
@@ -55,11 +56,15 @@ def ball_pivot_mesh(
             raise ValueError(f"normals: expected shape {pts.shape}, got {nrm.shape}")
         pcd.normals = o3d.utility.Vector3dVector(nrm)
     if radii is None:
+        if len(radius_factors) == 0:
+            raise ValueError("radius_factors: empty; give at least one multiple of the point spacing")
         d, _ = cKDTree(pts).query(pts, k=2)
         spacing = float(np.mean(d[:, 1]))
         if spacing <= 0:
             raise ValueError("points: duplicate points only, cannot choose ball radii")
         radii = [f * spacing for f in radius_factors]
+    elif len(radii) == 0:
+        raise ValueError("radii: empty; give at least one ball radius (or None for the default)")
     radii = [as_real(r, "radii", low=0.0, open_low=True) for r in radii]
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
         pcd, o3d.utility.DoubleVector(list(radii))
