@@ -102,3 +102,31 @@ def test_track_cli_names_the_extra_a_method_needs(tmp_path, capsys, monkeypatch)
     assert main(["track", "--models", str(tmp_path / "m.ply"), "--frames", str(tmp_path),
                  "--method", "filterreg"]) == 2
     assert "--method: 'filterreg' needs the optional probreg extra" in capsys.readouterr().err
+
+
+def test_bench_tracking_reports_ratios_and_thesis_and_plots_beside_the_json(tmp_path, capsys, monkeypatch):
+    """The tiniest bench: every baseline as a multiple of ArtReg, ArtReg against the thesis's figures, the
+    JSON and both plots written (into the JSON's folder unless --plots names another), their paths printed."""
+    import vtlearn.classical.tracking_cli as tracking_cli
+    from vtlearn.cli import main
+
+    # the 2 x 1000-point speed runs are a fixed cost the tables below do not need
+    monkeypatch.setattr(tracking_cli, "_speed", lambda n, cap: {"wall_hz": 1.0, "cpu_hz": 1.0,
+                                                                 "points_per_part": n, "cap": cap})
+    js = tmp_path / "bench" / "tracking.json"
+    assert main(["bench", "tracking", "--methods", "artreg", "icp", "--trials", "1", "--frames", "2",
+                 "--seq-trials", "1", "--seq-frames", "3", "--width", "80", "--height", "60",
+                 "--json", str(js)]) == 0
+    res = json.loads(js.read_text())
+    a = res["articulated"]["all"]
+    assert a["icp"]["ratio_to_artreg"] == pytest.approx(a["icp"]["mean_cm"] / a["artreg"]["mean_cm"])
+    assert a["artreg"]["thesis_mean_cm"] == 7.23
+    assert a["artreg"]["ratio_to_thesis"] == pytest.approx(a["artreg"]["mean_cm"] / 7.23)
+    seq = res["sequences"]["multiple"]
+    assert seq["artreg"]["thesis_cm"] == 1.512 and seq["icp"]["thesis_cm"] is None
+    assert seq["icp"]["ratio_to_artreg"] == pytest.approx(
+        seq["icp"]["xy_error"]["mean_cm"] / seq["artreg"]["xy_error"]["mean_cm"])
+    plots = [js.parent / "tracking_violin.png", js.parent / "tracking_trajectories.png"]
+    assert all(p.is_file() for p in plots) and res["plots"] == [str(p) for p in plots]
+    out = capsys.readouterr().out
+    assert "| x ArtReg |" in out and "| x thesis |" in out and f"wrote {js}, {plots[0]}" in out

@@ -4,6 +4,7 @@ refused up front with one ``vtlearn: error:`` line (or an argparse error) that n
 import argparse
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -220,3 +221,125 @@ def test_track_reads_csv_frames(track_inputs, capsys):
     argv[argv.index("--frames") + 1] = str(frames)
     assert main([*argv, "--method", "icp"]) == 0
     assert "\n3 frames, " in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------------- 7. track reads once
+def test_track_reads_each_frame_file_once(track_inputs, capsys, monkeypatch):
+    """A .csv frame is read once: the read that tells a cloud from metadata is the read that tracks it."""
+    import vtlearn.io
+
+    tmp, argv = track_inputs
+    frames = tmp / "csv_frames"
+    for i in range(3):
+        write_cloud(frames / f"f{i}.csv", CLOUD + 0.001 * i)
+    (frames / "timestamps.csv").write_text("frame,t\n0,0.0\n")
+    argv[argv.index("--frames") + 1] = str(frames)
+    reads, read_cloud = [], vtlearn.io.read_cloud
+    monkeypatch.setattr(vtlearn.io, "read_cloud",
+                        lambda p, **kw: reads.append(Path(p).name) or read_cloud(p, **kw))
+    assert main([*argv, "--method", "icp"]) == 0
+    assert sorted(n for n in reads if n != "part0.xyz") == ["f0.csv", "f1.csv", "f2.csv", "timestamps.csv"]
+    out = capsys.readouterr().out
+    assert "skipped timestamps.csv" in out and "\n3 frames, " in out
+
+
+def test_track_keeps_the_estimate_through_a_frame_without_points(track_inputs, capsys):
+    """A frame saved as a (0, 3) array (the object out of view) is an empty frame, not an error mid-run."""
+    tmp, argv = track_inputs
+    np.save(tmp / "frames" / "f2.npy", np.zeros((0, 3)))  # sorted after f0.xyz, f1.xyz
+    (tmp / "tactile").mkdir()
+    np.save(tmp / "tactile" / "f2.npy", np.zeros((0, 3)))  # no contact either
+    js = tmp / "track.json"
+    assert main([*argv, "--tactile", str(tmp / "tactile"), "--json", str(js)]) == 0
+    res = json.loads(js.read_text())
+    assert res["n_frames"] == 3 and res["frames"][2]["frame"] == "f2.npy"
+    np.testing.assert_allclose(res["frames"][2]["T_world_object"], res["frames"][1]["T_world_object"])
+
+
+@pytest.mark.parametrize("what, flag", [("frames", "--frames f0.xyz"), ("models", "--models")])
+def test_track_refuses_clouds_in_millimetres(track_inputs, capsys, what, flag):
+    tmp, argv = track_inputs
+    if what == "frames":
+        write_cloud(tmp / "mm" / "f0.xyz", 1000.0 * CLOUD)
+        argv[argv.index("--frames") + 1] = str(tmp / "mm")
+    else:
+        argv[argv.index("--models") + 1] = str(write_cloud(tmp / "mm.xyz", 1000.0 * CLOUD))
+    assert main(argv) == 2
+    err = capsys.readouterr().err.splitlines()[-1]  # after the progress bar of the frames read so far
+    assert err.startswith(f"vtlearn: error: {flag}") and "millimetres" in err
+
+
+def test_track_figure_shows_the_tracked_path(track_inputs, capsys):
+    tmp, argv = track_inputs
+    fig = tmp / "figs" / "track.png"
+    assert main([*argv, "--method", "icp", "--figure", str(fig)]) == 0
+    assert fig.is_file() and f"wrote {fig}" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------------- 8. register
+@pytest.fixture
+def register_inputs(tmp_path):
+    write_cloud(tmp_path / "m.xyz", CLOUD)
+    write_cloud(tmp_path / "s.xyz", CLOUD[:20])
+    return tmp_path, ["register", "--model", str(tmp_path / "m.xyz"), "--scene", str(tmp_path / "s.xyz")]
+
+
+@pytest.mark.parametrize("name, content, what", [
+    ("empty.npy", np.zeros((0, 3)), "point cloud is empty"),
+    ("nan.npy", np.where(np.arange(20)[:, None] == 3, np.nan, CLOUD[:20]), "NaN"),
+    ("wide.npy", CLOUD[:, :2], "k >= 3 columns"),
+    ("missing.xyz", None, "no such file"),
+    ("two.xyz", CLOUD[:2], "only 2 points"),
+    ("line.xyz", np.outer(np.linspace(0, 0.1, 10), [1.0, 0.0, 0.0]), "degenerate"),
+    ("mm.xyz", 1000.0 * CLOUD[:20], "millimetres"),
+])
+def test_register_errors_name_the_flag(register_inputs, capsys, name, content, what):
+    tmp, argv = register_inputs
+    if content is not None:
+        np.save(tmp / name, content) if name.endswith(".npy") else np.savetxt(tmp / name, content)
+    argv[argv.index("--scene") + 1] = str(tmp / name)
+    assert main(argv) == 2
+    err = _error(capsys)
+    assert err.count("\n") == 1 and "--scene" in err and what in err
+
+
+def test_register_writes_json_and_figure_files(register_inputs, capsys):
+    tmp, argv = register_inputs
+    js, fig = tmp / "out" / "reg.json", tmp / "out" / "reg.png"
+    assert main([*argv, "--method", "tiqf", "--json", str(js), "--figure", str(fig)]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {js}" in out and f"wrote {fig}" in out and fig.is_file()
+    assert json.loads(js.read_text())["n_scene"] == 20
+    assert main([*argv, "--method", "tiqf", "--json"]) == 0  # --json alone prints it
+    assert json.loads(capsys.readouterr().out)["method"] == "tiqf"
+
+
+# ---------------------------------------------------------------------------------- 9. hand-eye units, --out
+def test_hand_eye_refuses_poses_in_millimetres(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    T = np.eye(4)
+    T[:3, 3] = [300.0, 0.0, 400.0]  # mm
+    np.savetxt(tmp / "poses_mm.txt", T)
+    argv[argv.index("--poses") + 1] = str(tmp / "poses_mm.txt")
+    assert main(argv) == 2
+    err = _error(capsys)
+    assert err.count("\n") == 1 and err.startswith("vtlearn: error: --poses:") and "millimetres" in err
+
+
+def test_hand_eye_refuses_tactile_in_millimetres(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    write_cloud(tmp / "t_mm.xyz", 1000.0 * CLOUD[:20])
+    argv[argv.index("--tactile") + 1] = str(tmp / "t_mm.xyz")
+    assert main(argv) == 2
+    err = _error(capsys)
+    assert "--tactile" in err and "millimetres" in err
+
+
+def test_hand_eye_out_goes_into_a_new_folder_and_a_folder_is_refused_first(hand_eye_inputs, capsys):
+    tmp, argv = hand_eye_inputs
+    out = tmp / "calib" / "T_E_C.npy"
+    assert main([*argv, "--out", str(out)]) == 0
+    assert np.load(out).shape == (4, 4) and f"wrote {out}" in capsys.readouterr().out
+    assert main([*argv, "--out", str(tmp)]) == 2
+    assert "--out:" in _error(capsys)
+    assert "T_E_C =" not in capsys.readouterr().out  # refused before the calibration ran

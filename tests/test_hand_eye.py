@@ -143,7 +143,7 @@ def test_hand_eye_command_and_bench_smoke(tmp_path, scene, capsys):
     assert main(["hand-eye", "--visual", str(tmp_path / "v.ply"), "--poses", str(tmp_path / "poses.npy"),
                  "--tactile", str(tmp_path / "t.ply"), "--method", "tiqf",
                  "--init", str(tmp_path / "init.npy"), "--out", str(out)]) == 0
-    assert "T_E_C =" in capsys.readouterr().out
+    assert "T_E_C = (the camera in the end-effector frame, metres)" in capsys.readouterr().out
     np.testing.assert_allclose(np.load(out), X, atol=1e-5)  # tactile on the visual samples: exact
     assert main(["hand-eye", "--visual", str(tmp_path / "v.ply"), "--poses", str(tmp_path / "none.npy"),
                  "--tactile", str(tmp_path / "t.ply")]) == 2
@@ -153,6 +153,8 @@ def test_hand_eye_command_and_bench_smoke(tmp_path, scene, capsys):
                  "--json", str(js)]) == 0
     res = json.loads(js.read_text())
     assert set(res["summary"]) == {"nominal", "stiqf", "tiqf"}
+    printed = capsys.readouterr().out  # the peers against S-TIQF and everything against the thesis bounds
+    assert "| pos x S-TIQF |" in printed and "| pos x thesis |" in printed and f"wrote {js}" in printed
     assert res["summary"]["nominal"]["position_mm_median"] == pytest.approx(20.0)
     assert js.with_suffix(".png").is_file()
     assert main(["bench", "hand-eye", "--meshes", "bunny", "--methods", "teaser", "--json", str(js)]) == 2

@@ -200,3 +200,22 @@ def test_extra_columns_and_a_header_row_are_read_as_the_text_formats_are(tmp_pat
     (tmp_path / "header_only.csv").write_text("x,y,z\n")
     with pytest.raises(ValueError, match="header_only.csv.*no data rows"):
         read_cloud(tmp_path / "header_only.csv")
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".npz", ".ply"])
+def test_a_cloud_of_no_points_is_refused_unless_allowed(tmp_path, suffix):
+    path = tmp_path / f"none{suffix}"
+    if suffix == ".npy":
+        np.save(path, np.zeros((0, 3)))
+    elif suffix == ".npz":
+        np.savez(path, points=np.zeros((0, 3)))
+    else:
+        path.write_text("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+                        "property float z\nend_header\n")
+    with pytest.raises(ValueError) as err:
+        read_cloud(path)
+    msg = str(err.value)
+    assert "point cloud is empty" in msg and msg.count(path.name) == 1  # the file named once
+    assert read_cloud(path, allow_empty=True).shape == (0, 3)
+    pts, normals = read_cloud_with_normals(path, allow_empty=True)
+    assert pts.shape == (0, 3) and normals is None

@@ -262,7 +262,13 @@ def test_bench_registration_tiny(tmp_path, capsys):
     assert s["tiqf"]["p_welch_vs_stiqf"] is None or 0 <= s["tiqf"]["p_welch_vs_stiqf"] <= 1
     assert len(res["adi_cm"]["20"]["stiqf"]) == 2
     assert out.with_suffix(".md").exists() and out.with_suffix(".png").exists()
-    assert "adi_mean_cm" in capsys.readouterr().out
+    # each method against S-TIQF on the same trials, and S-TIQF against thesis Table 5.1 (20 points: 4.36 cm)
+    assert s["tiqf"]["ratio_to_stiqf"] == pytest.approx(s["tiqf"]["mean"] / s["stiqf"]["mean"])
+    assert s["stiqf"]["thesis_cm"] == 4.36 and s["tiqf"]["thesis_cm"] is None
+    assert s["stiqf"]["ratio_to_thesis"] == pytest.approx(s["stiqf"]["mean"] / 4.36)
+    printed = capsys.readouterr().out
+    assert "| ADI mean cm |" in printed and "| x S-TIQF |" in printed and "| x thesis |" in printed
+    assert f"wrote {out}" in printed
 
 
 def test_bench_registration_rejects_unknown_method(tmp_path, capsys):

@@ -1,6 +1,7 @@
 """Helpers shared by the ``vtlearn`` commands, the benches above all: a plain-text table, JSON output,
-comma-separated argument lists, and the two significance tests the benches report (Welch's t-test for
-independent runs, Wilcoxon's signed-rank test for paired ones)."""
+comma-separated argument lists, the two significance tests the benches report (Welch's t-test for
+independent runs, Wilcoxon's signed-rank test for paired ones), and the unit checks of input clouds (vtlearn
+works in metres; a file in millimetres is the commonest wrong input)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import numpy as np
 
 __all__ = [
     "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
-    "welch_p", "wilcoxon_p",
+    "welch_p", "wilcoxon_p", "ratio", "cloud_extent", "check_metres", "check_same_units",
 ]
 
 
@@ -52,6 +53,60 @@ def wilcoxon_p(diff) -> float | None:
     from scipy.stats import wilcoxon
 
     return float(wilcoxon(d).pvalue)
+
+
+def ratio(a, b) -> float | None:
+    """``a / b`` for the ratio columns of the bench tables (a method against the reference method, or against
+    the thesis), or None when either is missing or ``b`` is not a positive finite number."""
+    if a is None or b is None:
+        return None
+    a, b = float(a), float(b)
+    if not (math.isfinite(a) and math.isfinite(b)) or b <= 0:
+        return None
+    return a / b
+
+
+def cloud_extent(points) -> float:
+    """The length of the diagonal of the axis-aligned bounding box of ``points`` (0 for no points), in the
+    cloud's units.
+
+    Shapes:
+        points (N, 3) -> float
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(p.max(0) - p.min(0))) if len(p) else 0.0
+
+
+def check_metres(points, name: str, max_extent_m: float = 10.0, what: str = "an object cloud") -> float:
+    """A ``ValueError`` naming ``name`` (a command-line flag) when ``points`` span more than ``max_extent_m``
+    metres, longer than ``what`` can be: in practice a file in millimetres. Returns the extent.
+
+    Shapes:
+        points (N, 3)
+    """
+    ext = cloud_extent(points)
+    if ext > max_extent_m:
+        raise ValueError(f"{name}: spans {ext:.4g} m, more than the {max_extent_m:g} m {what} can; vtlearn "
+                         "reads metres (a file in millimetres? divide it by 1000)")
+    return ext
+
+
+def check_same_units(a, name_a: str, b, name_b: str, factor: float = 200.0) -> None:
+    """A ``ValueError`` naming both flags when the extents of two clouds of the same object differ by more
+    than ``factor`` (in either direction): one of them is in other units (millimetres against metres differ by
+    1000). A cloud of one point or of coincident points has no extent and is left to the caller's checks.
+
+    Shapes:
+        a (N, 3), b (M, 3)
+    """
+    ea, eb = cloud_extent(a), cloud_extent(b)
+    if ea <= 0 or eb <= 0:
+        return
+    big, small = max(ea, eb), min(ea, eb)
+    if big > factor * small:
+        raise ValueError(f"{name_a} spans {ea:.4g} m but {name_b} {eb:.4g} m ({big / small:.0f} times as "
+                         f"much): they should be the same object in the same units; vtlearn reads metres "
+                         "(is one in millimetres?)")
 
 
 def to_jsonable(obj: Any) -> Any:

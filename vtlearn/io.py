@@ -49,11 +49,11 @@ def _existing(path) -> Path:
     return p
 
 
-def _validated(points, normals, p: Path):
+def _validated(points, normals, p: Path, allow_empty: bool = False):
     try:
-        pts = as_points(points, f"{p}")
+        pts = as_points(points, "points", min_points=0 if allow_empty else 1)
     except ValueError as exc:
-        raise ValueError(f"{p}: malformed point cloud ({exc})") from None
+        raise ValueError(f"{p}: malformed point cloud ({str(exc).removeprefix('points: ')})") from None
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != pts.shape or not np.isfinite(normals).all():
@@ -69,8 +69,11 @@ def _numeric(row: list[str]) -> bool:
     return True
 
 
-def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
+def read_cloud_with_normals(path, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a point cloud and its normals, if the file has them.
+
+    A cloud of no points (a saved ``(0, 3)`` array) is a ``ValueError`` unless ``allow_empty``: then it reads
+    as ``(0, 3)``, as a frame in which a sensor saw nothing does.
 
     Shapes:
         output: points ``(N, 3)`` float64, normals ``(N, 3)`` or ``None``.
@@ -127,14 +130,15 @@ def read_cloud_with_normals(path) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"{p}: cannot read point cloud ({exc})") from None
     except Exception as exc:  # noqa: BLE001 - any parser failure becomes a clear error naming the file
         raise ValueError(f"{p}: cannot read point cloud ({type(exc).__name__}: {exc})") from None
-    return _validated(pts, normals, p)
+    return _validated(pts, normals, p, allow_empty)
 
 
-def read_cloud(path) -> np.ndarray:
-    """Read a point cloud (formats in the module docstring; a mesh file is :func:`read_geometry`'s).
+def read_cloud(path, allow_empty: bool = False) -> np.ndarray:
+    """Read a point cloud (formats in the module docstring; a mesh file is :func:`read_geometry`'s). A cloud
+    of no points is refused unless ``allow_empty`` (:func:`read_cloud_with_normals`).
 
     Shapes: output ``(N, 3)`` float64."""
-    return read_cloud_with_normals(path)[0]
+    return read_cloud_with_normals(path, allow_empty)[0]
 
 
 def write_cloud(path, points, normals=None) -> Path:

@@ -19,13 +19,71 @@ MIN_SCENE_POINTS = 3
 MIN_FACES = 4
 
 
-def _cmd_register(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import to_jsonable
-    from vtlearn.classical.registration import register as reg
-    from vtlearn.io import read_geometry
+def _read_points(path: str, flag: str, n_points: int, seed: int, label: str | None = None):
+    """The cloud of a command-line file (a mesh is sampled with ``n_points``), with every error naming
+    ``flag``: an unreadable, empty or NaN file, fewer than 3 points, or collinear points (``label``, default
+    ``flag``, names the cloud in the last two).
 
-    model = read_geometry(args.model, n_points=args.model_points, seed=args.seed)
-    scene = read_geometry(args.scene, n_points=args.scene_points, seed=args.seed + 1)
+    Shapes: output (N, 3), N >= 3."""
+    from vtlearn.io import read_geometry
+    from vtlearn.validation import as_points, check_not_collinear, load_named
+
+    label = label or flag
+    cloud = load_named(lambda p: read_geometry(p, n_points=n_points, seed=seed), path, flag)
+    cloud = as_points(cloud, label, min_points=MIN_SCENE_POINTS)
+    check_not_collinear(cloud, label)
+    return cloud
+
+
+def _print_json(out: dict, path) -> None:
+    """``--json``: the result to stdout (``--json`` alone) or written to ``path`` (``--json FILE``)."""
+    from vtlearn.bench_utils import to_jsonable, write_json
+
+    if path is True:
+        print(json.dumps(to_jsonable(out), indent=2))
+    else:
+        print(f"wrote {write_json(path, out)}")
+
+
+def _registration_figure(model, scene, res, path) -> Any:
+    """A 3-D scatter of the scene and of the model at the estimated pose (scaled): where one looks to see
+    whether the registration found the object.
+
+    Shapes: model (M, 3), scene (N, 3)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from vtlearn.bench_utils import save_figure
+
+    moved = (model * res.scale) @ res.R.T + res.t
+    fig = plt.figure(figsize=(6, 5))
+    ax = fig.add_subplot(projection="3d")
+    ax.scatter(*moved.T, s=2, c="0.55", label=f"model at the estimate ({len(model)} points)")
+    ax.scatter(*scene.T, s=14, c="tab:red", label=f"scene ({len(scene)} points)")
+    both = np.vstack([moved, scene])
+    ax.set_box_aspect(np.maximum(np.ptp(both, axis=0), 1e-9))  # metres on every axis alike
+    for set_label, axis in ((ax.set_xlabel, "x"), (ax.set_ylabel, "y"), (ax.set_zlabel, "z")):
+        set_label(f"{axis} (m)")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"{res.method}: scene-to-model rmse {1e3 * res.rmse:.2f} mm")
+    return save_figure(fig, path)
+
+
+def _cmd_register(args: argparse.Namespace) -> int:
+    import sys
+
+    from vtlearn.bench_utils import check_same_units, cloud_extent
+    from vtlearn.classical.registration import register as reg
+
+    model = _read_points(args.model, "--model", args.model_points, args.seed)
+    scene = _read_points(args.scene, "--scene", args.scene_points, args.seed + 1)
+    check_same_units(model, "--model", scene, "--scene")
+    if cloud_extent(model) > 10.0:
+        print(f"vtlearn: note: --model spans {cloud_extent(model):.4g} m; vtlearn reads metres, so if the "
+              "files are in millimetres the rmse and t below are in millimetres too", file=sys.stderr)
     opts: dict[str, Any] = {}
     if args.estimate_scale:
         if args.method != "stiqf":
@@ -37,56 +95,79 @@ def _cmd_register(args: argparse.Namespace) -> int:
         {"model": str(args.model), "scene": str(args.scene), "n_model": len(model), "n_scene": len(scene)}
     )
     if args.json:
-        print(json.dumps(to_jsonable(out), indent=2))
+        _print_json(out, args.json)
     else:
-        print(f"method {res.method}: rmse {res.rmse:.4g} m, {res.iterations} iterations, {res.time:.3f} s")
-        print("T_scene_model =")
+        # Open3D's ICP, RANSAC and FGR do not report their iterations (0 in the result)
+        its = f", {res.iterations} iterations" if res.iterations else ""
+        print(f"method {res.method}: rmse {res.rmse:.4g} m (scene to registered model){its}, "
+              f"{res.time:.3f} s")
+        print("T_scene_model = (maps model points into the scene frame, metres)")
         for row in res.T_scene_model:
             print("  " + " ".join(f"{v: .6f}" for v in row))
-        print("scale =", " ".join(f"{v:.6f}" for v in res.scale))
+        print("scale (per model axis) =", " ".join(f"{v:.6f}" for v in res.scale))
+    if args.figure:
+        print(f"wrote {_registration_figure(model, scene, res, args.figure)}")
     return 0
 
 
+def _check_pose_units(visual: list, tactile, poses) -> None:
+    """``--poses`` in the units of the clouds: the camera on the end effector sees the object about as far
+    away (the visual cloud's distance from the camera) as the end effector is from it in the world (the
+    tactile cloud's distance from ``T_W_E``); the two differ by the hand-eye offset, so a factor of 50 means
+    poses in millimetres against clouds in metres.
+
+    Shapes: visual V x (M_v, 3), tactile (N, 3), poses (V, 4, 4)."""
+    import numpy as np
+
+    d_cam = float(np.median([np.linalg.norm(v.mean(0)) for v in visual]))
+    d_eff = float(np.median(np.linalg.norm(poses[:, :3, 3] - tactile.mean(0), axis=1)))
+    if d_eff > 50.0 * max(d_cam, 1e-3):
+        raise ValueError(f"--poses: the end effector is {d_eff:.4g} m from the --tactile contacts, but the "
+                         f"camera sees the object {d_cam:.3g} m away in --visual: are the poses in "
+                         "millimetres? vtlearn reads metres")
+
+
 def _cmd_hand_eye(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import to_jsonable
+    from vtlearn.bench_utils import check_metres, check_output_path, check_same_units
     from vtlearn.classical.hand_eye import LOCAL_METHODS, in_situ_hand_eye
-    from vtlearn.io import read_geometry, read_poses
-    from vtlearn.validation import as_points, check_not_collinear
+    from vtlearn.io import read_poses
 
     if args.init is None and args.method in LOCAL_METHODS:
         raise ValueError(f"--init: method {args.method} needs an initial T_E_C guess (a .npy, JSON or "
                          "4 x 4 text pose file); a global method such as stiqf needs none")
+    out_path = check_output_path(args.out, "--out", "T_E_C .npy") if args.out else None  # before the work
     poses = read_poses(args.poses, "--poses")
     if len(poses) != len(args.visual):
         raise ValueError(f"--poses: need one T_W_E per --visual file ({len(args.visual)}), got {len(poses)}")
     init = read_poses(args.init, "--init", n=1)[0] if args.init else None
-    visual = []
-    for i, v in enumerate(args.visual):
-        cloud = as_points(read_geometry(v, n_points=args.visual_points, seed=args.seed + i), f"--visual {v}",
-                          min_points=3)
-        check_not_collinear(cloud, f"--visual {v}")
-        visual.append(cloud)
-    tactile = read_geometry(args.tactile, n_points=args.tactile_points, seed=args.seed)
-    tactile = as_points(tactile, "--tactile", min_points=3)
-    check_not_collinear(tactile, "--tactile")
+    visual = [_read_points(v, "--visual", args.visual_points, args.seed + i, label=f"--visual {v}")
+              for i, v in enumerate(args.visual)]
+    tactile = _read_points(args.tactile, "--tactile", args.tactile_points, args.seed)
+    check_metres(tactile, "--tactile")
+    for v, cloud in zip(args.visual, visual, strict=True):
+        check_metres(cloud, f"--visual {v}")
+        check_same_units(cloud, f"--visual {v}", tactile, "--tactile")
+    _check_pose_units(visual, tactile, poses)
     res = in_situ_hand_eye(visual, tactile, poses, method=args.method, T_E_C_init=init, seed=args.seed)
     out = {"T_E_C": res.T_E_C, "T_W_C": res.T_W_C, "T_E_C_views": res.T_E_C_views, "rmse_m": res.rmse,
            "spread_m": res.spread_m, "spread_deg": res.spread_deg, "method": args.method,
            "visual": args.visual, "tactile": args.tactile, "poses": args.poses}
     if args.json:
-        print(json.dumps(to_jsonable(out), indent=2))
+        _print_json(out, args.json)
     else:
         print(f"{len(visual)} view(s), method {args.method}: registration rmse "
               + ", ".join(f"{1e3 * r:.2f}" for r in res.rmse) + " mm; views agree within "
               f"{1e3 * res.spread_m:.1f} mm / {res.spread_deg:.2f} deg")
-        print("T_E_C =")
+        print("T_E_C = (the camera in the end-effector frame, metres)")
         for row in res.T_E_C:
             print("  " + " ".join(f"{v: .6f}" for v in row))
-    if args.out:
+    if out_path is not None:
         import numpy as np
 
-        np.save(args.out, res.T_E_C, allow_pickle=False)
-        print(f"wrote {args.out}")
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(out_path, "wb") as f:  # np.save on a name would append ".npy" to one without it
+            np.save(f, res.T_E_C, allow_pickle=False)
+        print(f"wrote {out_path}")
     return 0
 
 
@@ -109,7 +190,8 @@ def register(subparsers: Any) -> None:
     h.add_argument("--tactile-points", type=count(1), default=60,
                    help="points sampled from a tactile mesh input")
     h.add_argument("--seed", type=count(0), default=0)
-    h.add_argument("--json", action="store_true", help="print the result as JSON")
+    h.add_argument("--json", nargs="?", const=True, default=None, metavar="FILE",
+                   help="the result as JSON: printed, or written to FILE")
     h.add_argument("--out", default=None, help="save T_E_C as .npy")
     h.set_defaults(func=_cmd_hand_eye)
 
@@ -128,7 +210,10 @@ def register(subparsers: Any) -> None:
                    help="points sampled when the model is a mesh")
     p.add_argument("--scene-points", type=count(1), default=120,
                    help="points sampled when the scene is a mesh")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--json", nargs="?", const=True, default=None, metavar="FILE",
+                   help="the result as JSON: printed, or written to FILE")
+    p.add_argument("--figure", default=None,
+                   help="write a 3-D plot of the scene and the registered model (.png)")
     p.set_defaults(func=_cmd_register)
 
 
@@ -155,18 +240,24 @@ def _cmd_bench_registration(args: argparse.Namespace) -> int:
                 {
                     "N": n,
                     "method": name,
-                    "adi_mean_cm": s["mean"],
-                    "adi_std_cm": s["std"],
-                    "adi_median_cm": s["median"],
-                    "time_s": s["time_mean_s"],
-                    "cpu_s": s["cpu_time_mean_s"],
-                    "p_vs_stiqf": "-" if s["p_welch_vs_stiqf"] is None else f"{s['p_welch_vs_stiqf']:.2g}",
+                    "ADI mean cm": s["mean"],
+                    "std cm": s["std"],
+                    "median cm": s["median"],
+                    "x S-TIQF": s["ratio_to_stiqf"],
+                    "thesis cm": s["thesis_cm"],
+                    "x thesis": s["ratio_to_thesis"],
+                    "p vs S-TIQF": "-" if s["p_welch_vs_stiqf"] is None else f"{s['p_welch_vs_stiqf']:.2g}",
+                    "wall s": s["time_mean_s"],
+                    "CPU s": s["cpu_time_mean_s"],
                 }
             )
     print_table(
         rows,
-        ["N", "method", "adi_mean_cm", "adi_std_cm", "adi_median_cm", "time_s", "cpu_s", "p_vs_stiqf"],
-        "bench registration (thesis 5.3.3; times on a shared CPU are noisy)",
+        ["N", "method", "ADI mean cm", "std cm", "median cm", "x S-TIQF", "thesis cm", "x thesis",
+         "p vs S-TIQF", "wall s", "CPU s"],
+        "bench registration (thesis 5.3.3): N scene points against 1024 model points; ADI (eq. 5.24) in cm; "
+        "x S-TIQF = mean ADI / S-TIQF's on the same trials; thesis = Table 5.1 (bunny); p = Welch's t-test "
+        "against S-TIQF; seconds per registration (wall clock on a shared CPU is noisy)",
     )
     md = markdown_report(result)
     if "scale" in result:
@@ -227,22 +318,29 @@ def _cmd_bench_hand_eye(args: argparse.Namespace) -> int:
                                     n_tactile=args.tactile_points, init_trans=args.init_trans,
                                     init_rot_deg=args.init_rot_deg, methods=methods,
                                     one_sided=not args.full_surface, seed=args.seed)
+    from vtlearn.bench_utils import ratio
+    from vtlearn.classical.hand_eye_bench import THESIS_BOUNDS
+
     s = result["summary"]
-    ref = s["stiqf"] if "stiqf" in s else None
+    ref = s.get("stiqf")
     rows = []
     for name, r in s.items():
-        rows.append({"method": name, "start": r["start"], "pos_mm_median": r["position_mm_median"],
-                     "rot_deg_median": r["rotation_deg_median"], "pos_mm_mean": r["position_mm_mean"],
-                     "within_1cm_5deg": r["within_thesis_bounds"], "seconds": r["seconds_mean"],
-                     "pos_ratio_to_stiqf": (r["position_mm_median"] / ref["position_mm_median"]
-                                            if ref and ref["position_mm_median"] > 0 else float("nan"))})
-    rows.append({"method": "thesis S-TIQF (real objects)", "start": "none", "pos_mm_median": "< 10",
-                 "rot_deg_median": "< 5"})
-    print_table(rows, ["method", "start", "pos_mm_median", "rot_deg_median", "pos_mm_mean",
-                       "within_1cm_5deg", "seconds", "pos_ratio_to_stiqf"],
-                f"Hand-eye calibration error, {len(meshes)} meshes x {args.trials} trials, {args.views} "
-                f"views ({'whole surface' if args.full_surface else 'one-sided'}), {args.tactile_points} "
-                f"tactile points (thesis 5.3.4)")
+        rows.append({"method": name, "start": r["start"], "pos mm (median)": r["position_mm_median"],
+                     "rot deg (median)": r["rotation_deg_median"], "pos mm (mean)": r["position_mm_mean"],
+                     "pos x S-TIQF": ratio(r["position_mm_median"], ref and ref["position_mm_median"]),
+                     "pos x thesis": ratio(r["position_mm_median"], THESIS_BOUNDS["position_mm"]),
+                     "rot x thesis": ratio(r["rotation_deg_median"], THESIS_BOUNDS["rotation_deg"]),
+                     "share in bounds": r["within_thesis_bounds"], "s per calib": r["seconds_mean"]})
+    rows.append({"method": "thesis S-TIQF (real objects)", "start": "none", "pos mm (median)": "< 10",
+                 "rot deg (median)": "< 5"})
+    print_table(rows, ["method", "start", "pos mm (median)", "rot deg (median)", "pos mm (mean)",
+                       "pos x S-TIQF", "pos x thesis", "rot x thesis", "share in bounds", "s per calib"],
+                f"Hand-eye calibration error of T_E_C, {len(meshes)} mesh(es) x {args.trials} trial(s), "
+                f"{args.views} views ({'whole surface' if args.full_surface else 'one-sided'}), "
+                f"{args.tactile_points} tactile points (thesis 5.3.4). start: where a local method starts "
+                "(the nominal calibration) or none; x S-TIQF = median position error / S-TIQF's; x thesis = "
+                "median / the thesis bound (10 mm, 5 deg); share in bounds = fraction of trials within both; "
+                "seconds per calibration (all views)")
     mesh_names = [n for n, _ in meshes]
     print_table([{"method": name, **r["position_mm_median_per_mesh"]} for name, r in s.items()],
                 ["method", *mesh_names], "Median position error (mm) per calibration object (a "

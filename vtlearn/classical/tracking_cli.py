@@ -14,9 +14,9 @@ reads) and writes the per-frame ``T_world_object`` of each model.
   tracking error of eq. 6.18 (XY distance of each part's model centroid) averaged over frames, and ADI;
 - *speed*: ArtReg's rate for 2 parts with 1000 points each (all points, and the default cap).
 
-It prints tables, writes JSON (ADI mean / median / std per category and method in cm, Welch p-values of
-ArtReg against each baseline, frames per second) and, with ``--plots DIR``, a violin plot and a
-trajectory plot.
+It prints tables and writes JSON (ADI mean / median / std per category and method in cm, Welch p-values of
+ArtReg against each baseline, ratios to ArtReg and to the thesis's figures, frames per second), a violin
+plot and a trajectory plot (into ``--plots DIR``, by default the JSON's folder).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from vtlearn.bench_utils import welch_p
+from vtlearn.bench_utils import ratio, welch_p
 from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench", "run_tracker", "TRACKERS"]
@@ -50,6 +50,16 @@ def _trackers() -> dict[str, Any]:
 
 
 TRACKERS = ("artreg", "pf", "icp", "filterreg")
+
+#: thesis 6.3.5 (text beside Fig. 6.17/6.18): ADI in cm on the PartNet-Mobility objects, mean (and median
+#: where given), over all categories and for the two categories the text names
+THESIS_ARTICULATED_CM = {
+    "all": {"artreg": {"mean": 7.23, "median": 2.1}, "pf": {"mean": 18.53}, "filterreg": {"mean": 34.22}},
+    "glasses": {"artreg": {"mean": 0.312}},
+    "drawer": {"artreg": {"mean": 18.4}},
+}
+#: thesis Table 6.2: ArtReg's eq. 6.18 error in cm (mean, std) on real-robot sequences tracked at 5 frames/s
+THESIS_TABLE_6_2_CM = {"single": (1.313, 0.27), "multiple": (1.512, 0.31), "articulated": (1.406, 0.48)}
 
 
 def _require_trackers(methods: list[str], flag: str) -> dict[str, Any]:
@@ -103,33 +113,48 @@ def run_tracker(
 
 
 # ---------------------------------------------------------------------------------------------- track
-def _is_frame(path: Path) -> bool:
-    """A ``.csv`` beside the frames may be metadata (``timestamps.csv``): it is a frame only if it reads as a
-    cloud. Every other cloud suffix is a frame, and reading it later reports any error."""
+# the longest a frame of a table-top scene can be: a depth camera sees a few metres (in mm, thousands)
+MAX_FRAME_EXTENT_M = 50.0
+
+
+def _read_frame(path: Path, flag: str) -> np.ndarray | None:
+    """The cloud of one ``--frames`` (or ``--tactile``) file, read once. An empty file or a cloud of no
+    points is a frame without points (every part keeps its prediction; no contact). A ``.csv`` among the
+    frames that is no cloud is metadata beside them (``timestamps.csv``): None. Any other unreadable file is
+    an error naming ``flag``.
+
+    Shapes: output (N, 3), N >= 0."""
     from vtlearn.io import read_cloud
 
-    if path.suffix.lower() != ".csv":
-        return True
+    if path.stat().st_size == 0:
+        return np.zeros((0, 3))
     try:
-        read_cloud(path)
-    except ValueError:
-        return False
-    return True
+        return read_cloud(path, allow_empty=True)
+    except ValueError as exc:
+        if flag == "--frames" and path.suffix.lower() == ".csv":
+            return None
+        raise ValueError(f"{flag}: {exc}") from None
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
     import json
 
+    from tqdm import tqdm
+
+    from vtlearn.bench_utils import check_metres
     from vtlearn.io import CLOUD_SUFFIXES, read_cloud, read_poses
+    from vtlearn.validation import load_named
 
     if 0 < args.max_points < 3:
         raise ValueError(f"--max-points: need 0 (all points) or >= 3 per part, got {args.max_points}")
     trackers = _require_trackers([args.method], "--method")
-    models = [read_cloud(m) for m in args.models]
+    models = [load_named(read_cloud, m, "--models") for m in args.models]
+    for m, cloud in zip(args.models, models, strict=True):
+        check_metres(cloud, f"--models {m}")
     frames_dir = Path(args.frames)
     if not frames_dir.is_dir():
         raise ValueError(f"--frames must be a directory of point clouds, got {args.frames}")
-    files = sorted(f for f in frames_dir.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and _is_frame(f))
+    files = sorted(f for f in frames_dir.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and f.is_file())
     if not files:
         raise ValueError(f"--frames directory {args.frames} holds no point-cloud files")
     tactile_files = _tactile_files(args.tactile, files)
@@ -146,13 +171,18 @@ def _cmd_track(args: argparse.Namespace) -> int:
             "max_points_per_part": args.max_points or None,
         }
     tracker = cls(models, list(T0), **kwargs)
-    from tqdm import tqdm
 
-    result = []
+    result, skipped = [], []
     t_total = 0.0
     for f in tqdm(files, desc="track", unit="frame"):
-        scene = read_cloud(f) if f.stat().st_size > 0 else np.zeros((0, 3))
-        tactile = read_cloud(tactile_files[f.name]) if f.name in tactile_files else None
+        scene = _read_frame(f, "--frames")
+        if scene is None:
+            skipped.append(f.name)
+            continue
+        check_metres(scene, f"--frames {f.name}", MAX_FRAME_EXTENT_M, "a table-top scene")
+        tactile = _read_frame(tactile_files[f.name], "--tactile") if f.name in tactile_files else None
+        if tactile is not None and len(tactile) == 0:
+            tactile = None  # no contact in this frame
         t0 = time.perf_counter()
         poses = tracker.step(scene, tactile)
         t_total += time.perf_counter() - t0
@@ -160,11 +190,16 @@ def _cmd_track(args: argparse.Namespace) -> int:
         if hasattr(tracker, "covariances"):
             entry["covariance"] = [np.asarray(P).tolist() for P in tracker.covariances]
         result.append(entry)
+    if not result:
+        raise ValueError(f"--frames directory {args.frames} holds no point-cloud files (skipped "
+                         f"{', '.join(skipped)}: not clouds)")
+    if skipped:
+        print(f"skipped {', '.join(skipped)} in --frames: .csv that is no point cloud (metadata)")
     out = {
         "method": args.method,
         "models": args.models,
-        "n_frames": len(files),
-        "fps": len(files) / max(t_total, 1e-9),
+        "n_frames": len(result),
+        "fps": len(result) / max(t_total, 1e-9),
         "frames": result,
     }
     if args.json:
@@ -174,8 +209,34 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}")
     else:
         print(json.dumps(out["frames"][-1], indent=1))
-    print(f"{len(files)} frames, {out['fps']:.1f} frames/s")
+    if args.figure:
+        print(f"wrote {_track_figure(models, result, args.models, args.figure)}")
+    print(f"{len(result)} frames, {out['fps']:.1f} frames/s")
     return 0
+
+
+def _track_figure(models: list[np.ndarray], frames: list[dict], names: list[str], path) -> Path:
+    """The XY path of each model's centroid over the tracked frames (world frame, metres)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vtlearn.bench_utils import save_figure
+
+    T = np.array([f["T_world_object"] for f in frames])  # F x N x 4 x 4
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for n, (model, name) in enumerate(zip(models, names, strict=True)):
+        c = T[:, n] @ np.append(model.mean(0), 1.0)
+        ax.plot(c[:, 0], c[:, 1], "-", color=f"C{n}", label=Path(name).name)
+        ax.plot(c[0, 0], c[0, 1], "o", color=f"C{n}")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Tracked centroid paths, {len(frames)} frames (dot: first frame)")
+    fig.tight_layout()
+    return save_figure(fig, path)
 
 
 def register(subparsers: Any) -> None:
@@ -194,6 +255,7 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--visual-std", type=float, default=0.003)
     sp.add_argument("--max-points", type=count(0), default=200, help="measurement points per part (0: all)")
     sp.add_argument("--json", default=None, help="write the per-frame poses here")
+    sp.add_argument("--figure", default=None, help="write a plot of each model's tracked XY path (.png)")
     sp.set_defaults(func=_cmd_track)
 
 
@@ -338,6 +400,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                     else art_vals[c]["artreg"]
                 )
                 s["welch_p_vs_artreg"] = welch_p(ref, vals)
+                s["ratio_to_artreg"] = ratio(s["mean_cm"], 100.0 * ref.mean() if len(ref) else None)
+            s["thesis_mean_cm"] = THESIS_ARTICULATED_CM.get(c, {}).get(m, {}).get("mean")
+            s["ratio_to_thesis"] = ratio(s["mean_cm"], s["thesis_mean_cm"])
             out_art[c][m] = s
             rows.append(
                 {
@@ -346,14 +411,20 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                     "ADI mean cm": s["mean_cm"],
                     "median cm": s["median_cm"],
                     "std cm": s["std_cm"],
-                    "n": s["n"],
+                    "n parts": s["n"],
+                    "x ArtReg": s.get("ratio_to_artreg", "-"),
+                    "thesis mean cm": s["thesis_mean_cm"],
+                    "x thesis": s["ratio_to_thesis"],
                     "p (Welch vs ArtReg)": s.get("welch_p_vs_artreg", "-"),
                 }
             )
     print_table(
         rows,
-        ["category", "method", "ADI mean cm", "median cm", "std cm", "n", "p (Welch vs ArtReg)"],
-        "Articulated benchmark (ADI of every part at the last frame, eq. 6.19)",
+        ["category", "method", "ADI mean cm", "median cm", "std cm", "n parts", "x ArtReg", "thesis mean cm",
+         "x thesis", "p (Welch vs ArtReg)"],
+        "Articulated benchmark: ADI (eq. 6.19, cm) of every part at the last frame; x ArtReg = mean / "
+        "ArtReg's mean; thesis = 6.3.5 on PartNet-Mobility meshes (these are procedural stand-ins); "
+        "p = Welch's t-test",
     )
     res["articulated"] = out_art
     res["articulated_raw_m"] = art_vals
@@ -368,6 +439,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             entry = {"xy_error": e, "adi_last_frame": a}
             if m != "artreg" and "artreg" in methods:
                 entry["welch_p_vs_artreg"] = welch_p(np.array(seq_err[k]["artreg"]), np.array(seq_err[k][m]))
+                entry["ratio_to_artreg"] = ratio(e["mean_cm"], 100.0 * np.mean(seq_err[k]["artreg"]))
+            thesis = THESIS_TABLE_6_2_CM[k][0] if m == "artreg" else None
+            entry["thesis_cm"], entry["ratio_to_thesis"] = thesis, ratio(e["mean_cm"], thesis)
             out_seq[k][m] = entry
             rows.append(
                 {
@@ -377,13 +451,19 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                     "+- std": e["std_cm"],
                     "ADI cm": a["mean_cm"],
                     "n seq": e["n"],
+                    "x ArtReg": entry.get("ratio_to_artreg", "-"),
+                    "thesis cm": thesis,
+                    "x thesis": entry["ratio_to_thesis"],
                     "p (Welch)": entry.get("welch_p_vs_artreg", "-"),
                 }
             )
     print_table(
         rows,
-        ["sequence", "method", "eq.6.18 error cm", "+- std", "ADI cm", "n seq", "p (Welch)"],
-        "Tracking sequences (thesis Table 6.2 analogue; error averaged over frames)",
+        ["sequence", "method", "eq.6.18 error cm", "+- std", "ADI cm", "n seq", "x ArtReg", "thesis cm",
+         "x thesis", "p (Welch)"],
+        f"Tracking sequences (thesis Table 6.2 analogue): eq. 6.18 XY error (cm) averaged over "
+        f"{args.seq_frames} frames, +- std over sequences, ADI (cm) at the last frame; thesis = Table 6.2, "
+        "real robot at 5 frames/s; fewer --seq-frames move the objects farther per frame",
     )
     res["sequences"] = out_seq
 
@@ -401,11 +481,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         "ArtReg speed, 2 parts x 1000 points (target >= 30 Hz)",
     )
 
-    if args.plots:
-        res["plots"] = _plots(Path(args.plots), art_vals, methods, traj_example)
-    if args.json:
-        write_json(args.json, res)
-        print(f"wrote {args.json}")
+    res["thesis"] = {"articulated_cm": THESIS_ARTICULATED_CM, "table_6_2_cm": THESIS_TABLE_6_2_CM}
+    res["plots"] = _plots(Path(args.plots or Path(args.json).parent), art_vals, methods, traj_example)
+    write_json(args.json, res)
+    print(f"wrote {args.json}, " + ", ".join(res["plots"]))
     return 0
 
 
@@ -456,8 +535,9 @@ def register_bench(bench_subparsers: Any) -> None:
     sp = bench_subparsers.add_parser(
         "tracking", help="ArtReg vs particle filter / ICP / FilterReg (thesis ch.6)"
     )
-    sp.add_argument("--json", default=None, help="write results here")
-    sp.add_argument("--plots", default=None, help="directory for the violin and trajectory plots")
+    sp.add_argument("--json", default="runs/bench/tracking.json", help="write results here")
+    sp.add_argument("--plots", default=None,
+                    help="directory for the violin and trajectory plots (default: the --json file's folder)")
     sp.add_argument("--methods", nargs="+", default=None, choices=list(TRACKERS),
                     help="trackers to compare (default: all whose backend is installed; filterreg needs "
                          "the optional probreg extra)")
