@@ -202,3 +202,18 @@ def test_recognize_refuses_data_options_with_files_and_bad_numbers(qs, tmp_path,
         with pytest.raises(SystemExit) as exc:
             main(["recognize", "--ckpt", ckpt, str(cloud), flag, value])
         assert exc.value.code == 2 and f"argument {flag}" in capsys.readouterr().err
+
+
+def test_recognize_names_the_file_of_a_cloud_it_cannot_use(qs, tmp_path, capsys):
+    import numpy as np
+
+    ckpt = str(qs / "xavtnet.ckpt")
+    good, few, flat = tmp_path / "good.npy", tmp_path / "few.npy", tmp_path / "flat.npy"
+    np.save(good, np.random.default_rng(0).random((40, 3)) * 0.1)
+    np.save(few, np.zeros((1, 3)))
+    np.save(flat, np.full((10, 3), 0.2))
+    # before: "clouds[1]: ..." and "clouds[0]: ...", the position in an internal list, not the file
+    err = _error(capsys, ["recognize", "--ckpt", ckpt, str(good), str(few)])
+    assert f"{few}: " in err and "at least 3 required" in err and "clouds[" not in err
+    err = _error(capsys, ["recognize", "--ckpt", ckpt, str(flat)])
+    assert f"{flat}: " in err and "coincide" in err and "clouds[" not in err

@@ -234,6 +234,14 @@ def test_vtloss_gradcheck_and_errors():
         VTLoss(layers=("fc3",))(logits, labels, fs, ft)
     with pytest.raises(ValueError, match="features_source"):
         loss(logits, labels)
+    # before: accepted here, then refused inside the first step as "num_kernels"/"kernel_mul", or fc1's
+    # terms counted twice
+    with pytest.raises(ValueError, match="mmd_num_kernels"):
+        VTLoss(mmd_num_kernels=0)
+    with pytest.raises(ValueError, match="mmd_kernel_mul"):
+        VTLoss(mmd_kernel_mul=0.0)
+    with pytest.raises(ValueError, match=r"layers: \['fc1'\] named more than once"):
+        VTLoss(layers=("fc1", "fc2", "fc1"))
 
 
 def naive_local_mmd(xs, ys, xt, pt, h):

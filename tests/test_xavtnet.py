@@ -3,6 +3,7 @@
 import contextlib
 import math
 import os
+from pathlib import Path
 
 import lightning as L
 import pytest
@@ -944,3 +945,65 @@ def test_mean_teacher_rejects_bad_settings():
                           (dict(student_scale=1.5), "student_scale.*consistency_weight")]:
         with pytest.raises(ValueError, match=match):
             XAVTNet(**TINY, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(da_layers=[]), "da_layers: .*at least one layer"),
+    (dict(da_layers=["fc1", "fc1"]), r"da_layers: \['fc1'\] named more than once"),
+    (dict(use_mmd=False, use_coral=False), "use_mmd, use_coral: .*da_method='none'"),
+    (dict(fc_dims=[0, 8]), "fc_dims"),
+    (dict(fc_dims=[16, 2.5]), "fc_dims"),
+    (dict(da_method="dann", dann_weight=-1.0), "dann_weight"),
+    (dict(da_method="dann", dann_weight=0.0), "dann_weight"),
+    (dict(da_method="dann", dann_gamma=0.0), "dann_gamma"),
+    (dict(feature_transform_weight=-0.001), "feature_transform_weight"),
+    (dict(feature_transform_weight=float("nan")), "feature_transform_weight"),
+    (dict(mmd_num_kernels=0), "mmd_num_kernels"),
+    (dict(mmd_kernel_mul=0.0), "mmd_kernel_mul"),
+    (dict(weight_decay=-1e-4), "weight_decay"),
+])
+def test_bad_loss_and_network_settings_are_refused_by_name(kwargs, match):
+    # before: each was accepted, then failed inside the first training step or the optimiser (a kernel
+    # count, a weight decay), trained silently as another row (no MMD and no CORAL is no-DA; a zero DANN
+    # weight or ramp is no-DA too), or counted a layer's alignment twice
+    with pytest.raises(ValueError, match=match):
+        XAVTNet(**{**TINY, **kwargs})
+
+
+def test_da_layers_as_one_name_is_that_layer():
+    # before: the string was read letter by letter ("got ['1', 'c', 'f']")
+    model = XAVTNet(**TINY, da_layers="fc1")
+    assert model.vtloss.layers == ("fc1",) and model.hparams.da_layers == ["fc1"]
+
+
+@pytest.mark.parametrize("row,mmd,coral_,layers,dann", [
+    ("noda", False, False, (), False),
+    ("mmd", True, False, ("fc1", "fc2"), False),
+    ("coral", False, True, ("fc1", "fc2"), False),
+    ("vtloss_fc1", True, True, ("fc1",), False),
+    ("vtloss_fc2", True, True, ("fc2",), False),
+    ("vtloss", True, True, ("fc1", "fc2"), False),
+    ("dann", False, False, (), True),
+])
+def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
+    """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
+    config's init_args into the first's): the model computes exactly the row's alignment terms."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    base = yaml.safe_load((root / "quick" / "xavtnet.yaml").read_text())["model"]["init_args"]
+    over = yaml.safe_load((root / "xavtnet_ablation" / f"{row}.yaml").read_text())["model"]["init_args"]
+    args = {**base, **over, "num_classes": 3, "global_dim": 32, "fc_dims": [16, 8], "max_points": 40}
+    model = XAVTNet(**args)
+    assert (model.vtloss.use_mmd, model.vtloss.use_coral) == (mmd, coral_)
+    assert (model.discriminator is not None) == dann
+    if mmd or coral_:
+        assert model.vtloss.layers == layers
+    torch.manual_seed(0)
+    trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    logged = {k.removeprefix("train/") for k in trainer.logged_metrics if k.startswith("train/")}
+    terms = {k for k in logged if k.startswith(("mmd_", "coral_"))}
+    assert terms == {f"{t}_{layer}" for t, on in (("mmd", mmd), ("coral", coral_)) if on for layer in layers}
+    assert ("domain" in logged) == dann

@@ -154,7 +154,8 @@ def as_points(
     if arr.ndim != 2 or arr.shape[1] != dim:
         raise ValueError(f"{name}: expected shape (N, {dim}), got {tuple(arr.shape)}")
     if arr.shape[0] < min_points:
-        what = "is empty" if arr.shape[0] == 0 else f"has only {arr.shape[0]} points"
+        n = arr.shape[0]
+        what = "is empty" if n == 0 else f"has only {n} point{'s' if n != 1 else ''}"
         raise ValueError(f"{name}: point cloud {what}; at least {min_points} required")
     if not np.isfinite(arr).all():
         bad = int((~np.isfinite(arr)).any(axis=1).sum())

@@ -56,7 +56,9 @@ def split_strategy(strategy: str) -> tuple[str, str]:
 
 @contextmanager
 def mc_dropout_mode(model: nn.Module) -> Iterator[nn.Module]:
-    """Put ``model`` in eval mode except its dropout layers; restore every module's flag afterwards."""
+    """Put ``model`` in eval mode except its dropout layers, the setting of eq. 7.3 (the weights ``W_t``
+    differ only by their dropout masks; batch norm uses its running statistics); restore every module's
+    flag afterwards. A ValueError naming ``model`` if it has no dropout layer."""
     flags = {m: m.training for m in model.modules()}
     dropouts = [m for m in model.modules() if isinstance(m, nn.modules.dropout._DropoutNd)]
     if not dropouts:
@@ -111,20 +113,34 @@ def _check_probs(probs: torch.Tensor, name: str, dim: int) -> None:
 
 
 def predictive_entropy(mean_probs: torch.Tensor) -> torch.Tensor:
-    """Shannon entropy in nats (eq. 7.4), with ``0 log 0 = 0``. Shapes: (B, k) -> (B,)"""
+    """Shannon entropy in nats (eq. 7.4), ``H(y|x) = −Σ_c p(y=c|x) log p(y=c|x)``, with ``0 log 0 = 0``.
+
+    Shapes:
+        mean_probs (B, k) (the mean over the passes, eq. 7.3) -> (B,)
+    """
     _check_probs(mean_probs, "mean_probs", 2)
     return -torch.special.xlogy(mean_probs, mean_probs).sum(-1)
 
 
 def bald_score(probs: torch.Tensor) -> torch.Tensor:
-    """BALD mutual information ``H[mean_t p_t] − mean_t H[p_t]`` (≥ 0). Shapes: (T, B, k) -> (B,)"""
+    """BALD mutual information ``H[mean_t p_t] − mean_t H[p_t]`` (≥ 0; beyond the thesis): the entropy of
+    eq. 7.4 of the mean of eq. 7.3, less the mean entropy of the passes.
+
+    Shapes:
+        probs (T, B, k) -> (B,)
+    """
     _check_probs(probs, "probs", 3)
     expected_entropy = -torch.special.xlogy(probs, probs).sum(-1).mean(0)
     return (predictive_entropy(probs.mean(0)) - expected_entropy).clamp_min(0.0)
 
 
 def acquisition_scores(probs: torch.Tensor, strategy: str, generator: torch.Generator | None = None):
-    """Score per sample for ``strategy`` (higher = query first). Shapes: (T, B, k) -> (B,)"""
+    """Score per sample for ``strategy`` (higher = query first): ``"entropy"`` is eq. 7.4 of the mean of
+    the passes (eq. 7.3), ``"bald"`` :func:`bald_score`, ``"random"`` uniform draws from ``generator``.
+
+    Shapes:
+        probs (T, B, k) -> (B,)
+    """
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
     _check_probs(probs, "probs", 3)
@@ -146,11 +162,15 @@ def _check_scores(scores) -> None:
 
 
 def select_top_k(scores: torch.Tensor, k: int) -> torch.Tensor:
-    """Indices of the ``k`` highest scores, highest first (ties broken by lower index).
+    """Indices of the ``k`` highest scores, highest first (ties broken by lower index): the top-κ query
+    of section 7.2.2 on the scores of eq. 7.4.
 
     Args:
         scores: non-empty, finite 1-D tensor.
         k: ``1 <= k <= len(scores)``.
+
+    Shapes:
+        scores (U,) -> (k,) int64 indices into ``scores``
     """
     _check_scores(scores)
     if as_int(k, "k") > scores.numel():
@@ -187,7 +207,11 @@ def select_power(
 
 
 def random_query(pool_indices: torch.Tensor, k: int, generator: torch.Generator | None = None):
-    """``k`` pool indices uniformly without replacement (the random-strategy baseline)."""
+    """``k`` pool indices uniformly without replacement (the random-strategy baseline).
+
+    Shapes:
+        pool_indices (U,) -> (k,), a subset of ``pool_indices`` (``1 <= k <= U``)
+    """
     if as_int(k, "k") > pool_indices.numel():
         raise ValueError(f"k must be in [1, {pool_indices.numel()}], got {k}")
     return pool_indices[torch.randperm(pool_indices.numel(), generator=generator)[:k]]
@@ -202,7 +226,8 @@ def score_pool(
     generator: torch.Generator | None = None,
     progress: Callable[[Iterable], Iterable] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Acquisition score of every unlabelled cloud.
+    """Acquisition score of every unlabelled cloud: MC-dropout passes (eq. 7.3) and their entropy
+    (eq. 7.4) or BALD, or random scores.
 
     Args:
         batches: e.g. ``ActivePoolDataModule.unlabelled_dataloader()``; each batch is
@@ -211,6 +236,9 @@ def score_pool(
 
     Returns:
         (pool indices (U,), scores (U,))
+
+    Shapes:
+        batches: points (B, N, 3), lengths (B,), index (B,) -> (U,), (U,), U the clouds of all batches
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")

@@ -16,7 +16,7 @@ __all__ = ["covariance", "coral"]
 
 
 def covariance(x: torch.Tensor) -> torch.Tensor:
-    """Unbiased sample covariance of the rows of ``x``.
+    """Unbiased sample covariance of the rows of ``x``: the ``C_s`` and ``C_t`` of eq. 7.7.
 
     Shapes:
         x (n, d) -> (d, d)

@@ -64,8 +64,9 @@ def kernel_bandwidths(
     kernel_mul: float = 2.0,
     bandwidths: Sequence[float] | torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """The ``h_u`` of one MK-MMD estimate: fixed ``bandwidths`` (checked), or the family of
-    :func:`gaussian_bandwidths` around the pooled sample's mean squared distance.
+    """The ``h_u`` of the kernels ``k_u`` of eq. 7.6 for one MK-MMD estimate: fixed ``bandwidths``
+    (checked), or the family of :func:`gaussian_bandwidths` around the pooled sample's mean squared
+    distance.
 
     Shapes:
         source (n_s, d), target (n_t, d) -> (b,)
@@ -81,7 +82,8 @@ def kernel_bandwidths(
 def gaussian_bandwidths(
     pooled: torch.Tensor, num_kernels: int = 5, kernel_mul: float = 2.0
 ) -> torch.Tensor:
-    """Bandwidth family ``h_u = h₀ · kernel_mul^(u − ⌊b/2⌋)`` of the module docstring.
+    """Bandwidth family ``h_u = h₀ · kernel_mul^(u − ⌊b/2⌋)`` of the module docstring, the ``b`` Gaussian
+    kernels ``k_u`` that eq. 7.6 combines.
 
     Args:
         pooled: source and target features stacked.

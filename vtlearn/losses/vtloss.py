@@ -35,7 +35,7 @@ from torch import nn
 from vtlearn.losses.coral import coral
 from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import mk_mmd
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["VTLoss"]
 
@@ -79,6 +79,11 @@ class VTLoss(nn.Module):
             layers = (layers,)
         if (use_mmd or use_coral) and len(layers) == 0:
             raise ValueError("layers must name at least one layer when MMD or CORAL is on")
+        repeated = sorted({name for name in layers if list(layers).count(name) > 1})
+        if repeated:
+            raise ValueError(f"layers: {repeated} named more than once (its terms would count twice)")
+        mmd_num_kernels = as_int(mmd_num_kernels, "mmd_num_kernels")
+        mmd_kernel_mul = as_real(mmd_kernel_mul, "mmd_kernel_mul", low=0.0, open_low=True)
         if mmd_conditional and mmd_unbiased:
             raise ValueError("mmd_unbiased: the conditional LMMD has the biased estimator only")
         self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
@@ -102,8 +107,16 @@ class VTLoss(nn.Module):
         da_scale: float = 1.0,
         target_probs: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """``α·CE + s·β·MMD + s·λ·CORAL`` with ``s = da_scale`` (1 in eq. 7.8; a warm-up ramp may pass
-        less early in training). Returns the total and its detached parts."""
+        """Eq. 7.8, ``α·CE + s·β·Σ_l MK-MMD²_l + s·λ·Σ_l CORAL_l`` over the layers ``l`` of ``layers``, with
+        ``s = da_scale`` (1 in eq. 7.8; a warm-up ramp may pass less early in training). MK-MMD is eq.
+        7.5-7.6 (:func:`~vtlearn.losses.mmd.mk_mmd`), CORAL eq. 7.7 (:func:`~vtlearn.losses.coral.coral`).
+        Returns the total and its detached parts.
+
+        Shapes:
+            logits_source (n_s, k), labels_source (n_s,) int64, features_source[l] (n_s, d_l),
+            features_target[l] (n_t, d_l) with n_t >= 2 when CORAL is on, target_probs (n_t, k)
+            -> (scalar, {"ce", "mmd", "coral", "mmd_<l>", "coral_<l>": scalar})
+        """
         da_scale = as_real(da_scale, "da_scale", low=0.0)
         if logits_source.dim() != 2:
             raise ValueError(f"logits_source must be (n, k), got {tuple(logits_source.shape)}")

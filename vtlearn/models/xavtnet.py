@@ -259,7 +259,8 @@ class XAVTNet(L.LightningModule):
         input_transform, feature_transform: the 3×3 and 64×64 T-nets.
         feature_transform_weight: weight of the orthogonality regulariser (PointNet: 0.001).
         da_method: "none", "vtloss" or "dann" (see module docstring).
-        use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows). ``da_layers`` may also name
+        use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows); with ``da_method="vtloss"`` at
+            least one of the terms is on and ``da_layers`` names each layer once. ``da_layers`` may also name
             ``"fc3"``, the k logits (beyond the thesis, whose eq. 7.8 adapts fc1 and fc2): DAN adapts
             fc6-fc8 of AlexNet, its logits included, and Deep CORAL applies CORAL to fc8 only. It may
             name ``"global"``, the max-pooled PointNet feature that fc1 reads: the pool is where a cloud's
@@ -270,7 +271,8 @@ class XAVTNet(L.LightningModule):
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
             batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
             ``da_memory`` (the queue keeps features, not labels).
-        dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp.
+        dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp, each > 0 with ``da_method="dann"``
+            (either at 0 leaves the encoder without the adversarial gradient, the no-DA row).
         da_ramp_gamma: if set, VTLoss's MMD and CORAL terms are scaled by Ganin's ramp
             ``2/(1+exp(−γp)) − 1`` of the training progress ``p`` (the warm-up DAN and DANN use; beyond
             the thesis, whose eq. 7.8 weights are constant). ``None`` (default): constant weights.
@@ -524,9 +526,27 @@ class XAVTNet(L.LightningModule):
                              "target probabilities")
         if max_points is not None:
             as_int(max_points, "max_points")
+        if isinstance(da_layers, str):  # one layer's name, as VTLoss takes it
+            da_layers = [da_layers]
         unknown = set(da_layers) - set(DA_LAYERS)
         if unknown:
             raise ValueError(f"da_layers may only contain {list(DA_LAYERS)}, got {sorted(unknown)}")
+        if da_method == "vtloss":
+            if not (use_mmd or use_coral):
+                raise ValueError("use_mmd, use_coral: both off leaves VTLoss no alignment term, which is the "
+                                 "no-DA row; say da_method='none' for it")
+            if not da_layers:
+                raise ValueError("da_layers: VTLoss needs at least one layer to align (thesis: fc1, fc2)")
+            repeated = sorted({name for name in da_layers if list(da_layers).count(name) > 1})
+            if repeated:
+                raise ValueError(f"da_layers: {repeated} named more than once, which would count its "
+                                 "alignment terms twice")
+        as_real(feature_transform_weight, "feature_transform_weight", low=0.0)
+        as_real(weight_decay, "weight_decay", low=0.0)
+        # a zero weight or ramp leaves the discriminator without effect on the encoder: the DANN row is no-DA
+        dann = da_method == "dann"
+        as_real(dann_weight, "dann_weight", low=0.0, open_low=dann)
+        as_real(dann_gamma, "dann_gamma", low=0.0, open_low=dann)
         if class_names is not None:
             class_names = [str(n) for n in class_names]
             if len(class_names) != num_classes:
@@ -618,6 +638,18 @@ class XAVTNet(L.LightningModule):
         return points, lengths
 
     def forward(self, points: torch.Tensor, lengths: torch.Tensor | None = None) -> XAVTNetOutput:
+        """The PointNet classifier of section 7.2.2 on a padded batch: T-nets, per-point MLP, masked max
+        pool, fc1 → fc2 → dropout → fc3. ``softmax(logits)`` is one term ``p(y|x, W_t)`` of eq. 7.3 when
+        dropout is on (:func:`~vtlearn.active.mc_dropout.mc_dropout_probs`); fc1 and fc2 are the features
+        VTLoss aligns (eq. 7.8). Clouds are subsampled to ``max_points`` and, with ``normalize_clouds``,
+        put in the unit ball first. Bad clouds (wrong shape, empty, NaN/inf, lengths out of range) are a
+        ValueError naming ``points`` or ``lengths``.
+
+        Shapes:
+            points (B, N, 3) zero-padded, lengths (B,) int64 (None: every cloud has N points) ->
+            logits (B, k), features {"global": (B, global_dim), "fc1": (B, fc_dims[0]),
+            "fc2": (B, fc_dims[1])}, trans_input (B, 3, 3) or None, trans_feat (B, 64, 64) or None
+        """
         points, lengths = self._prepare(points, lengths)
         g, trans_input, trans_feat = self.encoder(points, lengths)
         logits, feats = self.head(g)
@@ -1248,7 +1280,12 @@ class XAVTNet(L.LightningModule):
     @torch.no_grad()
     def extract_features(self, points: torch.Tensor, lengths: torch.Tensor | None = None) -> dict:
         """Global, fc1 and fc2 features and logits in eval mode (for t-SNE, Fig. 7.4); restores the
-        training flag."""
+        training flag.
+
+        Shapes:
+            points (B, N, 3), lengths (B,) -> {"global": (B, global_dim), "fc1": (B, fc_dims[0]),
+            "fc2": (B, fc_dims[1]), "logits": (B, k)}
+        """
         was_training = self.training
         self.eval()
         try:

@@ -20,6 +20,7 @@ import argparse
 import json
 import logging
 import os
+import re
 import time
 from pathlib import Path
 
@@ -678,8 +679,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     holdout = f" less the {held:g} of their tactile clouds held out for the test" if held > 0 else ""
     print_table(rows, ["variant", "tactile_acc", *extra_cols, "visual_acc", "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
-                f"{max_epochs} epochs, unlabelled target: {data_kwargs.get('target_split', 'train')} "
-                f"instances{holdout}, labelled visual source: {source}")
+                f"{max_epochs} epoch{'s' if max_epochs != 1 else ''}, unlabelled target: "
+                f"{data_kwargs.get('target_split', 'train')} instances{holdout}, "
+                f"labelled visual source: {source}")
     means = {r["variant"]: r["tactile_mean"] for r in rows}
     checks = {}
     if {"vtloss", "noda"} <= means.keys():
@@ -1254,8 +1256,12 @@ def run_recognize(args: argparse.Namespace) -> int:
         titles = [Path(p).name for p in args.inputs]
         units, extent = args.units or "metres", args.extent_m
     names = checkpoint_class_names(dict(model.hparams), override)
-    result = recognize_clouds(model, clouds, class_names=names, extent_m=extent, units=units,
-                              mc_samples=args.mc_samples, domain=args.domain, seed=args.seed, box_m=box)
+    try:
+        result = recognize_clouds(model, clouds, class_names=names, extent_m=extent, units=units,
+                                  mc_samples=args.mc_samples, domain=args.domain, seed=args.seed, box_m=box)
+    except ValueError as exc:  # "clouds[i]: ..." names the i-th file (or stored cloud) as the user gave it
+        sources = titles if args.data is not None else list(args.inputs)
+        raise ValueError(re.sub(r"^clouds\[(\d+)\]", lambda m: sources[int(m.group(1))], str(exc))) from None
     rows = []
     for i, title in enumerate(titles):
         row = {"input": title, "points": len(clouds[i]), **result.to_dict(i, args.zeta)}

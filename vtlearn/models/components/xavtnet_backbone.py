@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask
-from vtlearn.validation import as_real
+from vtlearn.validation import as_int, as_real
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
 
@@ -102,6 +102,7 @@ class XAVTNetHead(nn.Module):
         super().__init__()
         if len(fc_dims) != 2:
             raise ValueError(f"fc_dims must give the sizes of fc1 and fc2, got {fc_dims}")
+        fc_dims = [as_int(d, f"fc_dims[{i}]") for i, d in enumerate(fc_dims)]
         dropout = as_real(dropout, "dropout", low=0.0, high=1.0, open_high=True)
         self.fc1 = nn.Sequential(nn.Linear(in_dim, fc_dims[0]), nn.BatchNorm1d(fc_dims[0]), nn.ReLU())
         self.fc2 = nn.Sequential(nn.Linear(fc_dims[0], fc_dims[1]), nn.BatchNorm1d(fc_dims[1]), nn.ReLU())
