@@ -19,16 +19,29 @@ fit it (the config changed the architecture) is refused in one line naming the s
 ``validate``/``test``/``predict`` without ``--ckpt_path`` run freshly initialised weights, and say so.
 ``predict`` writes its outputs to ``predictions.npz`` in the run's log folder
 (:class:`~vtlearn.prediction_writer.NpzPredictionWriter`) unless the config has a prediction writer.
+
+Logs: ``fit --ckpt_path last`` logs on into the version folder of the run it resumes (CSV and TensorBoard
+loggers; each checkpoint records their versions, :class:`LogVersions`), ``metrics.csv``'s earlier rows kept; a
+wandb logger starts a new run. A refused run leaves nothing on disk but an online wandb run: the ``last``
+checks come before the Trainer is built (and before its device banner), ``config.yaml`` is written once the
+model's ``setup`` has accepted the data, and a refusal there removes what the loggers had started.
 """
 
 from __future__ import annotations
 
+import contextlib
+import csv
+import io
 import os
+import shutil
 import sys
+import warnings
 from argparse import ArgumentError
 from pathlib import Path
 
-from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
+from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger, WandbLogger
 
 from vtlearn.validation import ConfigMismatchError
 
@@ -65,13 +78,93 @@ def _reason(exc: BaseException) -> str:
     return f"{key}: {kept}" if key else kept
 
 
-def _last_checkpoints(trainer) -> tuple[list[Path], list[Path]]:
-    """(folders searched, ``last*.ckpt`` files found) of the trainer's checkpoint callbacks that name a
-    ``dirpath``; a callback without one writes into the logger's new version folder, which cannot hold a
-    checkpoint yet."""
-    dirs = list(dict.fromkeys(Path(cb.dirpath) for cb in trainer.checkpoint_callbacks
+def _last_checkpoints(callbacks) -> tuple[list[Path], list[Path]]:
+    """(folders searched, ``last*.ckpt`` files found) of the checkpoint callbacks among ``callbacks`` that
+    name a ``dirpath``; a callback without one writes into the logger's version folder, which Lightning
+    names only when training starts."""
+    dirs = list(dict.fromkeys(Path(cb.dirpath) for cb in callbacks
                               if getattr(cb, "dirpath", None)))  # two callbacks may share one folder
     return dirs, [f for d in dirs if d.is_dir() for f in d.glob("last*.ckpt")]
+
+
+class LogVersions(Callback):
+    """Records in each checkpoint the version folder of each CSV and TensorBoard logger, by the logger's root
+    folder, so that ``fit --ckpt_path last`` logs on into the folder of the run it resumes."""
+
+    state_key = "train.py:log_versions"
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        self._loggers = trainer.loggers
+
+    def state_dict(self) -> dict:
+        return {"versions": {os.path.normpath(lg.root_dir): lg.version for lg in getattr(self, "_loggers", [])
+                             if isinstance(lg, (CSVLogger, TensorBoardLogger))}}
+
+
+def _continue_versions(trainer, checkpoint: dict) -> None:
+    """Points the trainer's CSV and TensorBoard loggers that the config gives no ``version`` at the version
+    folders ``checkpoint`` records for their root folders (:class:`LogVersions`). Lightning's CSV writer
+    deletes the ``metrics.csv`` it finds there: its rows are put back (by the main process) and its columns
+    kept, so the resumed epochs' rows follow them."""
+    versions = (checkpoint.get("callbacks") or {}).get(LogVersions.state_key, {}).get("versions", {})
+    for lg in trainer.loggers:
+        if not isinstance(lg, (CSVLogger, TensorBoardLogger)) or lg._version is not None:
+            continue
+        if os.path.normpath(lg.root_dir) not in versions:
+            continue
+        lg._version = versions[os.path.normpath(lg.root_dir)]  # the loggers take one only at construction
+        if not isinstance(lg, CSVLogger) or not trainer.is_global_zero:
+            continue
+        path = Path(lg.log_dir) / "metrics.csv"
+        rows = path.read_text() if path.is_file() else ""
+        with warnings.catch_warnings():  # "Previous log files ... will be deleted": they are put back below
+            warnings.filterwarnings("ignore", message="Experiment logs directory")
+            writer = lg.experiment
+        if rows:
+            path.write_text(rows)
+            writer.metrics_keys = next(csv.reader(rows.splitlines()), [])
+
+
+def _new_dirs(paths) -> list[Path]:
+    """The folders among ``paths`` and their parents that do not exist yet, deepest first."""
+    new = set()
+    for p in paths:
+        p = Path(p).absolute()
+        while not p.exists():
+            new.add(p)
+            p = p.parent
+    return sorted(new, key=lambda p: len(p.parts), reverse=True)
+
+
+def _discard_offline_wandb_runs(loggers) -> None:
+    """Ends the offline wandb runs of ``loggers`` and removes their folders, with the ``latest-run`` and
+    debug-log links into them (wandb starts its run before the model's ``setup``; an online run is left to
+    wandb)."""
+    for lg in loggers:
+        run = lg._experiment if isinstance(lg, WandbLogger) else None
+        if run is None or getattr(run.settings, "mode", None) != "offline":
+            continue
+        folder = Path(run.settings.sync_dir)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            run.finish()  # its "wandb sync <folder>" advice would name the folder removed here
+        shutil.rmtree(folder, ignore_errors=True)
+        for link in folder.parent.iterdir():
+            if link.is_symlink() and not link.exists():
+                link.unlink()
+
+
+class _SaveConfigWhenAccepted(SaveConfigCallback):
+    """Writes ``config.yaml`` when the run starts, after the model's ``setup`` has accepted the data
+    (Lightning writes it in the callbacks' ``setup``, before the model's, so a run refused there with a
+    :class:`~vtlearn.validation.ConfigMismatchError` left one behind, or replaced an earlier run's)."""
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        self._stage = stage
+
+    def _save(self, trainer, pl_module) -> None:
+        super().setup(trainer, pl_module, self._stage)
+
+    on_fit_start = on_validation_start = on_test_start = on_predict_start = _save
 
 
 def _read_checkpoint(path, label: str) -> dict:
@@ -147,23 +240,24 @@ class VtlearnCLI(LightningCLI):
                           f"{before[key]!r} (a checkpoint keeps the hyper-parameters it was trained with)",
                           file=sys.stderr)
 
-    def _check_last(self, subcommand: str) -> None:
-        """``--ckpt_path last``. With no ``last.ckpt`` in the config's checkpoint folders, ``validate``,
-        ``test`` and ``predict`` are refused (they would score untrained weights; ``fit`` starts from
-        scratch, as in Lightning). Lightning loads the file into the model the config built, without its
-        hyper-parameters: one of another class, or whose weights do not fit (the config changed the
-        architecture), is refused in one line naming the settings that differ, instead of a state-dict
-        traceback. Settings that differ without changing the weights' shapes apply, and are said."""
+    def _check_last(self, subcommand: str, callbacks) -> dict | None:
+        """``--ckpt_path last``, among the checkpoint folders of the trainer's ``callbacks``; returns the
+        checkpoint found, if any. With no ``last.ckpt`` there, ``validate``, ``test`` and ``predict`` are
+        refused (they would score untrained weights; ``fit`` starts from scratch, as in Lightning). Lightning
+        loads the file into the model the config built, without its hyper-parameters: one of another class,
+        or whose weights do not fit (the config changed the architecture), is refused in one line naming the
+        settings that differ, instead of a state-dict traceback. Settings that differ without changing the
+        weights' shapes apply, and are said."""
         if self.config_init[subcommand].get("ckpt_path") != "last":
-            return
-        dirs, found = _last_checkpoints(self.trainer)
+            return None
+        dirs, found = _last_checkpoints(callbacks)
         if not found:
             if dirs and subcommand != "fit":
                 raise ConfigError(
                     f"ckpt_path: 'last' found no last.ckpt in {', '.join(map(str, dirs))}; {subcommand} "
                     "would score untrained weights (train first with fit, or pass a checkpoint file)"
                 )
-            return
+            return None
         path = max(found, key=lambda f: f.stat().st_mtime)
         data = _read_checkpoint(path, "ckpt_path: last")
         hp = dict(data.get("hyper_parameters") or {})
@@ -193,6 +287,7 @@ class VtlearnCLI(LightningCLI):
             else:
                 print(f"train.py: note: model.{k}: the config's {b!r} applies on resuming from {path} "
                       f"(trained with {a!r})", file=sys.stderr)
+        return data
 
     def instantiate_classes(self) -> None:
         try:
@@ -200,30 +295,49 @@ class VtlearnCLI(LightningCLI):
         except (ValueError, TypeError, FileNotFoundError) as exc:
             raise ConfigError(_reason(exc)) from exc
 
-    def _before_evaluation(self, subcommand: str) -> None:
-        """``validate``/``test``/``predict``: the ``last`` checks, and a note when no checkpoint is given
-        (the config's freshly initialised weights are run)."""
-        self._check_last(subcommand)
-        if self.config_init[subcommand].get("ckpt_path") is None:
-            print(f"train.py: note: {subcommand} without --ckpt_path runs the config's freshly initialised "
-                  "weights; pass --ckpt_path last (or a checkpoint file) for a trained model",
-                  file=sys.stderr)
+    def instantiate_trainer(self, **kwargs):
+        """The ``--ckpt_path last`` checks, and the note that ``validate``/``test``/``predict`` without
+        ``--ckpt_path`` run the config's freshly initialised weights, come before the Trainer is built, so a
+        refusal is not printed below its device banner. ``fit`` resuming from a ``last.ckpt`` that records
+        its loggers' versions (:class:`LogVersions`) logs on into those version folders."""
+        sub = self.subcommand
+        if sub is None:
+            return super().instantiate_trainer(**kwargs)
+        callbacks = {**self._get(self.config_init, "trainer", default={}), **kwargs}.get("callbacks") or []
+        resumed = self._check_last(sub, callbacks if isinstance(callbacks, list) else [callbacks])
+        if sub != "fit" and self.config_init[sub].get("ckpt_path") is None:
+            print(f"train.py: note: {sub} without --ckpt_path runs the config's freshly initialised weights; "
+                  "pass --ckpt_path last (or a checkpoint file) for a trained model", file=sys.stderr)
+        trainer = super().instantiate_trainer(**kwargs)
+        if sub == "fit":
+            if resumed is not None:
+                _continue_versions(trainer, resumed)
+            trainer.callbacks.append(LogVersions())
+        return trainer
 
-    def before_fit(self) -> None:
-        self._check_last("fit")
-
-    def before_validate(self) -> None:
-        self._before_evaluation("validate")
-
-    def before_test(self) -> None:
-        self._before_evaluation("test")
+    def _run_subcommand(self, subcommand: str) -> None:
+        """A run refused by the model's ``setup`` (a :class:`~vtlearn.validation.ConfigMismatchError`) leaves
+        nothing behind: the loggers start before it; their offline wandb runs and the folders this run made,
+        now empty, are removed."""
+        loggers = self.trainer.loggers
+        logs = [self.trainer.log_dir] + [lg.log_dir for lg in loggers
+                                         if isinstance(lg, (CSVLogger, TensorBoardLogger))]
+        logs += [Path(lg.save_dir or ".") / "wandb" for lg in loggers if isinstance(lg, WandbLogger)]
+        made = _new_dirs(d for d in logs if d)
+        try:
+            super()._run_subcommand(subcommand)
+        except ConfigMismatchError:
+            _discard_offline_wandb_runs(loggers)
+            for d in made:
+                if d.is_dir() and not any(d.iterdir()):
+                    d.rmdir()
+            raise
 
     def before_predict(self) -> None:
         from lightning.pytorch.callbacks import BasePredictionWriter
 
         from vtlearn.prediction_writer import NpzPredictionWriter
 
-        self._before_evaluation("predict")
         if not any(isinstance(cb, BasePredictionWriter) for cb in self.trainer.callbacks):
             self.trainer.callbacks.append(NpzPredictionWriter())  # predictions.npz in the run's log folder
 
@@ -233,6 +347,7 @@ def cli_main(args=None) -> LightningCLI:
     return VtlearnCLI(
         subclass_mode_model=True,
         subclass_mode_data=True,
+        save_config_callback=_SaveConfigWhenAccepted,
         save_config_kwargs={"overwrite": True},
         # parse errors raise, and main() prints them on one line; no --trainer.max_epoch for max_epochs
         parser_kwargs={"exit_on_error": False, "allow_abbrev": False},

@@ -3,6 +3,7 @@ validate/test with --ckpt_path last before any training end in one line naming t
 and the quick xAVTNet config resumes from last.ckpt."""
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -128,3 +129,94 @@ def test_resuming_with_another_architecture_is_said_not_silent(run, tmp_path):
 def test_an_abbreviated_option_is_not_taken_for_the_full_one(run):
     code, err = run("fit", "--trainer.max_epoch=1")
     assert code == 2 and "--trainer.max_epoch" in err
+
+
+CSV = ('--trainer.logger={"class_path": "lightning.pytorch.loggers.CSVLogger", '
+       '"init_args": {"save_dir": "runs/log"}}')
+
+
+def _rows(path: Path) -> list[dict]:
+    import csv
+
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_resumed_fit_logs_on_into_the_version_folder_it_resumes(run, tmp_path):
+    """fit --ckpt_path last logs into the version folder of the run it resumes, the earlier rows kept (it
+    started a new version_N, and Lightning's CSV writer deletes the metrics.csv of a folder it reuses); the
+    newest version folder is not taken for it (here validate's)."""
+    logs = tmp_path / "runs" / "log" / "lightning_logs"
+    assert run("fit", "--trainer.max_epochs=1", CSV)[0] == 0
+    assert run("validate", "--ckpt_path=last", CSV)[0] == 0  # its own version_1
+    validated = (logs / "version_1" / "metrics.csv").read_text()
+    assert run("fit", "--trainer.max_epochs=3", "--ckpt_path=last", CSV)[0] == 0
+    assert sorted(p.name for p in logs.iterdir()) == ["version_0", "version_1"]
+    rows = _rows(logs / "version_0" / "metrics.csv")
+    assert sorted({int(r["epoch"]) for r in rows if r["val/acc"]}) == [0, 1, 2]
+    assert sorted({int(r["epoch"]) for r in rows if r["train/loss"]}) == [0, 1, 2]
+    assert (logs / "version_1" / "metrics.csv").read_text() == validated
+
+
+def test_a_resumed_csv_log_keeps_its_rows_when_new_columns_come(tmp_path, monkeypatch):
+    """The kept rows of a version folder and the resumed run's rows with a column they lack share one file."""
+    import lightning as L
+    from lightning.pytorch.loggers import CSVLogger
+
+    monkeypatch.syspath_prepend(str(ROOT))
+    from train import LogVersions, _continue_versions
+
+    folder = tmp_path / "log" / "version_3"
+    folder.mkdir(parents=True)
+    (folder / "metrics.csv").write_text("epoch,step,val/acc\n0,1,0.5\n")
+    logger = CSVLogger(tmp_path, name="log")
+    trainer = L.Trainer(logger=logger, accelerator="cpu", enable_progress_bar=False)
+    record = {"callbacks": {LogVersions.state_key: {"versions": {str(tmp_path / "log"): 3}}}}
+    _continue_versions(trainer, record)
+    logger.log_metrics({"epoch": 1, "val/acc": 0.75, "val/loss": 0.25}, step=3)
+    logger.save()
+    assert logger.log_dir == str(folder)
+    assert _rows(folder / "metrics.csv") == [
+        {"epoch": "0", "step": "1", "val/acc": "0.5", "val/loss": ""},
+        {"epoch": "1", "step": "3", "val/acc": "0.75", "val/loss": "0.25"},
+    ]
+
+
+def test_a_refused_run_leaves_nothing_on_disk(run, tmp_path, cross_dir):
+    """A run the model's setup refuses (model and data disagree) wrote config.yaml into a new version
+    folder, and over the run folder's config.yaml without a logger; a refused resume keeps the logs it would
+    resume."""
+    n = len(json.loads((Path(cross_dir) / "manifest.json").read_text())["class_names"])
+    assert run("fit", "--trainer.max_epochs=1", CSV)[0] == 0
+    assert run("fit", "--trainer.max_epochs=1")[0] == 0  # no logger: config.yaml in the run folder
+
+    def snapshot():
+        return {p: p.read_bytes() if p.is_file() else None for p in tmp_path.rglob("*")}
+
+    before = snapshot()
+    for logger in (CSV, "--trainer.logger=false"):
+        code, err = run("fit", "--trainer.max_epochs=1", f"--model.init_args.num_classes={n + 2}", logger)
+        assert code == 2 and err.startswith(f"train.py: error: datamodule: {n} classes")
+    code, err = run("fit", "--trainer.max_epochs=2", "--ckpt_path=last", "--model.init_args.global_dim=64",
+                    CSV)
+    assert code == 2 and "does not fit the config's model" in err
+    assert snapshot() == before
+
+
+def test_a_refusal_comes_before_the_trainer_banner(cross_dir, tmp_path):
+    """The --ckpt_path last checks run before the Trainer is built: its "GPU available: ..." lines no longer
+    precede the refusal (they are Lightning's log records, so the command runs in its own process)."""
+    import subprocess
+    import sys
+
+    n = len(json.loads((Path(cross_dir) / "manifest.json").read_text())["class_names"])
+    cmd = [sys.executable, str(ROOT / "train.py"), "validate", QUICK,
+           f"--data.init_args.data_dir={cross_dir}", f"--model.init_args.num_classes={n}", *TINY,
+           "--ckpt_path=last"]
+    out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"})
+    assert out.returncode == 2
+    err = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert err[-1].startswith("train.py: error: ckpt_path: 'last' found no last.ckpt in")
+    assert not any("GPU available" in ln or "TPU available" in ln for ln in err), "\n".join(err)
+    assert list(tmp_path.iterdir()) == []
