@@ -333,6 +333,23 @@ class VtlearnCLI(LightningCLI):
                     d.rmdir()
             raise
 
+    def after_fit(self) -> None:
+        """Says where the run's checkpoints are: each checkpoint callback's last file and, when it monitors a
+        metric, its best one with the value, on stdout, once training has ended."""
+        if not self.trainer.is_global_zero:
+            return
+        for cb in self.trainer.checkpoint_callbacks:
+            said = []
+            if getattr(cb, "last_model_path", ""):
+                said.append(f"last {cb.last_model_path}")
+            # without a monitor, Lightning's "best" is only the newest file: the last one says it
+            if cb.monitor and getattr(cb, "best_model_path", ""):
+                score = cb.best_model_score
+                value = f" ({cb.monitor} {float(score):.4g})" if score is not None else ""
+                said.append(f"best {cb.best_model_path}{value}")
+            if said:
+                print(f"train.py: checkpoints: {'; '.join(said)}")
+
     def before_predict(self) -> None:
         from lightning.pytorch.callbacks import BasePredictionWriter
 

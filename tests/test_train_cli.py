@@ -32,7 +32,8 @@ def run(cross_dir, tmp_path, monkeypatch, capsys):
     def call(sub, *args):
         capsys.readouterr()
         code = main([sub, QUICK, *data, *TINY, *args])
-        text = capsys.readouterr().err
+        captured = capsys.readouterr()
+        call.out, text = captured.out, captured.err
         # a logging handler of an earlier call may still write to a stream capsys has closed since; its
         # "--- Logging error ---" report is pytest's artefact, not train.py's output
         text = re.sub(r"--- Logging error ---.*?\nArguments:[^\n]*\n", "", text, flags=re.S)
@@ -75,6 +76,7 @@ def test_last_before_training_is_refused_and_fit_resumes(run, tmp_path):
         assert f"ckpt_path: 'last' found no last.ckpt in {ckpts}; {sub} would score untrained" in err
     assert run("fit", "--trainer.max_epochs=1") == (0, "")
     last = ckpts / "last.ckpt"
+    assert f"train.py: checkpoints: last {last}" in run.out  # where the run's checkpoints are, said
     assert torch.load(last, weights_only=True)["epoch"] == 0
     assert run("fit", "--trainer.max_epochs=2", "--ckpt_path=last")[0] == 0
     assert torch.load(last, weights_only=True)["epoch"] == 1  # resumed: the second epoch, not a new first one
