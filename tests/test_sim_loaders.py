@@ -175,3 +175,31 @@ def test_resuming_after_the_mesh_folder_changed_is_refused(tmp_path):
         generate_dataset(cfg, tmp_path / "out", progress=False)
     (tmp_path / "meshes" / "tall" / "00.obj").unlink()
     assert generate_dataset(cfg, tmp_path / "out", progress=False)["splits"]["train"]["instances"] > 0
+
+
+def test_each_instance_maps_back_to_the_mesh_it_was_made_from(tmp_path):
+    """`vtlearn preview` draws an instance's mesh from planned_instances: it must be the file generation used
+    for that instance (a replay of the split permutation over meshes.json's rows drew other files)."""
+    from vtlearn.sim_data.writer import _usable_meshes, plan_instances, planned_instances
+
+    _two_category_folder(tmp_path / "meshes", n=8)
+    cfg = GenConfig(kind="reconstruction", categories=None, per_category=8, touches=4, pinches=1,
+                    mesh_source=str(tmp_path / "meshes"))
+    m = generate_dataset(cfg, tmp_path / "out", progress=False)
+    made_with = GenConfig(**m["config"])
+    used = {it["instance"]: it["file"] for split in plan_instances(*_usable_meshes(made_with, False)).values()
+            for it in split}
+    got = planned_instances(tmp_path / "out", made_with)
+    assert len(used) == 16 and {i: it["file"] for i, it in got.items()} == used
+
+
+def test_resuming_a_mesh_dataset_made_before_meshes_json_is_refused(tmp_path):
+    """Shards made before meshes.json were read with the older mesh reading (other usable meshes, y-up), so
+    a resume could mix plans: refused, naming out_dir."""
+    _two_category_folder(tmp_path / "meshes", n=4)
+    cfg = GenConfig(kind="reconstruction", categories=["tall", "flat"], per_category=4, shard_size=1,
+                    touches=4, pinches=1, mesh_source=str(tmp_path / "meshes"))
+    assert generate_dataset(cfg, tmp_path / "out", progress=False, max_shards=2) == {}
+    (tmp_path / "out" / "meshes.json").unlink()  # as an older vtlearn left it
+    with pytest.raises(ValueError, match=r"out_dir: .* holds shards made from .* before vtlearn recorded"):
+        generate_dataset(cfg, tmp_path / "out", progress=False)

@@ -121,3 +121,66 @@ def test_samplers_exclude_bottom_face():
     assert len(sample_touches([-1, -1, 0], [1, 1, 2], 20, rng, mode="grid")) == 20
     for c, _, w in sample_pinches([-1, -1, 0], [1, 1, 2], 10, rng):
         assert 0 <= c[2] <= 2 and w > 2 * np.sqrt(2)
+
+
+def test_sampled_touches_press_each_face_from_outside():
+    """Every sampled touch starts ``standoff`` outside its face and presses inward; the -x and -y faces
+    are touched on the lo side (they were once placed on the hi side, so the pad started inside the box)."""
+    lo, hi = np.array([-0.05, -0.04, 0.0]), np.array([0.07, 0.02, 0.06])
+    c, h = (lo + hi) / 2, (hi - lo) / 2
+    for mode in ("random", "grid"):
+        acts = sample_touches(lo, hi, 40, np.random.default_rng(0), standoff=0.03, mode=mode)
+        faces = set()
+        for start, d, _ in acts:
+            axis = int(np.argmax(np.abs(d)))
+            faces.add((axis, float(np.sign(d[axis]))))
+            # the face the pad presses lies on the side it comes from: at c - h * d along the axis
+            assert np.isclose(start[axis], c[axis] - h[axis] * d[axis] - 0.03 * d[axis])
+            others = [a for a in range(3) if a != axis]
+            assert np.all(np.abs(start[others] - c[others]) <= h[others] + 1e-12)
+        assert faces == {(0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0), (2, -1.0)}
+
+
+def test_sampled_touches_on_a_box_report_the_faces_they_press():
+    """Contacts of the touches sampled on a box's bounding box lie on the face facing the pad."""
+    scene = Scene(table=False)
+    extents = np.array([0.06, 0.05, 0.04])
+    body = scene.add_mesh(trimesh.creation.box(extents=extents))
+    sim = TactileSimulator(scene, "xela_4x4", objects=[body])
+    n = 0
+    for start, d, roll in sample_touches(-extents / 2, extents / 2, 20, np.random.default_rng(0)):
+        res = sim.touch(start, d, roll)
+        axis = int(np.argmax(np.abs(d)))
+        np.testing.assert_allclose(res.points[:, axis], -np.sign(d[axis]) * extents[axis] / 2, atol=1e-9)
+        n += res.num_contacts
+    assert n > 20
+    scene.close()
+
+
+def test_sensor_spec_errors_name_spec():
+    for bad in ("4x4@1.2.3mm", "0x4@4.7mm", "4x0@4.7mm", "4x4@0mm"):
+        with pytest.raises(ValueError, match="^spec: "):
+            get_sensor(bad)
+    assert get_sensor("3x2@.5mm").pitch == 0.0005
+
+
+def test_same_seed_same_touches_with_noise_and_dropout():
+    """Noise, dropout and the physical mode are reproducible from the rng given."""
+
+    def run():
+        scene = Scene()
+        T = np.eye(4)
+        T[2, 3] = 0.02
+        free = scene.add_mesh(trimesh.creation.box(extents=[0.04] * 3), T_world_object=T, fixed=False)
+        sim = TactileSimulator(scene, "xela_4x4", TactileConfig(position_noise=1e-3, dropout=0.3))
+        rng = np.random.default_rng(5)
+        out = [sim.touch([-0.08, 0.0, 0.02], [1.0, 0.0, 0.0], rng=rng).points]
+        out.append(sim.pinch([0.0, 0.0, 0.02], 0.3, 0.1, rng=rng).points)
+        out.append(scene.T_world_object(free))
+        scene.close()
+        return out
+
+    a, b = run(), run()
+    assert len(a[0]) > 0
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)

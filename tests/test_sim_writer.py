@@ -97,6 +97,27 @@ def test_another_config_in_the_folder_names_the_settings_that_differ(tmp_path, c
     assert '/v1" in the folder' in said and '/v2" asked' in said
 
 
+def test_a_folder_of_the_old_touch_sampler_is_not_resumed(tmp_path, capsys):
+    """Sampler 1 pressed the -x and -y faces from inside the box: its shards must not be mixed with new ones.
+    Its config.json has no touch_sampler key, and the refusal names it."""
+    import json
+    from dataclasses import asdict
+
+    from vtlearn.cli import main
+
+    out = tmp_path / "ds"
+    out.mkdir()
+    old = asdict(GenConfig(kind="reconstruction", categories=["can", "box", "cup"], per_category=6))
+    del old["touch_sampler"]
+    (out / "config.json").write_text(json.dumps(old))
+    argv = ["gen-data", "reconstruction", "--out", str(out), "--categories", "can,box,cup",
+            "--per-category", "6"]
+    assert main(argv) == 2
+    assert "touch_sampler: 1 in the folder, 2 asked" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="touch_sampler: this vtlearn generates with touch sampler 2 only"):
+        GenConfig(touch_sampler=1)
+
+
 def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     """Acceptance: kill gen-data halfway, rerun it: the manifest equals an uninterrupted run's."""
     ref = generate_dataset(_cfg(), tmp_path / "ref", progress=False)

@@ -300,3 +300,100 @@ def test_sensor_tactile_and_scene_numbers_are_checked(scene):
     sim = TactileSimulator(scene)
     with pytest.raises(ValueError, match="T_world_pad: the 3x3 block is not a proper rotation"):
         sim.touch_from(shear)
+
+
+def test_scene_gravity_and_body_ids_are_checked(scene):
+    with pytest.raises(ValueError, match="gravity: need a finite number"):
+        Scene(gravity=float("nan"))
+    with pytest.raises(ValueError, match="gravity: need a finite number"):
+        Scene(gravity="down")
+    with pytest.raises(ValueError, match="body_id"):
+        scene.T_world_object(99)
+    with pytest.raises(ValueError, match="body_id"):
+        scene.remove(scene.table_id)  # the table is not an object
+    body = scene.add_mesh(BOX)
+    scene.remove(body)
+    assert body not in scene.objects
+    with pytest.raises(ValueError, match="body_id"):
+        scene.remove(body)
+
+
+def test_articulated_object_checks_pose_joints_and_model_points(scene):
+    from vtlearn.sim_data.articulated import ArticulatedObject, make_articulated
+
+    spec = make_articulated("drawer", 0)
+    with pytest.raises(ValueError, match="n_model_points"):
+        ArticulatedObject(scene, spec, n_model_points=-0.01)
+    with pytest.raises(ValueError, match="n_model_points"):
+        ArticulatedObject(scene, spec, n_model_points=True)
+    assert scene.objects == {} and len(scene.ray_test(np.zeros((1, 3)), np.ones((1, 3)))[0]) == 1
+    obj = ArticulatedObject(scene, spec, n_model_points=20)
+    before = obj.part_poses()
+    shear = np.eye(4)
+    shear[0, 1] = 0.3
+    for bad in (np.full((4, 4), np.nan), shear):
+        with pytest.raises(ValueError, match="T_world_base"):
+            obj.set_state(bad, np.array([0.5]))
+    with pytest.raises(ValueError, match="q: "):
+        obj.set_state(np.eye(4), np.array([np.nan]))
+    np.testing.assert_array_equal(obj.part_poses(), before)  # nothing moved on bad input
+    T = np.eye(4)
+    T[:3, 3] = [0.1, 0.0, 0.0]
+    obj.set_state(T, np.array([1.0]))
+    np.testing.assert_allclose(obj.part_poses()[0], T, atol=1e-12)
+
+
+def test_tracking_sequences_check_frames_and_probe():
+    from vtlearn.sim_data.articulated import articulation_sequence, motion_sequence
+
+    with pytest.raises(ValueError, match="n_frames"):
+        articulation_sequence("drawer", 0, 0, width=16, height=12)
+    with pytest.raises(ValueError, match="n_frames"):
+        motion_sequence("single", 0, 0, width=16, height=12)
+    with pytest.raises(ValueError, match="probe_radius"):
+        motion_sequence("single", 0, 2, width=16, height=12, probe_radius=0.0)
+    with pytest.raises(ValueError, match="kind: "):
+        motion_sequence("several", 0, 2)
+
+
+def test_bench_sim_counts_are_checked():
+    from vtlearn.sim_data.bench import bench_camera, bench_shapes, bench_touches
+
+    for fn, name in ((bench_touches, "n"), (bench_camera, "frames"), (bench_shapes, "n")):
+        with pytest.raises(ValueError, match=f"{name}: need an integer >= 1"):
+            fn(0)
+    out = bench_shapes(2)
+    assert out["shapes"] == 2 and out["categories"] == 2
+
+
+def _connections() -> int:
+    import pybullet as p
+
+    return sum(p.isConnected(i) for i in range(1024))
+
+
+def test_no_pybullet_connection_leaks():
+    """Every pybullet client the simulation API opens is disconnected again, after errors too."""
+    import gc
+
+    from vtlearn.sim_data.articulated import articulation_sequence, motion_sequence
+    from vtlearn.sim_data.tactile import TactileSimulator
+
+    gc.collect()
+    before = _connections()
+    T_world_camera = sample_hemisphere_views([0, 0, 0], 0.4, 1, np.random.default_rng(0))[0]
+    for _ in range(3):
+        with Scene() as s:
+            body = s.add_mesh(BOX, T_world_object=np.diag([1.0, 1.0, 1.0, 1.0]))
+            TactileSimulator(s).touch([0.0, 0.0, 0.1], [0.0, 0.0, -1.0])
+            RGBDCamera(16, 12).render(s, T_world_camera)
+            s.remove(body)
+        with pytest.raises(ValueError), Scene() as s:
+            s.add_mesh(_nan_box())
+        with pytest.raises(ValueError):
+            Scene(gravity=float("nan"))
+        Scene().add_mesh(BOX)  # dropped without close: garbage collection disconnects it
+        articulation_sequence("drawer", 0, 1, width=16, height=12, n_model_points=10)
+        motion_sequence("single", 0, 1, width=16, height=12, n_model_points=10)
+    gc.collect()
+    assert _connections() == before

@@ -41,7 +41,7 @@ import trimesh
 from vtlearn.geometry.sampling import sample_surface
 from vtlearn.sim_data.camera import DepthNoise, RGBDCamera
 from vtlearn.sim_data.scene import Scene, pose_to_matrix
-from vtlearn.validation import as_int, as_real, as_vector
+from vtlearn.validation import as_int, as_real, as_transform, as_vector
 
 __all__ = [
     "CATEGORIES",
@@ -138,7 +138,7 @@ def _cabinet(W: float, D: float, H: float, t: float) -> list[Box]:
 def make_articulated(category: str, rng: np.random.Generator | int | None = None) -> ArticulatedSpec:
     """A random instance of one of :data:`CATEGORIES` (dimensions in metres)."""
     if category not in CATEGORIES:
-        raise ValueError(f"category must be one of {CATEGORIES}, got {category!r}")
+        raise ValueError(f"category: expected one of {CATEGORIES}, got {category!r}")
     rng = np.random.default_rng(rng)
     c_base, c_part = _colour(rng), _colour(rng)
     while np.linalg.norm(np.subtract(c_base[:3], c_part[:3])) < 0.3:  # parts distinguishable by colour
@@ -246,7 +246,7 @@ def make_rigid(rng: np.random.Generator | int | None = None, kind: str | None = 
             Box((a / 6, b / 4, c / 2), (0, b / 4, c / 2)),
         ]
     else:
-        raise ValueError(f"kind must be 'box', 'L' or 'T', got {kind!r}")
+        raise ValueError(f"kind: expected 'box', 'L' or 'T', got {kind!r}")
     return ArticulatedSpec("rigid", [LinkSpec(kind, boxes, _colour(rng))])
 
 
@@ -288,10 +288,12 @@ def to_urdf(spec: ArticulatedSpec) -> str:
 
 
 def _n_points(mesh: trimesh.Trimesh, n_model_points: int | float) -> int:
-    """An int is a fixed count; a float is a spacing in metres: area / spacing^2 points, in [500, 20000]."""
-    if isinstance(n_model_points, (int, np.integer)):
-        return int(n_model_points)
-    return int(np.clip(mesh.area / float(n_model_points) ** 2, 500, 20000))
+    """An int is a fixed count (>= 1); a float is a spacing in metres (finite, > 0): area / spacing^2 points,
+    in [500, 20000]. ``ValueError`` naming ``n_model_points`` otherwise (a bool or a string included)."""
+    if isinstance(n_model_points, (int, np.integer)) and not isinstance(n_model_points, bool):
+        return as_int(n_model_points, "n_model_points")
+    spacing = as_real(n_model_points, "n_model_points", low=0.0, open_low=True, unit="m")
+    return int(np.clip(mesh.area / spacing**2, 500, 20000))
 
 
 class ArticulatedObject:
@@ -309,6 +311,7 @@ class ArticulatedObject:
         self, scene: Scene, spec: ArticulatedSpec, n_model_points: int | float = 0.005, seed: int = 0
     ):
         self.scene, self.spec = scene, spec
+        counts = [_n_points(link.mesh(), n_model_points) for link in spec.links]  # checked before loading
         fd, path = tempfile.mkstemp(suffix=".urdf")
         try:
             with os.fdopen(fd, "w") as fh:
@@ -317,8 +320,8 @@ class ArticulatedObject:
         finally:
             os.unlink(path)
         self.models = [
-            sample_surface(link.mesh(), _n_points(link.mesh(), n_model_points), seed=seed + i)[0]
-            for i, link in enumerate(spec.links)
+            sample_surface(link.mesh(), n, seed=seed + i)[0]
+            for i, (link, n) in enumerate(zip(spec.links, counts, strict=True))
         ]
 
     @property
@@ -326,18 +329,27 @@ class ArticulatedObject:
         return len(self.spec.links)
 
     def set_state(self, T_world_base: np.ndarray, q: np.ndarray | None = None) -> None:
-        """Place the base (4x4 T_world_base) and set the joints from normalised values q in [0, 1]."""
+        """Place the base at ``T_world_base`` and set the joints from normalised values ``q`` in [0, 1].
+
+        ``T_world_base`` must be a finite rigid transform and ``q`` (when given) ``n_joints`` finite values
+        in [0, 1]; both are checked before anything moves (``ValueError`` naming the argument).
+
+        Shapes:
+            T_world_base (4, 4); q (n_joints,)
+        """
         from vtlearn.sim_data.scene import matrix_to_xyzw
 
+        T_world_base = as_transform(T_world_base, "T_world_base")
+        if q is not None:
+            q = np.asarray(q, dtype=np.float64)
+            if q.shape != (self.spec.n_joints,) or not np.all((q >= 0) & (q <= 1)):
+                raise ValueError(f"q: need {self.spec.n_joints} values in [0, 1], got {q}")
         c = self.scene.client
         p.resetBasePositionAndOrientation(
             self.body, T_world_base[:3, 3].tolist(), matrix_to_xyzw(T_world_base[:3, :3]), physicsClientId=c
         )
         if q is None:
             return
-        q = np.asarray(q, dtype=np.float64)
-        if q.shape != (self.spec.n_joints,) or np.any(q < 0) or np.any(q > 1):
-            raise ValueError(f"q must be {self.spec.n_joints} values in [0, 1], got {q}")
         for j, (link, qj) in enumerate(zip(self.spec.links[1:], q, strict=True)):
             p.resetJointState(self.body, j, link.lower + qj * (link.upper - link.lower), physicsClientId=c)
 
@@ -440,6 +452,7 @@ def articulation_sequence(
 
     The camera is at 45 deg top-down in front of the object, at a distance that frames it.
     """
+    n_frames = as_int(n_frames, "n_frames")
     rng = np.random.default_rng(seed)
     spec = make_articulated(category, rng)
     with Scene(table=True) as scene:
@@ -483,14 +496,16 @@ def motion_sequence(
     The first object is pushed by the probe, which yields the tactile points.
     """
     if kind not in ("single", "multiple", "articulated"):
-        raise ValueError(f"kind must be 'single', 'multiple' or 'articulated', got {kind!r}")
+        raise ValueError(f"kind: expected 'single', 'multiple' or 'articulated', got {kind!r}")
+    n_frames = as_int(n_frames, "n_frames")
+    probe_radius = as_real(probe_radius, "probe_radius", low=0.0, open_low=True, unit="m")
     rng = np.random.default_rng(seed)
     if kind == "single":
         specs = [make_rigid(rng)]
     elif kind == "multiple":
         n = as_int(n_objects, "n_objects") if n_objects is not None else int(rng.integers(3, 8))
         if n > 9:
-            raise ValueError(f"n_objects must be in 1..9, got {n}")
+            raise ValueError(f"n_objects: need an integer in 1..9, got {n}")
         specs = [make_rigid(rng) for _ in range(n)]
     else:
         specs = [make_articulated(str(rng.choice(["dishwasher", "drawer"])), rng)]

@@ -11,12 +11,15 @@ import time
 
 import numpy as np
 
+from vtlearn.validation import as_int
+
 
 def bench_touches(n: int, sensor: str = "xela_4x4") -> dict:
     from vtlearn.sim_data.scene import Scene
     from vtlearn.sim_data.shapes import generate_shape
     from vtlearn.sim_data.tactile import TactileSimulator, sample_touches
 
+    n = as_int(n, "n")
     mesh, rec = generate_shape("bottle", 0, sections=180)  # ~5k faces
     with Scene() as scene:
         T = np.eye(4)
@@ -44,6 +47,7 @@ def bench_camera(frames: int, width: int = 320, height: int = 240) -> dict:
     from vtlearn.sim_data.scene import Scene
     from vtlearn.sim_data.shapes import generate_shape
 
+    frames = as_int(frames, "frames")
     mesh, rec = generate_shape("mug", 0)
     with Scene() as scene:
         T = np.eye(4)
@@ -71,11 +75,12 @@ def bench_camera(frames: int, width: int = 320, height: int = 240) -> dict:
 def bench_shapes(n: int) -> dict:
     from vtlearn.sim_data.shapes import CATEGORIES, generate_shape
 
+    n = as_int(n, "n")
     t0 = time.perf_counter()
     for i in range(n):
         generate_shape(CATEGORIES[i % len(CATEGORIES)], i)
     dt = time.perf_counter() - t0
-    return {"shapes": n, "seconds": dt, "shapes_per_s": n / dt}
+    return {"shapes": n, "categories": min(n, len(CATEGORIES)), "seconds": dt, "shapes_per_s": n / dt}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -101,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             "metric": "gen-shapes shapes / s",
             "value": shapes["shapes_per_s"],
             "goal": "-",
-            "detail": f"{shapes['shapes']} shapes, 12 categories, 48 sections",
+            "detail": f"{shapes['shapes']} shapes, {shapes['categories']} categories, 48 sections",
         },
     ]
     print_table(rows, ["metric", "value", "goal", "detail"], title="vtlearn bench sim (single process)")

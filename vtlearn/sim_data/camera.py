@@ -92,7 +92,11 @@ class RGBDFrame:
 
 
 def intrinsics_from_fov(width: int, height: int, fov_y_deg: float) -> np.ndarray:
-    """Pinhole K (3, 3) with square pixels for a vertical field of view in degrees."""
+    """Pinhole K (3, 3) with square pixels for a vertical field of view in degrees.
+
+    Shapes:
+        -> K (3, 3), pixels
+    """
     width, height = as_int(width, "width"), as_int(height, "height")
     fov_y_deg = as_real(fov_y_deg, "fov_y_deg", low=0.0, high=180.0, open_low=True, open_high=True,
                         unit="deg")
@@ -148,7 +152,12 @@ class RGBDCamera:
 
         TinyRenderer draws the objects; the scene's table top is added by ray-plane intersection
         (see :meth:`_draw_table`), which is exact for the flat top and saves TinyRenderer's shading of
-        most of the image. Arrays stay float32 as TinyRenderer returns them.
+        most of the image. Arrays stay float32 as TinyRenderer returns them. ``rng`` draws the depth
+        noise and the transparency failures (pass one for reproducible output).
+
+        Shapes:
+            T_world_camera (4, 4), OpenCV camera axes -> RGBDFrame: rgb (H, W, 3) uint8, depth (H, W)
+            float32 metres (0 = no return), seg (H, W) int32 body id (-1 none)
         """
         T = as_transform(T_world_camera, "T_world_camera")
         rng = rng if rng is not None else np.random.default_rng()
@@ -236,7 +245,11 @@ class RGBDCamera:
     def point_cloud(
         self, frame: RGBDFrame, body_id: int | None = None, rng: np.random.Generator | None = None
     ):
-        """World-frame cloud of the valid pixels (of ``body_id`` only when given)."""
+        """World-frame cloud of the valid pixels (of ``body_id`` only when given), via :func:`backproject`.
+
+        Shapes:
+            frame.depth (H, W) -> (N, 3) world frame, metres
+        """
         mask = frame.depth > 0
         if body_id is not None:
             mask &= frame.seg == body_id
@@ -257,6 +270,9 @@ def backproject(
     Pixel (u, v) looks through its centre (u + 0.5, v + 0.5); ``p_camera = z K^-1 [u, v, 1]``.
     ``K`` must be finite and invertible, ``T_world_camera`` a finite rigid transform, ``mask`` (if given)
     the shape of ``depth`` and ``lateral_px`` finite and >= 0 (``ValueError`` naming the argument).
+
+    Shapes:
+        depth (H, W) metres, K (3, 3), T_world_camera (4, 4), mask (H, W) bool -> (N, 3) world frame, metres
     """
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim != 2:
@@ -293,6 +309,9 @@ def viewpoint_rotation(p_view: np.ndarray, o_centroid: np.ndarray) -> np.ndarray
     eq. 5.5: R_v = Rodrigues(e, theta), which rotates h onto Z. Hence R_v^T Z = h, and the camera,
     which must look along -h, is R_world_camera = R_v^T Rx(pi). Straight above (h = Z), e is
     undefined and R_v = I. ``p_view`` and ``o_centroid`` are distinct finite (3,) points.
+
+    Shapes:
+        p_view (3,), o_centroid (3,), world frame -> R_world_camera (3, 3)
     """
     h = as_vector(p_view, "p_view", 3, "a finite (3,) point") - as_vector(
         o_centroid, "o_centroid", 3, "a finite (3,) point")
@@ -328,6 +347,9 @@ def sample_hemisphere_views(
     Positions are uniform on the sphere by Marsaglia's method, reflected to z >= 0 and rejected
     below ``min_elevation_deg`` (views grazing the table see little of the object). ``o_centroid`` is a
     finite (3,) point, ``radius`` finite and > 0, ``n >= 1`` and ``min_elevation_deg`` finite and < 90.
+
+    Shapes:
+        o_centroid (3,) world frame, metres -> (n, 4, 4) T_world_camera
     """
     n = as_int(n, "n")
     radius = as_real(radius, "radius", low=0.0, open_low=True)

@@ -10,21 +10,18 @@ from vtlearn.bench_utils import save_figure
 
 
 def _instance_meshes(dataset: Path, manifest: dict) -> dict[int, object]:
-    """instance id -> canonical mesh, by replaying the generator's deterministic plan."""
+    """instance id -> a loader of its canonical mesh, from the items generation made them from."""
     from vtlearn.sim_data.loaders import load_mesh_item
     from vtlearn.sim_data.shapes import generate_shape
-    from vtlearn.sim_data.writer import GenConfig, mesh_items_of, plan_instances
+    from vtlearn.sim_data.writer import GenConfig, planned_instances
 
     cfg = GenConfig(**manifest["config"])
     out = {}
-    for split_items in plan_instances(cfg, mesh_items_of(dataset, cfg)).values():
-        for it in split_items:
-            if "file" in it:
-                out[it["instance"]] = lambda it=it: load_mesh_item(it)
-            else:
-                out[it["instance"]] = lambda it=it: generate_shape(it["category"], it["seed"], cfg.sections)[
-                    0
-                ]
+    for inst, it in planned_instances(dataset, cfg).items():
+        if "file" in it:
+            out[inst] = lambda it=it: load_mesh_item(it)
+        else:
+            out[inst] = lambda it=it: generate_shape(it["category"], it["seed"], cfg.sections)[0]
     return out
 
 

@@ -58,10 +58,14 @@ class Scene:
         table: add a static 1.2 m x 1.2 m x 2 cm table whose top face is the plane z = 0. It collides
             like any body, but TinyRenderer does not draw it; :class:`~vtlearn.sim_data.camera.RGBDCamera`
             adds its top face analytically (depth, segmentation id ``table_id``, flat colour ``table_rgba``).
-        gravity: z gravity in m/s^2 (used only when free objects are stepped).
+        gravity: z gravity in m/s^2 (used only when free objects are stepped), finite.
+
+    Each scene owns one pybullet connection until :meth:`close` (or the end of a ``with`` block, or garbage
+    collection) disconnects it.
     """
 
     def __init__(self, table: bool = True, gravity: float = -9.81):
+        gravity = as_real(gravity, "gravity", unit="m/s^2")  # before connecting, so a bad value leaks nothing
         self.client = p.connect(p.DIRECT)
         p.setGravity(0, 0, gravity, physicsClientId=self.client)
         self.objects: dict[int, SceneObject] = {}
@@ -104,6 +108,9 @@ class Scene:
         total area (e.g. all vertices collinear); a non-positive or non-finite ``scale``; a
         ``T_world_object`` that is not a finite rigid (4, 4) transform; ``rgba`` other than 4 finite
         numbers; or, for a free object, a ``mass`` that is not positive and finite.
+
+        Shapes:
+            mesh.vertices (V, 3), canonical units; T_world_object (4, 4); rgba (4,) -> body id (int)
         """
         as_surface_mesh(mesh, "mesh")
         scale = as_real(scale, "scale", low=0.0, open_low=True)
@@ -147,16 +154,25 @@ class Scene:
         return body
 
     def remove(self, body_id: int) -> None:
+        """Remove the object ``body_id`` (a ``ValueError`` naming it unless it is in :attr:`objects`)."""
+        if body_id not in self.objects:
+            raise ValueError(f"body_id: {body_id!r} is not an object of the scene ({sorted(self.objects)})")
         p.removeBody(body_id, physicsClientId=self.client)
-        self.objects.pop(body_id, None)
+        del self.objects[body_id]
 
     def clear(self) -> None:
         for b in list(self.objects):
             self.remove(b)
 
     def T_world_object(self, body_id: int) -> np.ndarray:
-        """Current pose of a body (free objects may have moved)."""
-        pos, q = p.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
+        """Current pose T_world_object (4, 4) of a body of the scene (free objects may have moved).
+
+        A ``ValueError`` names ``body_id`` when pybullet has no such body.
+        """
+        try:
+            pos, q = p.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
+        except p.error:
+            raise ValueError(f"body_id: no body {body_id!r} in the scene") from None
         return pose_to_matrix(pos, q)
 
     def step(self, n: int = 1) -> None:
@@ -172,6 +188,9 @@ class Scene:
 
         Missed rays have body id -1 and fraction 1. ``starts`` and ``ends`` must be finite (R, 3) arrays of
         the same length (``ValueError`` naming the argument otherwise).
+
+        Shapes:
+            starts (R, 3), ends (R, 3), world frame -> ids (R,), fractions (R,), points (R, 3), normals (R, 3)
         """
         starts = as_points(starts, "starts", min_points=0)
         ends = as_points(ends, "ends", min_points=0)

@@ -64,11 +64,15 @@ SENSORS: dict[str, TaxelSensor] = {
     "contactile_3x3": TaxelSensor("contactile_3x3", 3, 3, 0.007),
 }
 
-_SPEC = re.compile(r"^(\d+)x(\d+)@([0-9.]+)mm$")
+_SPEC = re.compile(r"^(\d+)x(\d+)@(\d+(?:\.\d*)?|\.\d+)mm$")
 
 
 def get_sensor(spec: str | TaxelSensor) -> TaxelSensor:
-    """A preset name (``xela_4x4``, ``xela_6x4``, ``xela_6x1``, ``contactile_3x3``) or ``RxC@Pmm``."""
+    """A preset name (``xela_4x4``, ``xela_6x4``, ``xela_6x1``, ``contactile_3x3``) or ``RxC@Pmm``.
+
+    ``RxC@Pmm`` is R rows by C columns (integers >= 1) at a pitch of P millimetres (> 0), e.g. ``"2x5@3mm"``
+    or ``"4x4@4.7mm"``; anything else is a ``ValueError`` naming ``spec``.
+    """
     if isinstance(spec, TaxelSensor):
         return spec
     if spec in SENSORS:
@@ -76,4 +80,7 @@ def get_sensor(spec: str | TaxelSensor) -> TaxelSensor:
     m = _SPEC.match(str(spec))
     if m is None:
         raise ValueError(f"spec: unknown sensor {spec!r}; use one of {sorted(SENSORS)} or 'RxC@Pmm'")
-    return TaxelSensor(str(spec), int(m.group(1)), int(m.group(2)), float(m.group(3)) / 1000.0)
+    try:
+        return TaxelSensor(str(spec), int(m.group(1)), int(m.group(2)), float(m.group(3)) / 1000.0)
+    except ValueError as exc:
+        raise ValueError(f"spec: bad sensor {spec!r} ({exc})") from None

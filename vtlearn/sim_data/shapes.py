@@ -412,6 +412,9 @@ def normalize_mesh(mesh_m: trimesh.Trimesh) -> tuple[trimesh.Trimesh, float]:
     Returns the canonical mesh and ``scale_m`` (metres per canonical unit). ``mesh_m`` must be a
     ``trimesh.Trimesh`` with at least one face, finite vertices and a positive surface area (``ValueError``
     naming ``mesh_m`` otherwise).
+
+    Shapes:
+        mesh_m vertices (V, 3) metres -> canonical vertices (V, 3) in [-0.5, 0.5]^3, scale_m float
     """
     as_surface_mesh(mesh_m, "mesh_m")
     lo, hi = mesh_m.bounds
@@ -432,6 +435,9 @@ def generate_shape(category: str, seed: int, sections: int = 48) -> tuple[trimes
 
     Raises ``ValueError`` naming the argument for an unknown category, a negative or non-integer seed, or
     bad ``sections``.
+
+    Shapes:
+        -> mesh with vertices (V, 3) in the canonical frame (``* record.scale_m`` = metres), faces (F, 3)
     """
     if not isinstance(category, str) or category not in _BUILDERS:
         raise ValueError(f"category: unknown {category!r}, expected one of {CATEGORIES}")

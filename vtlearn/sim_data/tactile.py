@@ -137,6 +137,9 @@ def pad_frame(start, direction, roll: float = 0.0) -> np.ndarray:
     """T_world_pad with origin ``start`` and z-axis ``direction``; ``roll`` (rad) turns the grid about z.
 
     ``start`` is a finite (3,) point, ``direction`` a finite non-zero (3,) vector and ``roll`` finite.
+
+    Shapes:
+        start (3,) world frame, metres; direction (3,) world frame, any length -> T_world_pad (4, 4)
     """
     start = np.asarray(start, dtype=np.float64)
     d = np.asarray(direction, dtype=np.float64)
@@ -213,11 +216,23 @@ class TactileSimulator:
     def touch(
         self, start, direction, roll: float = 0.0, rng: np.random.Generator | None = None
     ) -> TouchResult:
-        """Guarded touch along ``direction`` from ``start`` (world frame, metres)."""
+        """Guarded touch along ``direction`` from ``start`` (world frame, metres), thesis 4.2.4 / 8.2.3.
+
+        The pad's grid is turned by ``roll`` (rad) about ``direction`` (see :func:`pad_frame`); ``rng`` draws
+        the noise and dropout of :class:`TactileConfig` (pass one for reproducible output).
+
+        Shapes:
+            start (3,), direction (3,), world frame -> TouchResult with points (K, 3) in the world frame,
+            on the touched surface (noise off), K <= sensor.num_taxels
+        """
         return self.touch_from(pad_frame(start, direction, roll), rng)
 
     def touch_from(self, T_world_pad: np.ndarray, rng: np.random.Generator | None = None) -> TouchResult:
-        """Guarded motion of the pad along its own z-axis from the pose ``T_world_pad`` (4, 4)."""
+        """Guarded motion of the pad along its own z-axis from the pose ``T_world_pad``.
+
+        Shapes:
+            T_world_pad (4, 4), a rigid transform (``ValueError`` otherwise) -> TouchResult (world frame)
+        """
         T_world_pad = as_transform(T_world_pad, "T_world_pad")
         if self.physical:
             return self._physical_touches([T_world_pad], rng)[0]
@@ -409,6 +424,10 @@ class TactileSimulator:
             axis_angle: closing axis direction in the xy-plane (rad from world x).
             width: initial finger opening (m), wider than the object at that height.
             approach_height: height above ``center`` from which the fingers descend.
+
+        Shapes:
+            center (3,) world frame, metres -> TouchResult with the points (K, 3) of both fingers, world
+            frame, K <= 2 * sensor.num_taxels; empty when the descent is blocked or too few taxels touch.
         """
         c = np.asarray(center, dtype=np.float64)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
@@ -444,7 +463,14 @@ class TactileSimulator:
 
 # --------------------------------------------------------------------------- action samplers
 def bbox_faces(lo, hi):
-    """The five faces of an axis-aligned box except the bottom: (centre, outward normal, u, v half-axes)."""
+    """The five faces of an axis-aligned box except the bottom: (centre, outward normal, u, v half-axes).
+
+    The face of outward normal ``n = ±e_axis`` is centred at ``c + h[axis] * n`` (``c``, ``h`` the box centre
+    and half extents), so the -x and -y faces lie on the ``lo`` side of the box.
+
+    Shapes:
+        lo (3,), hi (3,) -> 5 tuples of (3,) arrays, in the frame of ``lo``/``hi``.
+    """
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     c, h = (lo + hi) / 2, (hi - lo) / 2
     faces = []
@@ -457,7 +483,7 @@ def bbox_faces(lo, hi):
             others = [a for a in range(3) if a != axis]
             u, v = np.zeros(3), np.zeros(3)
             u[others[0]], v[others[1]] = h[others[0]], h[others[1]]
-            faces.append((c + sign * h[axis] * n, n, u, v))
+            faces.append((c + h[axis] * n, n, u, v))
     return faces
 
 
@@ -486,6 +512,9 @@ def sample_touches(
 
     ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi`` and a positive surface area, ``standoff`` is
     finite and >= 0, ``margin`` (the fraction of each face used) lies in [0, 1].
+
+    Shapes:
+        lo (3,), hi (3,), world frame, metres -> n tuples (start (3,), direction (3,) unit, roll float)
     """
     n = as_int(n, "n")
     if mode not in ("random", "grid"):
@@ -520,6 +549,9 @@ def sample_pinches(lo, hi, n: int, rng: np.random.Generator, clearance: float = 
 
     ``lo``/``hi`` are finite (3,) box corners with ``lo <= hi``; ``clearance`` is finite and >= 0, and the
     resulting finger opening must be positive.
+
+    Shapes:
+        lo (3,), hi (3,), world frame, metres -> n tuples (centre (3,), axis angle float, width float)
     """
     n = as_int(n, "n")
     lo, hi = _check_box(lo, hi)

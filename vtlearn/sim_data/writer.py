@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 FORMAT = "vtlearn-sim/1"
 SPLITS = ("train", "val", "test")
 KINDS = ("reconstruction", "crossmodal")
+#: the touch sampler generation uses; see ``GenConfig.touch_sampler``
+TOUCH_SAMPLER = 2
 
 
 @dataclass
@@ -88,6 +90,9 @@ class GenConfig:
     tactile_min_points: int = 30
     tactile_max_points: int = 120
     mesh_source: str = "procedural"  # or a directory of meshes, one subfolder per category
+    # the version of the touch sampler (vtlearn.sim_data.tactile.bbox_faces): 1 pressed the +x and +y faces
+    # from inside the box in place of the -x and -y faces; a folder made with 1 is refused on resume
+    touch_sampler: int = TOUCH_SAMPLER
 
     def __post_init__(self):
         if self.categories is None and self.mesh_source == "procedural":
@@ -113,6 +118,10 @@ class GenConfig:
     def _check_fields(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if self.touch_sampler != TOUCH_SAMPLER:
+            raise ValueError(f"touch_sampler: this vtlearn generates with touch sampler {TOUCH_SAMPLER} "
+                             f"only, got {self.touch_sampler!r} (sampler 1 pressed the -x and -y faces from "
+                             "inside)")
         if self.mesh_source == "procedural":
             bad = [c for c in self.categories or [] if c not in CATEGORIES]
             if bad or not self.categories:
@@ -654,6 +663,12 @@ def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> 
                          "bytes": f.stat().st_size})
     new = {"mesh_source": str(cfg.mesh_source), "instances": rows}
     path = out / MESH_LIST
+    if not path.exists() and any(out.glob("*.npz")):
+        raise ValueError(
+            f"out_dir: {out} holds shards made from {cfg.mesh_source} before vtlearn recorded their meshes "
+            f"({MESH_LIST}); this vtlearn reads meshes otherwise (z-up, scale-free, double-sided faces "
+            "kept), so its shards would not match the finished ones: use a new output folder"
+        )
     if path.exists():
         old = json.loads(path.read_text())
         if old.get("instances") != rows:
@@ -670,25 +685,28 @@ def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> 
         write_json_atomic(path, new)
 
 
-def mesh_items_of(data_dir: str | Path, cfg: GenConfig) -> list[dict] | None:
-    """The mesh items a dataset was planned from (None for procedural meshes): from its ``meshes.json``,
-    else (datasets made before it) by scanning ``mesh_source`` again."""
+def planned_instances(data_dir: str | Path, cfg: GenConfig) -> dict[int, dict]:
+    """Instance id -> the item generation made it from (its procedural ``seed``, or its mesh ``file``), for
+    the dataset in ``data_dir`` made with ``cfg``. Procedural instances replay :func:`plan_instances`; mesh
+    instances come from the dataset's ``meshes.json`` (datasets made before it: the plan of a rescan of
+    ``mesh_source``, which matches only if the folder and the mesh reading are unchanged)."""
     from vtlearn.sim_data.loaders import DEFAULT_SIZE_M, NOMINAL_SIZE_M, mesh_root, scan_mesh_folder
 
-    if cfg.mesh_source == "procedural":
-        return None
     path = Path(data_dir) / MESH_LIST
-    if not path.exists():
-        return scan_mesh_folder(cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category)
+    if cfg.mesh_source == "procedural" or not path.exists():
+        items = None if cfg.mesh_source == "procedural" else scan_mesh_folder(
+            cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category)
+        return {it["instance"]: it for split in plan_instances(cfg, items).values() for it in split}
     root = mesh_root(cfg.mesh_source)
     scanned = scan_mesh_folder(cfg.mesh_source, check=False, categories=cfg.categories)
     scanned = {m["file"]: m for m in scanned}
-    items = []
-    for r in sorted(json.loads(path.read_text())["instances"], key=lambda r: r["instance"]):
+    out = {}
+    for r in json.loads(path.read_text())["instances"]:
         f = str(root / r["file"])
-        items.append(scanned.get(f) or {"category": r["category"], "file": f,
-                                         "scale_m": NOMINAL_SIZE_M.get(r["category"], DEFAULT_SIZE_M)})
-    return items
+        item = scanned.get(f) or {"category": r["category"], "file": f,
+                                  "scale_m": NOMINAL_SIZE_M.get(r["category"], DEFAULT_SIZE_M)}
+        out[int(r["instance"])] = {**item, "instance": int(r["instance"])}
+    return out
 
 
 # --------------------------------------------------------------------------- driver
@@ -714,7 +732,8 @@ def generate_dataset(
     if cfg.mesh_source != "procedural":
         cfg, mesh_items = _usable_meshes(cfg, progress)
     cfg_dict = asdict(cfg)
-    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None})  # pre-crop datasets resume
+    # pre-crop datasets resume; those of touch sampler 1 (no such key) are refused
+    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None, "touch_sampler": 1})
     plan = plan_instances(cfg, mesh_items)
     if mesh_items is not None:
         _claim_mesh_list(out, cfg, plan)
