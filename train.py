@@ -87,9 +87,15 @@ def _last_checkpoints(callbacks) -> tuple[list[Path], list[Path]]:
     return dirs, [f for d in dirs if d.is_dir() for f in d.glob("last*.ckpt")]
 
 
+def _version_key(logger) -> str:
+    """A logger's entry in :class:`LogVersions`: its class and root folder (a CSV and a TensorBoard logger
+    may share one root and still have versions of their own)."""
+    return f"{type(logger).__name__}:{os.path.normpath(logger.root_dir)}"
+
+
 class LogVersions(Callback):
-    """Records in each checkpoint the version folder of each CSV and TensorBoard logger, by the logger's root
-    folder, so that ``fit --ckpt_path last`` logs on into the folder of the run it resumes."""
+    """Records in each checkpoint the version folder of each CSV and TensorBoard logger, by the logger's class
+    and root folder, so that ``fit --ckpt_path last`` logs on into the folder of the run it resumes."""
 
     state_key = "train.py:log_versions"
 
@@ -97,26 +103,39 @@ class LogVersions(Callback):
         self._loggers = trainer.loggers
 
     def state_dict(self) -> dict:
-        return {"versions": {os.path.normpath(lg.root_dir): lg.version for lg in getattr(self, "_loggers", [])
+        return {"versions": {_version_key(lg): lg.version for lg in getattr(self, "_loggers", [])
                              if isinstance(lg, (CSVLogger, TensorBoardLogger))}}
+
+
+def _rows_before(text: str, step: int) -> str:
+    """The rows of a ``metrics.csv`` (its header kept) logged before global step ``step``: those after it
+    were logged by epochs that the resumed run trains, and logs, again."""
+    rows = list(csv.reader(text.splitlines()))
+    if not rows or "step" not in rows[0]:
+        return text
+    k = rows[0].index("step")
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows(
+        [rows[0]] + [r for r in rows[1:] if not (len(r) > k and r[k].isdigit() and int(r[k]) >= step)])
+    return out.getvalue()
 
 
 def _continue_versions(trainer, checkpoint: dict) -> None:
     """Points the trainer's CSV and TensorBoard loggers that the config gives no ``version`` at the version
-    folders ``checkpoint`` records for their root folders (:class:`LogVersions`). Lightning's CSV writer
-    deletes the ``metrics.csv`` it finds there: its rows are put back (by the main process) and its columns
-    kept, so the resumed epochs' rows follow them."""
+    folders ``checkpoint`` records for them (:class:`LogVersions`). Lightning's CSV writer deletes the
+    ``metrics.csv`` it finds there: its rows logged before the checkpoint's global step are put back (by the
+    main process) and its columns kept, so the resumed epochs' rows follow them, each epoch once."""
     versions = (checkpoint.get("callbacks") or {}).get(LogVersions.state_key, {}).get("versions", {})
     for lg in trainer.loggers:
         if not isinstance(lg, (CSVLogger, TensorBoardLogger)) or lg._version is not None:
             continue
-        if os.path.normpath(lg.root_dir) not in versions:
+        if _version_key(lg) not in versions:
             continue
-        lg._version = versions[os.path.normpath(lg.root_dir)]  # the loggers take one only at construction
+        lg._version = versions[_version_key(lg)]  # the loggers take one only at construction
         if not isinstance(lg, CSVLogger) or not trainer.is_global_zero:
             continue
         path = Path(lg.log_dir) / "metrics.csv"
-        rows = path.read_text() if path.is_file() else ""
+        rows = _rows_before(path.read_text(), int(checkpoint.get("global_step", 0))) if path.is_file() else ""
         with warnings.catch_warnings():  # "Previous log files ... will be deleted": they are put back below
             warnings.filterwarnings("ignore", message="Experiment logs directory")
             writer = lg.experiment
@@ -148,8 +167,11 @@ def _discard_offline_wandb_runs(loggers) -> None:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             run.finish()  # its "wandb sync <folder>" advice would name the folder removed here
         shutil.rmtree(folder, ignore_errors=True)
-        for link in folder.parent.iterdir():
-            if link.is_symlink() and not link.exists():
+        for link in folder.parent.iterdir():  # only the links into the removed folder
+            if not link.is_symlink():
+                continue
+            target = os.path.normpath(os.path.join(link.parent.absolute(), os.readlink(link)))
+            if Path(target).is_relative_to(os.path.normpath(folder.absolute())):
                 link.unlink()
 
 
@@ -327,10 +349,11 @@ class VtlearnCLI(LightningCLI):
         try:
             super()._run_subcommand(subcommand)
         except ConfigMismatchError:
-            _discard_offline_wandb_runs(loggers)
-            for d in made:
-                if d.is_dir() and not any(d.iterdir()):
-                    d.rmdir()
+            if self.trainer.is_global_zero:  # one process cleans up; the others may still be writing
+                _discard_offline_wandb_runs(loggers)
+                for d in made:
+                    with contextlib.suppress(OSError):  # not empty, or gone already
+                        d.rmdir()
             raise
 
     def after_fit(self) -> None:

@@ -303,6 +303,19 @@ def test_register_errors_name_the_flag(register_inputs, capsys, name, content, w
     assert err.count("\n") == 1 and "--scene" in err and what in err
 
 
+def test_register_estimate_scale_solves_the_scale_the_unit_check_would_refuse(register_inputs, capsys):
+    """A model in millimetres against a scene in metres is a scale of 1000 that S-TIQF estimates (eq. 5.12):
+    with --estimate-scale it is solved, not refused as mixed units."""
+    tmp, argv = register_inputs
+    argv[argv.index("--model") + 1] = str(write_cloud(tmp / "m_mm.xyz", 1000.0 * CLOUD))
+    argv[argv.index("--scene") + 1] = str(tmp / "m.xyz")  # all of it: eq. 5.12 compares bounding boxes
+    assert main([*argv, "--method", "stiqf", "--estimate-scale", "--json"]) == 0
+    scale = np.asarray(json.loads(capsys.readouterr().out)["scale"])
+    np.testing.assert_allclose(scale, 1e-3, rtol=0.05)
+    assert main([*argv, "--method", "stiqf"]) == 2  # without it, the 1000x is refused
+    assert "millimetres" in _error(capsys)
+
+
 def test_register_writes_json_and_figure_files(register_inputs, capsys):
     tmp, argv = register_inputs
     js, fig = tmp / "out" / "reg.json", tmp / "out" / "reg.png"

@@ -161,7 +161,8 @@ def test_resumed_fit_logs_on_into_the_version_folder_it_resumes(run, tmp_path):
 
 
 def test_a_resumed_csv_log_keeps_its_rows_when_new_columns_come(tmp_path, monkeypatch):
-    """The kept rows of a version folder and the resumed run's rows with a column they lack share one file."""
+    """The kept rows of a version folder and the resumed run's rows with a column they lack share one file;
+    rows logged after the resumed checkpoint are not kept twice."""
     import lightning as L
     from lightning.pytorch.loggers import CSVLogger
 
@@ -170,10 +171,13 @@ def test_a_resumed_csv_log_keeps_its_rows_when_new_columns_come(tmp_path, monkey
 
     folder = tmp_path / "log" / "version_3"
     folder.mkdir(parents=True)
-    (folder / "metrics.csv").write_text("epoch,step,val/acc\n0,1,0.5\n")
+    # epoch 1's row came after the checkpoint (global step 2) that the run resumes: epoch 1 is trained and
+    # logged again, so its first row goes
+    (folder / "metrics.csv").write_text("epoch,step,val/acc\n0,1,0.5\n1,3,0.625\n")
     logger = CSVLogger(tmp_path, name="log")
     trainer = L.Trainer(logger=logger, accelerator="cpu", enable_progress_bar=False)
-    record = {"callbacks": {LogVersions.state_key: {"versions": {str(tmp_path / "log"): 3}}}}
+    record = {"global_step": 2,
+              "callbacks": {LogVersions.state_key: {"versions": {f"CSVLogger:{tmp_path / 'log'}": 3}}}}
     _continue_versions(trainer, record)
     logger.log_metrics({"epoch": 1, "val/acc": 0.75, "val/loss": 0.25}, step=3)
     logger.save()

@@ -80,7 +80,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
     model = _read_points(args.model, "--model", args.model_points, args.seed)
     scene = _read_points(args.scene, "--scene", args.scene_points, args.seed + 1)
-    check_same_units(model, "--model", scene, "--scene")
+    if not args.estimate_scale:  # a scale between model and scene is what --estimate-scale solves for
+        check_same_units(model, "--model", scene, "--scene")
     if cloud_extent(model) > 10.0:
         print(f"vtlearn: note: --model spans {cloud_extent(model):.4g} m; vtlearn reads metres, so if the "
               "files are in millimetres the rmse and t below are in millimetres too", file=sys.stderr)
