@@ -366,3 +366,12 @@ def test_bad_input():
             KinematicArticulationSim(obj, np.eye(4), pose_noise=(-1.0, 0.0))
         with pytest.raises(ValueError, match="action"):
             KinematicArticulationSim(obj, np.eye(4)).execute("pull")
+
+
+def test_part_clouds_in_millimetres_are_refused():
+    clouds = [_box_cloud([0, 0, 0], [0.1, 0.05, 0.02]), _box_cloud([0.2, 0, 0], [0.1, 0.05, 0.02])]
+    mm = [1000 * c for c in clouds]
+    with pytest.raises(ValueError, match=r"^clouds\[0\]: spans .*millimetres"):
+        push_action(mm, 0)
+    with pytest.raises(ValueError, match=r"^clouds\[0\]: spans .*millimetres"):
+        hold_pull_action(mm, 0, 1)

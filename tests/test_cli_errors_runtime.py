@@ -168,3 +168,13 @@ def test_shared_exploration_needs_some_object(tmp_path, capsys):
                 "--transparent", "", "--json", str(tmp_path / "s.json")], capsys)
     assert "--opaque, --transparent: both empty" in err
     assert not (tmp_path / "s.json").exists()
+
+
+# ---------------------------------------------------------------- 7. vtlearn runtime --out
+def test_runtime_out_that_is_a_file_is_refused_naming_the_flag(tmp_path, capsys):
+    (tmp_path / "taken").write_text("x")
+    err = _err(["runtime", "--out", str(tmp_path / "taken"), "--models", str(tmp_path / "none")], capsys)
+    # checked before --models (and so before any model loads), under the flag's name
+    assert err.startswith(f"vtlearn: error: --out: {tmp_path / 'taken'} is a file; need a folder")
+    err = _err(["runtime", "--out", str(tmp_path / "taken" / "rt")], capsys)
+    assert err.startswith("vtlearn: error: --out: cannot write the runtime outputs to")

@@ -329,3 +329,15 @@ def test_bad_input_raises_value_error_naming_the_argument():
         grasp_quality(good[1], [good[2][:1]])
     with pytest.raises(ValueError, match="v"):
         DeclutterGraph.build(good, 1).children(9)
+
+
+def test_clouds_in_millimetres_are_refused_naming_the_cloud():
+    good = {1: box_cloud(0, 0, 0.04, 0.04), 2: box_cloud(0.05, 0, 0.04, 0.04)}
+    # the same scene in millimetres used to be refused as a grid too fine for the scene ("use a larger
+    # cell"), which points at the wrong argument
+    with pytest.raises(ValueError, match=r"^clouds\[1\]: spans .* m, more than the 2 m.*millimetres"):
+        DeclutterGraph.build({k: 1000 * v for k, v in good.items()}, 1)
+    with pytest.raises(ValueError, match=r"^clouds\[2\]: .*millimetres"):
+        occupancy_masks({1: good[1], 2: 1000 * good[2]})
+    # a large object in metres is fine
+    DeclutterGraph.build({**good, 3: box_cloud(0.5, 0, 0.8, 0.4)}, 1)

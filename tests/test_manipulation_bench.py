@@ -116,10 +116,13 @@ def test_bad_flags_and_arguments(tmp_path, capsys):
             main(argv)
         assert exc.value.code == 2
         assert flag in capsys.readouterr().err
+    # a list flag's error names the flag typed, not the function argument it feeds
     assert main(["bench", "pushing", "--methods", "magic", "--json", js]) == 2
-    assert "methods" in capsys.readouterr().err
+    assert capsys.readouterr().err.startswith("vtlearn: error: --methods: need some of")
+    assert main(["bench", "pushing", "--objects", "teapot", "--json", js]) == 2
+    assert capsys.readouterr().err.startswith("vtlearn: error: --objects: need some of")
     assert main(["bench", "articulation", "--categories", "door", "--json", js]) == 2
-    assert "categories" in capsys.readouterr().err
+    assert capsys.readouterr().err.startswith("vtlearn: error: --categories: need some of")
     assert not (tmp_path / "x.json").exists()
     with pytest.raises(ValueError, match="trials"):
         run_pushing_benchmark(trials=0)
@@ -131,3 +134,16 @@ def test_bad_flags_and_arguments(tmp_path, capsys):
         run_articulation_benchmark(trials=0)
     with pytest.raises(ValueError, match="observe, execute"):
         heuristic_articulation(None, None)
+
+
+def test_articulation_table_prints_a_dash_where_a_value_does_not_apply(tmp_path, capsys):
+    js = tmp_path / "a.json"
+    assert main(["bench", "articulation", "--trials", "1", "--categories", "rigid", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    table = [line for line in out.splitlines() if line.startswith("| rigid")]
+    assert len(table) == 2 and "nan" not in out
+    # a rigid object has no axis, and noisy truth no tracking error: "-" in the table, null in the JSON
+    cells = [c.strip() for c in table[0].strip("|").split("|")]
+    assert cells[7:12] == ["-"] * 5
+    s = json.loads(js.read_text())["summary"]["rigid"]["relative_motion"]
+    assert s["axis_deg_median"] is None and s["tracking_mm_median"] is None

@@ -248,3 +248,20 @@ def test_bad_input():
         fixed = scene.add_mesh(trimesh.creation.box(extents=[0.05] * 3), fixed=True)
         with pytest.raises(ValueError, match="fixed"):
             GoalPusher(scene, fixed)
+
+
+def test_millimetres_are_refused_naming_the_argument():
+    pts, _, _ = _rectangle()
+    with pytest.raises(ValueError, match="^points_world: .*millimetres"):
+        push_pose(1000 * pts, [200.0, 0.0])
+    scene, body = _box_scene(0.0)
+    with scene:
+        with pytest.raises(ValueError, match="^model_points: .*millimetres"):
+            GoalPusher(scene, body, model_points=1000 * pts)
+        pusher = GoalPusher(scene, body)
+        O = pusher.object_cloud().mean(0)
+        # a goal 25 cm away given in millimetres: refused before any push, not 30 pushes that get nowhere
+        with pytest.raises(ValueError, match="^target_xy: the goal is .* m from the object.*millimetres"):
+            pusher.run([250.0, 100.0])
+        np.testing.assert_allclose(pusher.object_cloud().mean(0), O, atol=1e-9)
+        pusher.close()

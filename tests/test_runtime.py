@@ -324,3 +324,51 @@ def test_bench_runtime_bad_input():
         run_runtime_benchmark(None, None, ["mug"], strategies=["random_pinch"])
     with pytest.raises(ValueError, match="class_names"):
         run_runtime_benchmark(None, None, ["teapot"])
+
+
+def test_class_names_must_match_the_xavtnet_classes(tiny_models):
+    # three names for a two-class checkpoint would mislabel every prediction: refused, naming the argument
+    n = len(json.loads((tiny_models / "data" / "crossmodal" / "manifest.json").read_text())["class_names"])
+    msg = f"^class_names: {n + 1} class names but the xAVTNet checkpoint has {n} classes"
+    with pytest.raises(ValueError, match=msg):
+        TwoArmRuntime.from_checkpoints(None, tiny_models / "xavtnet.ckpt", [f"c{i}" for i in range(n + 1)])
+
+
+def test_run_checks_its_exploration_arguments_before_the_arms_move(scene_objects):
+    target, clutter = scene_objects
+    with TwoArmRuntime(seed=0) as rt:
+        tb = rt.add_object(target, fixed=True)
+        bodies = [rt.add_object(c) for c in clutter]
+        rt.scene.step(120)
+        before = np.stack([rt.scene.T_world_object(b) for b in bodies])
+        with pytest.raises(ValueError, match="^strategy: expected one of .*no pinch"):
+            rt.run(tb, strategy="random_pinch", n_touches=2)
+        with pytest.raises(ValueError, match="^n_touches: need an integer >= 1, got 0"):
+            rt.run(tb, n_touches=0)
+        with pytest.raises(ValueError, match="^n_touches"):
+            rt.explore(tb, n_touches=-1)
+        # refused before decluttering: no clutter was pushed or grasped
+        after = np.stack([rt.scene.T_world_object(b) for b in bodies])
+        np.testing.assert_allclose(after, before, atol=1e-6)
+
+
+def test_detect_articulation_refuses_bad_input_and_leaves_no_body():
+    import pybullet as p
+
+    from vtlearn.sim_data.articulated import make_articulated
+
+    drawer = make_articulated("drawer", 0)
+    with TwoArmRuntime(seed=0) as rt:
+        n_bodies = p.getNumBodies(physicsClientId=rt.scene.client)
+        with pytest.raises(ValueError, match="^q: "):  # refused after the object was loaded
+            rt.detect_articulation(drawer, np.eye(4), q=[4.0], tracker="truth")
+        assert p.getNumBodies(physicsClientId=rt.scene.client) == n_bodies
+        with pytest.raises(ValueError, match="^spec: need an ArticulatedSpec"):
+            rt.detect_articulation("drawer", np.eye(4), tracker="truth")
+        T_mm = np.eye(4)
+        T_mm[:3, 3] = [100.0, 0.0, 0.0]  # 10 cm in millimetres
+        with pytest.raises(ValueError, match="^T_world_base: .*millimetres"):
+            rt.detect_articulation(drawer, T_mm, tracker="truth")
+        with pytest.raises(ValueError, match="^max_actions"):
+            rt.detect_articulation(drawer, np.eye(4), tracker="truth", max_actions=0)
+        assert p.getNumBodies(physicsClientId=rt.scene.client) == n_bodies

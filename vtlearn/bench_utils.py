@@ -87,7 +87,7 @@ def check_metres(points, name: str, max_extent_m: float = 10.0, what: str = "an 
     ext = cloud_extent(points)
     if ext > max_extent_m:
         raise ValueError(f"{name}: spans {ext:.4g} m, more than the {max_extent_m:g} m {what} can; vtlearn "
-                         "reads metres (a file in millimetres? divide it by 1000)")
+                         "reads metres (in millimetres? divide by 1000)")
     return ext
 
 

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vtlearn.geometry import rotation_error_deg, se3_inverse, so3_exp, so3_log, translation_error
-from vtlearn.runtime.obb import oriented_bounding_box
+from vtlearn.runtime.obb import check_object_cloud, oriented_bounding_box
 from vtlearn.validation import as_int, as_points, as_real, as_transform
 
 __all__ = [
@@ -338,7 +338,7 @@ class HoldPullAction:
 def _clouds(clouds, name: str = "clouds") -> list[np.ndarray]:
     if not isinstance(clouds, (list, tuple)) or len(clouds) < 2:
         raise ValueError(f"{name}: need a list of at least two part clouds")
-    return [as_points(c, f"{name}[{i}]", min_points=3) for i, c in enumerate(clouds)]
+    return [check_object_cloud(c, f"{name}[{i}]") for i, c in enumerate(clouds)]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

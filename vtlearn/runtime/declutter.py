@@ -59,6 +59,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from vtlearn.runtime.obb import check_object_cloud
 from vtlearn.validation import as_int, as_points, as_real, to_numpy
 
 __all__ = [
@@ -354,7 +355,7 @@ def _check_clouds(clouds: Any) -> dict[int, np.ndarray]:
     for k, v in clouds.items():
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
             raise ValueError(f"clouds: object ids must be integers, got key {k!r}")
-        out[int(k)] = as_points(v, f"clouds[{k}]", min_points=3)
+        out[int(k)] = check_object_cloud(v, f"clouds[{k}]")
     return out
 
 
@@ -770,7 +771,9 @@ class DeclutterGraph:
         """Build the declutter graph: eq. 5.1 edges, eq. 5.2 actions, breadth-first from ``target``.
 
         Args:
-            clouds: object id -> world points of that object (>= 3 points, z-up, table top z = 0).
+            clouds: object id -> world points of that object (>= 3 points, metres, z-up, table top
+                z = 0). A cloud longer than :data:`~vtlearn.runtime.obb.MAX_OBJECT_EXTENT_M` (2 m) is
+                refused: in practice it is in millimetres.
             target: id of the target object O_T, the root.
             grasp_quality: None for :func:`grasp_quality`; or a mapping id -> q with an entry for every
                 object that joins the graph but the target; or a callable ``(object_id, points (N, 3)) -> q``.

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from vtlearn.bench_utils import csv_list
-from vtlearn.cli_args import count
+from vtlearn.cli_args import count, with_flag
 from vtlearn.validation import as_int, as_real
 
 __all__ = [
@@ -562,20 +562,29 @@ def _positive(text: str) -> float:
     return v
 
 
+def _not_available(row: dict) -> dict:
+    """``row`` with its non-finite numbers as None, which a table prints as "-": a median over no successes,
+    an axis error the heuristic does not estimate, a ratio to a baseline of 0."""
+    return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in row.items()}
+
+
 def _cmd_bench_pushing(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
-    result = run_pushing_benchmark(
-        trials=args.trials,
-        seed=args.seed,
-        methods=csv_list(args.methods),
-        objects=csv_list(args.objects),
-        tolerance=args.tolerance,
-        max_pushes=args.max_pushes,
-    )
+    try:
+        result = run_pushing_benchmark(
+            trials=args.trials,
+            seed=args.seed,
+            methods=csv_list(args.methods),
+            objects=csv_list(args.objects),
+            tolerance=args.tolerance,
+            max_pushes=args.max_pushes,
+        )
+    except ValueError as exc:  # an unknown method or object: name the flag the user typed
+        raise (with_flag(exc, {"methods": "--methods", "objects": "--objects"}) or exc) from None
     rows = []
     for m, s in result["summary"].items():
-        rows.append(
+        rows.append(_not_available(
             {
                 "method": m,
                 "pid": "0" if not any(s["pid_gains"]) else "0.05/0/0.03",
@@ -589,7 +598,7 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
                 "success_x_base": s["success_rate_ratio"],
                 "median_mm_x_base": s["final_mm_median_ratio"],
             }
-        )
+        ))
     th = THESIS_PUSHING
     rows.append(
         {
@@ -644,18 +653,21 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
 def _cmd_bench_articulation(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
-    result = run_articulation_benchmark(
-        trials=args.trials,
-        noise_mm=args.noise_mm,
-        noise_deg=args.noise_deg,
-        categories=csv_list(args.categories),
-        seed=args.seed,
-        tracker=args.tracker,
-    )
+    try:
+        result = run_articulation_benchmark(
+            trials=args.trials,
+            noise_mm=args.noise_mm,
+            noise_deg=args.noise_deg,
+            categories=csv_list(args.categories),
+            seed=args.seed,
+            tracker=args.tracker,
+        )
+    except ValueError as exc:  # an unknown category: name the flag the user typed
+        raise (with_flag(exc, {"categories": "--categories"}) or exc) from None
     rows = []
     for cat, block in [*result["summary"].items(), ("all", result["overall"])]:
         for m, s in block.items():
-            rows.append(
+            rows.append(_not_available(
                 {
                     "category": cat,
                     "truth": JOINT_TYPE.get(cat, "-"),
@@ -671,7 +683,7 @@ def _cmd_bench_articulation(args: argparse.Namespace) -> int:
                     "tracking_mm": s["tracking_mm_median"],
                     "predicted": ", ".join(f"{k} {v}" for k, v in sorted(s["predicted"].items())),
                 }
-            )
+            ))
     print_table(
         rows,
         [

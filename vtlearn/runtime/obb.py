@@ -27,7 +27,25 @@ import numpy as np
 
 from vtlearn.validation import as_points
 
-__all__ = ["OBB", "oriented_bounding_box"]
+__all__ = ["MAX_OBJECT_EXTENT_M", "OBB", "check_object_cloud", "oriented_bounding_box"]
+
+# The longest cloud of one object (or part) on a table top that the runtime accepts, metres. A cloud in
+# millimetres spans a thousand times its size in metres, so the unit mistake cannot pass for an object.
+MAX_OBJECT_EXTENT_M = 2.0
+
+
+def check_object_cloud(points, name: str, min_points: int = 3) -> np.ndarray:
+    """``points`` validated as one table-top object's world cloud in metres: a ``ValueError`` naming ``name``
+    for a wrong shape, too few points, NaN/inf, or an extent above :data:`MAX_OBJECT_EXTENT_M`.
+
+    Shapes:
+        points: (N, 3) -> (N, 3) float64.
+    """
+    from vtlearn.bench_utils import check_metres
+
+    pts = as_points(points, name, min_points=min_points)
+    check_metres(pts, name, MAX_OBJECT_EXTENT_M, "a table-top object")
+    return pts
 
 
 @dataclass(frozen=True)

@@ -52,9 +52,9 @@ import numpy as np
 import pybullet as p
 
 from vtlearn.geometry.sampling import sample_surface
-from vtlearn.runtime.obb import OBB, oriented_bounding_box
+from vtlearn.runtime.obb import MAX_OBJECT_EXTENT_M, OBB, check_object_cloud, oriented_bounding_box
 from vtlearn.sim_data.scene import COLLISION_MARGIN, Scene, matrix_to_xyzw
-from vtlearn.validation import as_int, as_points, as_real, as_transform
+from vtlearn.validation import as_int, as_real, as_transform
 
 __all__ = [
     "bearing_angle",
@@ -251,7 +251,7 @@ def push_pose(
     Shapes:
         points_world: (N, 3); target_xy: (2,) or (3,) -> (T_W_S (4, 4), push point (3,)).
     """
-    pts = as_points(points_world, "points_world", min_points=3)
+    pts = check_object_cloud(points_world, "points_world")
     t = _xy(target_xy, "target_xy")
     if face not in ("y", "best"):
         raise ValueError(f"face: must be 'y' or 'best', got {face!r}")
@@ -418,7 +418,7 @@ class GoalPusher:
         self.scene, self.body = scene, body
         if model_points is None:
             model_points = sample_surface(scene.objects[body].mesh_m, 2000, seed=0)[0]
-        self.model_points = as_points(model_points, "model_points", min_points=3)
+        self.model_points = check_object_cloud(model_points, "model_points")
         self.pid = pid if pid is not None else PushPID()
         self.tolerance, self.max_pushes, self.push_step = float(tolerance), int(max_pushes), float(push_step)
         self.face, self.pad_half = face, pad / 2
@@ -468,8 +468,12 @@ class GoalPusher:
 
     def push(self, T_W_S: np.ndarray, length: float) -> tuple[bool, bool, float]:
         """One push: approach along z_S until the pad touches ``body``, then push ``length`` metres in
-        contact, stopping early when the contact is lost (the tactile monitoring of the thesis).
-        Returns (contact made, contact lost, distance pushed in contact)."""
+        contact, stopping early when the contact is lost (the tactile monitoring of the thesis, 6.2.4).
+        Returns (contact made, contact lost, distance pushed in contact in metres).
+
+        Shapes:
+            T_W_S: (4, 4), the pad pose (module docstring: z_S the push direction) at the push point.
+        """
         T_W_S = as_transform(T_W_S, "T_W_S")
         length = as_real(length, "length", low=0.0, open_low=True, unit="m")
         if self._pad is None:
@@ -509,8 +513,23 @@ class GoalPusher:
 
     # ------------------------------------------------------------------ loop
     def run(self, target_xy) -> PushResult:
-        """Push until the distance to goal (eq. 6.17) is below ``tolerance`` or ``max_pushes`` is reached."""
+        """Push until the distance to goal (eq. 6.17) is below ``tolerance`` or ``max_pushes`` is reached.
+
+        Args:
+            target_xy: the goal ``T`` in the world, metres; a goal farther than
+                :data:`~vtlearn.runtime.obb.MAX_OBJECT_EXTENT_M` (2 m) from the object is refused (in
+                practice, one given in millimetres).
+
+        Shapes:
+            target_xy: (2,) or (3,) (only x and y are used) -> :class:`PushResult`.
+        """
         t = _xy(target_xy, "target_xy")
+        d0 = distance_to_goal(oriented_bounding_box(self.object_cloud(), planar=True).centre, t)
+        if d0 > MAX_OBJECT_EXTENT_M:
+            raise ValueError(
+                f"target_xy: the goal is {d0:.4g} m from the object, more than the "
+                f"{MAX_OBJECT_EXTENT_M:g} m of a table top; vtlearn reads metres (a goal in millimetres?)"
+            )
         self.pid.reset()
         if self._pad is None:
             self._make_pad()

@@ -68,6 +68,9 @@ from vtlearn.validation import as_int, as_real, as_transform, as_vector, load_na
 log = logging.getLogger(__name__)
 
 DECLUTTER_POLICIES = ("graph", "nearest", "random")
+# The arms stand at x = -0.6 and +0.6 m: an object farther than this from the table centre is out of both
+# reaches, and in practice a pose given in millimetres.
+_TABLE_REACH_M = 1.5
 
 __all__ = [
     "DECLUTTER_POLICIES",
@@ -77,9 +80,23 @@ __all__ = [
     "RuntimeReport",
     "TwoArmRuntime",
     "camera_mount",
+    "check_class_names",
     "clutter_scene",
     "symmetric_rolls",
 ]
+
+
+def check_class_names(class_names: Sequence[str], xavtnet, name: str) -> list[str]:
+    """``class_names`` as strings, one per class of the loaded ``xavtnet``; a ``ValueError`` naming ``name``
+    (an argument or a command-line flag) when their count differs from the checkpoint's ``num_classes``,
+    which would silently mislabel every prediction."""
+    names = [str(c) for c in class_names]
+    n_classes = dict(getattr(xavtnet, "hparams", {})).get("num_classes")
+    if n_classes is not None and len(names) != int(n_classes):
+        raise ValueError(
+            f"{name}: {len(names)} class names but the xAVTNet checkpoint has {n_classes} classes"
+        )
+    return names
 
 
 def _yaw_base(x: float, yaw: float) -> np.ndarray:
@@ -358,6 +375,8 @@ class TwoArmRuntime:
                     "class_names: needed with an xavtnet model whose checkpoint records no class names "
                     "(the label order of its classes; pass the crossmodal manifest.json)"
                 )
+        if xavtnet is not None:
+            class_names = check_class_names(class_names, xavtnet, "class_names")
         camera_height = as_real(camera_height, "camera_height", low=0.2, high=0.9, unit="m")
         self.actor, self.xavtnet = actor, xavtnet
         self.class_names = None if class_names is None else [str(c) for c in class_names]
@@ -435,9 +454,13 @@ class TwoArmRuntime:
 
     # ------------------------------------------------------------------ perception
     def overview_pose(self, center_xy=(0.0, 0.0)) -> np.ndarray:
-        """The top-down camera pose ``camera_height`` above ``center_xy`` (optical axis straight down).
+        """``T_world_camera`` of the top-down overview: ``camera_height`` above ``center_xy``, optical axis
+        straight down (thesis 5.2.3).
 
         Raises ``ValueError`` naming ``center_xy`` unless it is two finite numbers (world x, y in metres).
+
+        Shapes:
+            center_xy (2,) -> (4, 4)
         """
         T = np.eye(4)
         T[:3, :3] = np.diag([1.0, -1.0, -1.0])
@@ -630,6 +653,20 @@ class TwoArmRuntime:
         ``tracker="artreg"`` the part poses are tracked by ArtReg from a depth camera
         (:class:`~vtlearn.runtime.articulation.TrackedArticulationSim`), with ``"truth"`` they are exact.
 
+        Args:
+            spec: the object, :func:`~vtlearn.sim_data.articulated.make_articulated`.
+            T_world_base: pose of its base link in the world (metres, table top at z = 0); within
+                1.5 m of the table centre, where the arms stand.
+            q: normalised joint values in [0, 1] (default all 0).
+            tracker: ``"artreg"`` or ``"truth"``.
+            max_actions: stop after this many actions.
+            seed: seeds the object's model clouds and the tracker's camera.
+
+        Shapes:
+            T_world_base ``(4, 4)``; q ``(J,)`` for the object's J joints.
+
+        The object leaves the scene again on return, and also when an argument is refused.
+
         Returns:
             ``{"joint_type", "explored", "n_actions", "actions": [{"kind", "arms"}], "unreachable":
             the action no arm could do (None when every action was reachable), "result":
@@ -641,14 +678,26 @@ class TwoArmRuntime:
             TrackedArticulationSim,
         )
         from vtlearn.runtime.articulation import detect_articulation as detect
-        from vtlearn.sim_data.articulated import ArticulatedObject
+        from vtlearn.sim_data.articulated import ArticulatedObject, ArticulatedSpec
         from vtlearn.sim_data.tactile import pad_frame
 
+        if not isinstance(spec, ArticulatedSpec):
+            raise ValueError(
+                f"spec: need an ArticulatedSpec (vtlearn.sim_data.articulated.make_articulated), "
+                f"got {type(spec).__name__}"
+            )
         if tracker not in ("artreg", "truth"):
             raise ValueError(f"tracker: expected 'artreg' or 'truth', got {tracker!r}")
+        max_actions = as_int(max_actions, "max_actions")
+        T_world_base = as_transform(T_world_base, "T_world_base")
+        off = float(np.linalg.norm(T_world_base[:3, 3]))
+        if off > _TABLE_REACH_M:
+            raise ValueError(
+                f"T_world_base: puts the object {off:.4g} m from the table centre, beyond the "
+                f"{_TABLE_REACH_M} m that the two arms span; vtlearn reads metres (a translation in "
+                "millimetres?)"
+            )
         obj = ArticulatedObject(self.scene, spec, n_model_points=0.01, seed=seed)
-        sim = KinematicArticulationSim(obj, T_world_base, q)
-        world = TrackedArticulationSim(sim, seed=seed) if tracker == "artreg" else sim
         done: list[dict] = []
 
         def execute(action) -> None:
@@ -668,8 +717,10 @@ class TwoArmRuntime:
                 raise _Unreachable(action.kind)
             world.execute(action)
 
-        try:
-            res = detect(world.observe, execute, max_actions=int(max_actions))
+        try:  # from here on, whatever is raised (a bad q among them), the object leaves the scene again
+            sim = KinematicArticulationSim(obj, T_world_base, q)
+            world = TrackedArticulationSim(sim, seed=seed) if tracker == "artreg" else sim
+            res = detect(world.observe, execute, max_actions=max_actions)
         except _Unreachable:
             res = None
         finally:
@@ -705,6 +756,7 @@ class TwoArmRuntime:
         probabilistic grid gain. Any :data:`~vtlearn.active.closed_loop.GAIN_MODES` value is passed on."""
         if target not in self.sim_objects or not self.scene.objects[target].fixed:
             raise ValueError(f"target: {target} must be an object added with fixed=True")
+        strategy, n_touches = _check_exploration(strategy, n_touches)
         if gain_mode == "box_fit" and self.actor is None:
             raise ValueError("gain_mode: 'box_fit' needs the runtime's ACTOR (load models first)")
         reconstructor = None
@@ -745,7 +797,25 @@ class TwoArmRuntime:
         progress: Callable[[int, int], None] | None = None,
     ) -> RuntimeReport:
         """Declutter, then explore, then perceive (thesis Fig. 5.2, a-c). Perception needs both models;
-        without them the report stops after exploration."""
+        without them the report stops after exploration.
+
+        Args:
+            target: body id of the target, added with ``fixed=True`` (:meth:`add_object`).
+            strategy: touch selection, one of :data:`~vtlearn.active.closed_loop.TOUCH_STRATEGIES`
+                (``"active"``: expected information gain, eq. 5.6-5.10; the tactile arm has no pinch).
+            n_touches: touch budget (>= 1); an opaque target also gets 3 views.
+            max_declutter_actions: declutter action limit (:meth:`declutter`).
+            n_candidates, cells: candidates per active step and occupancy-grid cells per side.
+            stiqf_restarts: S-TIQF restarts of the pose estimate (5.2.4).
+            declutter_figure: save the first declutter graph there.
+            progress: ``progress(done, total)`` after every exploration action.
+
+        Every argument is checked before the arms move: a bad ``strategy`` or ``n_touches`` raises a
+        ``ValueError`` naming it, not after decluttering.
+        """
+        if target not in self.sim_objects or not self.scene.objects[target].fixed:
+            raise ValueError(f"target: {target} must be an object added with fixed=True")
+        _check_exploration(strategy, n_touches)
         report = RuntimeReport()
         t0 = time.perf_counter()
         report.declutter_actions, report.declutter_done = self.declutter(
@@ -821,6 +891,18 @@ class TwoArmRuntime:
             out.perception.pop("actions", None)  # the episode's kinds are in out.episode
             out.seconds["perceive"] = round(time.perf_counter() - t0, 2)
         return out
+
+
+def _check_exploration(strategy: str, n_touches: int) -> tuple[str, int]:
+    """``strategy`` and ``n_touches`` of an arm-carried exploration, checked (ValueError naming them)."""
+    from vtlearn.active.closed_loop import TOUCH_STRATEGIES
+
+    if strategy not in TOUCH_STRATEGIES:
+        raise ValueError(
+            f"strategy: expected one of {TOUCH_STRATEGIES} (the tactile arm carries one pad, no pinch), "
+            f"got {strategy!r}"
+        )
+    return strategy, as_int(n_touches, "n_touches")
 
 
 class _Unreachable(Exception):

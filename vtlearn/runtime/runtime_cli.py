@@ -70,6 +70,7 @@ def _load_models(paths) -> tuple:
     from vtlearn.datamodules.shards import read_class_names
     from vtlearn.models.actor import load_actor
     from vtlearn.models.xavtnet import load_xavtnet
+    from vtlearn.runtime.robot import check_class_names
     from vtlearn.validation import load_named
 
     actor_path, xav_path, names_path = paths
@@ -88,13 +89,7 @@ def _load_models(paths) -> tuple:
     else:
         path, flag = names_path
         names = read_class_names(path, flag)
-    names = [str(c) for c in names]
-    n_classes = hp.get("num_classes")
-    if n_classes is not None and len(names) != int(n_classes):
-        raise ValueError(
-            f"{flag}: {len(names)} class names but the xAVTNet checkpoint has {n_classes} classes"
-        )
-    return actor, xav, names
+    return actor, xav, check_class_names(names, xav, flag)
 
 
 def _scene_categories(args) -> tuple[str, list[str], bool | None]:
@@ -168,7 +163,10 @@ def _explore_progress(bar):
 def _cmd_runtime(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from vtlearn.bench_utils import check_output_path
+
     target_cat, clutter_cats, transparent = _scene_categories(args)  # before pybullet loads and says so
+    check_output_path(args.out, "--out", "runtime outputs", folder=True)  # before any model loads
     paths = _model_paths(args)
     from vtlearn.pipeline import summary_figure
     from vtlearn.runtime.robot import TwoArmRuntime, clutter_scene, save_report
@@ -248,7 +246,7 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from vtlearn.active.closed_loop import TOUCH_STRATEGIES
-    from vtlearn.bench_utils import machine_info, print_table, save_figure, write_json
+    from vtlearn.bench_utils import machine_info, print_table, ratio, save_figure, write_json
     from vtlearn.runtime.runtime_bench import run_runtime_benchmark
     from vtlearn.sim_data.shapes import CATEGORIES
 
@@ -296,9 +294,9 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
     rows = []
     for name, r in s.items():
         row = {"strategy": name, **{k: r[k] for k in metrics}}
-        if base:  # ratios against random exploration in the same run
-            row["adi_ratio_to_random"] = r["adi_cm_median"] / base["adi_cm_median"]
-            row["cd_ratio_to_random"] = r["chamfer_mm_mean"] / base["chamfer_mm_mean"]
+        if base:  # ratios against random exploration in the same run ("-" where random has no value)
+            row["adi_ratio_to_random"] = ratio(r["adi_cm_median"], base["adi_cm_median"])
+            row["cd_ratio_to_random"] = ratio(r["chamfer_mm_mean"], base["chamfer_mm_mean"])
         rows.append(row)
     rows.append(
         {
