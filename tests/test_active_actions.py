@@ -142,3 +142,21 @@ def test_bad_input_raises_value_error():
     far = np.eye(4)[None].repeat(2, 0)
     far[1, :3, 3] = [100.0, 0.0, 0.0]
     assert ReachFeasibility([0, 0, 0], max_reach=np.inf, min_reach=0.3)(far).tolist() == [False, True]
+
+
+def test_box_and_sampler_input_is_named():
+    pts = [[0, 0, 0], [0.1, 0.1, 0.1]]
+    for bad in (np.nan, -0.01):
+        with pytest.raises(ValueError, match="margin"):
+            OrientedBox.from_points(pts, margin=bad)
+    with pytest.raises(ValueError, match="points: all 2 points coincide"):
+        OrientedBox.from_points([[0, 0, 0], [0, 0, 0]])
+    assert np.allclose(OrientedBox.from_points([[0, 0, 0], [0, 0, 0]], margin=0.01).extents, 0.02)
+    with pytest.raises(ValueError, match="lower"):
+        OrientedBox.from_aabb([0, 0, np.nan], [1, 1, 1])
+    with pytest.raises(ValueError, match="box: expected an OrientedBox"):
+        sample_touch_actions(None, 3)
+    with pytest.raises(ValueError, match="box: expected an OrientedBox"):
+        sample_pinch_actions(np.eye(4), 3)
+    # a seed works like a Generator
+    np.testing.assert_allclose(marsaglia_sphere(5, 3), marsaglia_sphere(5, np.random.default_rng(3)))

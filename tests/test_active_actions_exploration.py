@@ -90,3 +90,22 @@ def test_pinch_pads_stop_independently_and_loop_runs_with_pinches():
         assert set(res.chosen_kinds) <= {"touch", "pinch"} and len(res.chosen_kinds) == 6
         assert res.entropy[-1] < res.entropy[0]
     assert "pinch" in explore(cyl, "uniform", n_touches=6, cells=16, pinch=True, seed=0).chosen_kinds
+
+
+def test_bench_active_exploration_compares_with_random_in_the_same_run(tmp_path, capsys):
+    import json
+
+    from vtlearn.cli import main
+
+    out = tmp_path / "ex.json"
+    assert main(["bench", "active-exploration", "--objects", "mug", "--seeds", "1", "--touches", "3",
+                 "--candidates", "4", "--cells", "10", "--pinch", "--json", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "active-exploration episodes" in captured.err  # progress bar
+    assert "dH/random@3" in captured.out and f"wrote {out.with_suffix('.png')}" in captured.out
+    rows = {r["strategy"]: r for r in json.loads(out.read_text())["rows"]}
+    assert rows["random"]["dH/random@3"] == 1.0
+    act = rows["active (raycast)"]
+    assert act["dH/random@3"] == pytest.approx(act["dH@3 (nats)"] / rows["random"]["dH@3 (nats)"])
+    assert act["coverage/random@3"] == pytest.approx(act["coverage@3"] / rows["random"]["coverage@3"])
+    assert out.with_suffix(".png").stat().st_size > 0

@@ -88,3 +88,36 @@ def test_bad_input_raises_value_error():
         TactileArray().rays(np.ones((4, 4)))
     with pytest.raises(ValueError, match="T_world_camera"):
         ToFCamera().rays(np.zeros((0, 4, 4)))
+
+
+def test_bad_sensor_and_mesh_input_is_named():
+    with pytest.raises(ValueError, match="stride"):
+        ToFCamera(width=8, height=8, stride=100)  # would give zero beams
+    rays = TactileArray().rays(np.eye(4))
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(ValueError, match="mesh: degenerate"):
+        cast_rays_on_mesh(flat, rays)
+    nan_mesh = trimesh.Trimesh([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(ValueError, match="mesh: vertices contain NaN"):
+        cast_rays_on_mesh(nan_mesh, rays)
+    with pytest.raises(ValueError, match="mesh: need a trimesh"):
+        cast_rays_on_mesh("bunny.obj", rays)
+    with pytest.raises(ValueError, match="rays: expected a Rays"):
+        cast_rays_on_mesh(trimesh.creation.box(), np.zeros((3, 6)))
+
+
+def test_open3d_mesh_casts_like_trimesh():
+    import open3d as o3d
+
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    o3d_box = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(box.vertices),
+                                        o3d.utility.Vector3iVector(box.faces))
+    T = np.eye(4)
+    T[2, 3] = 0.2
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # pad pressing down onto the top face
+    rays = TactileArray(ray_length=0.5).rays(T)
+    r_tri, h_tri = cast_rays_on_mesh(box, rays)
+    r_o3d, h_o3d = cast_rays_on_mesh(o3d_box, rays)
+    assert h_tri.all() and (h_o3d == h_tri).all()
+    np.testing.assert_allclose(r_o3d, r_tri)
+    np.testing.assert_allclose(r_tri, 0.15, atol=1e-6)

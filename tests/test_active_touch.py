@@ -157,6 +157,16 @@ def test_bench_active_touch_tiny(tmp_path, capsys):
     res = json.loads(out.read_text())
     assert res["lookahead_rows"][0]["candidates"] == 10
     assert len(res["curves_rmse"]["active"]["trans_m"]) == 4
+    # 500 faces is not a row of Table 4.1, so there is no thesis time to compare with
+    row = res["lookahead_rows"][0]
+    assert row["thesis_s"] is None and row["speedup_vs_thesis"] is None
+    last = res["curve_rows"][-1]
+    assert last["touches"] == 4
+    for name in ("active", "active_entropy"):
+        assert last[f"{name}_over_random_trans"] == pytest.approx(
+            last[f"{name}_trans_rmse_mm"] / last["random_trans_rmse_mm"])
+        assert last[f"{name}_over_random_rot"] == pytest.approx(
+            last[f"{name}_rot_rmse_deg"] / last["random_rot_rmse_deg"])
     assert out.with_suffix(".png").exists()
     assert "look-ahead" in capsys.readouterr().out
 
@@ -173,3 +183,62 @@ def test_entropy_criterion_is_half_logdet_ratio():
         np.testing.assert_allclose(g[c], 0.5 * np.log(np.linalg.det(P) / np.linalg.det(P_c)), rtol=1e-6)
     with pytest.raises(ValueError, match="criterion"):
         lookahead_information_gain(x, P, s, o, z, oz, 0.1, criterion="nope")
+
+
+def test_simulate_touches_gives_up_when_no_ray_can_reach_the_object():
+    # The candidates start on the box at the estimate and run along the box axes; with the estimate 1 m
+    # away on the diagonal, no axis-aligned ray from it meets the object, so no contact is possible.
+    mesh = trimesh.creation.box(extents=[0.06, 0.08, 0.1])
+    T_init = np.eye(4)
+    T_init[:3, 3] = [1.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="T_init: no candidate ray reached the object"):
+        simulate_touches(mesh, np.eye(4), T_init, n_touches=2, n_candidates=5, max_rounds=4, seed=0)
+
+
+def test_active_touch_input_is_named():
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(ValueError, match="mesh: degenerate"):
+        simulate_touches(flat, np.eye(4), np.eye(4), n_touches=2)  # no ray could ever hit it
+    with pytest.raises(ValueError, match="mesh: degenerate"):
+        MeshRaycaster(flat)
+    for kw, name in ((dict(n_touches=0), "n_touches"), (dict(noise=np.nan), "noise"),
+                     (dict(n_candidates=0), "n_candidates"), (dict(criterion="kl2"), "criterion")):
+        with pytest.raises(ValueError, match=name):
+            simulate_touches(box, np.eye(4), np.eye(4), **kw)
+    with pytest.raises(ValueError, match="faces"):
+        ActionSampler(np.zeros(3), np.ones(3), faces=("+w",))
+    with pytest.raises(ValueError, match="margin"):
+        ActionSampler(np.zeros(3), np.ones(3), margin=np.nan)
+    with pytest.raises(ValueError, match="hi"):
+        ActionSampler(np.ones(3), np.zeros(3))
+    x, P = np.array([1.0, 0, 0, 0]), np.eye(4)
+    with pytest.raises(ValueError, match="scene_points"):
+        lookahead_information_gain(x, P, np.zeros((0, 3)), np.zeros((0, 3)), np.ones((2, 3)), np.ones((2, 3)),
+                                   0.01)
+    with pytest.raises(ValueError, match="o_hat"):
+        lookahead_information_gain(x, P, np.ones((3, 3)), np.ones((3, 3)), np.ones((2, 3)), np.ones((1, 3)),
+                                   0.01)
+
+
+@pytest.mark.parametrize("kw, name", [
+    (dict(init_rot_deg=np.nan), "init_rot_deg"),
+    (dict(init_trans=-0.01), "init_trans"),
+    (dict(trials=0), "trials"),
+    (dict(candidates=()), "candidates"),
+    (dict(faces=(3,)), "faces"),
+])
+def test_active_touch_benchmark_checks_arguments_before_work(kw, name):
+    from vtlearn.classical.active_touch import run_active_touch_benchmark
+
+    args = dict(candidates=(5,), faces=(100,), repeats=1, trials=1, touches=3) | kw
+    with pytest.raises(ValueError, match=name):
+        run_active_touch_benchmark(**args)
+
+
+def test_active_touch_benchmark_names_a_missing_mesh(tmp_path):
+    from vtlearn.classical.active_touch import run_active_touch_benchmark
+
+    with pytest.raises(FileNotFoundError, match="mesh_spec"):
+        run_active_touch_benchmark(candidates=(5,), faces=(100,), repeats=1, trials=1, touches=3,
+                                   mesh_spec=str(tmp_path / "missing.obj"))

@@ -251,3 +251,46 @@ def test_probabilistic_gain_matches_outcome_enumeration():
     assert gain == pytest.approx(expected, rel=1e-10)
     with pytest.raises(ValueError, match="mode"):
         grid.expected_information_gain(o, d, 0.7, mode="oracle")
+
+
+def test_probability_helpers_refuse_out_of_range():
+    # logit needs (0, 1); the entropy summand of eq. 5.6 is defined on [0, 1]
+    for bad in (1.5, 0.0, 1.0, np.nan, [0.3, -0.1]):
+        with pytest.raises(ValueError, match="p: probabilities must lie in"):
+            logit(bad)
+    for bad in (2.0, -0.5, np.nan, [0.5, np.inf]):
+        with pytest.raises(ValueError, match="p: probabilities must lie in"):
+            binary_entropy(bad)
+    assert logit(0.5) == 0.0
+    assert binary_entropy(0.5) == pytest.approx(np.log(2.0))
+
+
+def test_cell_helpers_and_counts_name_bad_arguments():
+    grid = OccupancyGrid([0, 0, 0], 0.1, (4, 4, 4))
+    assert grid.flat_index([[1, 2, 3]]).tolist() == [(1 * 4 + 2) * 4 + 3]
+    with pytest.raises(ValueError, match="cells: .*outside the grid"):
+        grid.flat_index([[4, 0, 0]])
+    with pytest.raises(ValueError, match="cells: expected"):
+        grid.flat_index([1, 2])
+    with pytest.raises(ValueError, match="cells: expected"):
+        grid.cell_centers([[np.nan, 0, 0]])
+    np.testing.assert_allclose(grid.cell_centers([[-1, 0, 0]]), [[-0.05, 0.05, 0.05]])  # outside is fine
+    with pytest.raises(ValueError, match="margin"):
+        grid.known_fraction(2.0)
+    with pytest.raises(ValueError, match="n_actions"):
+        grid.expected_information_gain([[0, 0, 0]], [[1, 0, 0]], 1.0, [0], 2.5)
+
+
+def test_bench_occupancy_tiny_prints_ratio_and_writes_json(tmp_path, capsys):
+    import json
+
+    from vtlearn.cli import main
+
+    out = tmp_path / "occ.json"
+    assert main(["bench", "occupancy", "--cells", "12", "--actions", "6", "--prior-touches", "1",
+                 "--repeats", "1", "--loop-actions", "2", "--no-octomap", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "x batched" in text and f"wrote {out}" in text
+    rows = json.loads(out.read_text())["rows"]
+    assert rows[0]["x batched"] == 1.0 and rows[1]["x batched"] is None  # CPU time is not a wall time
+    assert rows[2]["x batched"] == pytest.approx(rows[2]["seconds"] / rows[0]["seconds"])

@@ -177,3 +177,18 @@ def test_default_costs_pick_views_for_opaque_and_touches_for_transparent():
     cands = [(touches, TactileArray("xela_4x4", ray_length=0.2)), (views, ToFCamera())]
     assert next_best_action(grid, cands, transparent=False).kind == "view"
     assert next_best_action(grid, cands, transparent=True).kind == "touch"
+
+
+def test_next_best_action_names_bad_grid_and_candidates():
+    from vtlearn.active.actions import OrientedBox, sample_touch_actions
+
+    box = OrientedBox.from_aabb([-0.05, -0.05, 0.0], [0.05, 0.05, 0.1])
+    grid = OccupancyGrid.from_bounds([-0.1, -0.1, -0.05], [0.1, 0.1, 0.15], cells_per_axis=10)
+    touches = sample_touch_actions(box, 4, seed=0)
+    with pytest.raises(ValueError, match="grid: expected an OccupancyGrid"):
+        next_best_action(None, [(touches, TactileArray())])
+    with pytest.raises(ValueError, match=r"candidates\[0\]"):
+        next_best_action(grid, [touches])
+    with pytest.raises(ValueError, match=r"candidates\[1\]"):
+        next_best_action(grid, [(touches, TactileArray()), (TactileArray(), touches)])
+    assert next_best_action(grid, [(touches, TactileArray())]).kind == "touch"

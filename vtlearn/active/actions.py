@@ -71,9 +71,14 @@ class OrientedBox:
 
     @classmethod
     def from_aabb(cls, lower, upper) -> OrientedBox:
-        """An axis-aligned box ``[lower, upper]`` in the world frame."""
-        lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-        if lower.shape != (3,) or upper.shape != (3,) or (upper <= lower).any():
+        """An axis-aligned box ``[lower, upper]`` in the world frame (metres).
+
+        Shapes:
+            lower, upper: ``(3,)`` each, ``upper > lower`` on every axis.
+        """
+        lower = as_vector(lower, "lower", 3, "a finite (3,) corner")
+        upper = as_vector(upper, "upper", 3, "a finite (3,) corner")
+        if (upper <= lower).any():
             raise ValueError(
                 f"upper: must exceed lower on every axis, got {lower.tolist()} and {upper.tolist()}"
             )
@@ -83,8 +88,16 @@ class OrientedBox:
 
     @classmethod
     def from_points(cls, points, margin: float = 0.0) -> OrientedBox:
-        """The world-axis-aligned box around ``points`` ``(N, 3)``, grown by ``margin`` on every side."""
+        """The world-axis-aligned box around ``points``, grown by ``margin`` (metres, >= 0) on every side.
+
+        Shapes:
+            points: ``(N, 3)``, N >= 2.
+        """
         pts = as_points(points, "points", min_points=2)
+        margin = as_real(margin, "margin", low=0.0, unit="m")
+        if margin == 0.0 and (pts.max(axis=0) == pts.min(axis=0)).all():
+            raise ValueError(f"points: all {len(pts)} points coincide, so they bound no box; "
+                             "pass points that span the object or a margin > 0")
         lower, upper = pts.min(axis=0) - margin, pts.max(axis=0) + margin
         return cls.from_aabb(lower, np.maximum(upper, lower + 1e-6))
 
@@ -145,6 +158,13 @@ def _frames_from_z(z: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=2)
 
 
+def _check_box(box) -> OrientedBox:
+    if not isinstance(box, OrientedBox):
+        raise ValueError(f"box: expected an OrientedBox (e.g. OrientedBox.from_points(mesh.vertices)), "
+                         f"got {type(box).__name__}")
+    return box
+
+
 def _check_count(n, name="n"):
     if not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"{name}: need a positive integer count, got {n!r}")
@@ -196,7 +216,12 @@ def sample_touch_actions(
     Returns:
         ActionSet of kind ``"touch"`` with ``face`` in 0..4 (see ``FACE_NAMES``); may hold fewer than
         ``n`` actions if ``feasible`` rejects too many.
+
+    Shapes:
+        -> ``T_world_sensor`` ``(n, 4, 4)`` pad poses ``T_world_pad``, ``start`` ``(n, 3)``,
+        ``face`` ``(n,)``.
     """
+    box = _check_box(box)
     n = _check_count(n)
     standoff = as_real(standoff, "standoff", low=0.0, unit="m")
     rng = np.random.default_rng(seed)
@@ -241,7 +266,12 @@ def sample_pinch_actions(
     in ``height_range`` of the box height, with a uniform yaw of the closing axis in [0, pi). The grip
     frame's approach axis (+z) points straight down. ``start`` is the point ``approach_height`` metres
     above the box top from which the gripper descends.
+
+    Shapes:
+        -> ``T_world_sensor`` ``(n, 4, 4)`` grip poses ``T_world_grip``, ``start`` ``(n, 3)``, ``face``
+        ``(n,)`` all -1.
     """
+    box = _check_box(box)
     n = _check_count(n)
     lo_f, hi_f = as_pair(height_range, "height_range")
     if not 0.0 <= lo_f <= hi_f <= 1.0:
@@ -267,14 +297,19 @@ def sample_pinch_actions(
     return _sample_feasible(draw, n, feasible, max_rounds)
 
 
-def marsaglia_sphere(n: int, rng: np.random.Generator) -> np.ndarray:
+def marsaglia_sphere(n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
     """``(n, 3)`` points uniform on the unit sphere by Marsaglia (1972): draw ``(x1, x2)`` uniform in the
     unit disc, then ``(2 x1 sqrt(1 - s), 2 x2 sqrt(1 - s), 1 - 2 s)`` with ``s = x1^2 + x2^2``.
 
     Args:
         n: number of points, an integer ``>= 1``.
+        rng: a ``numpy.random.Generator``, a seed or None.
+
+    Shapes:
+        -> ``(n, 3)`` unit vectors.
     """
     n = as_int(n, "n")
+    rng = np.random.default_rng(rng)
     out = np.empty((0, 2))
     while out.shape[0] < n:
         x = rng.uniform(-1, 1, (2 * (n - out.shape[0]) + 8, 2))
@@ -335,7 +370,10 @@ def sample_view_actions(
     Points come from Marsaglia sampling of the sphere folded onto the upper half; those lower than
     ``min_elevation_deg`` above the centroid's horizontal plane are discarded (the table blocks them).
     Returns an ActionSet of kind ``"view"`` whose ``T_world_sensor`` are optical frames
-    ``T_world_camera``.
+    ``T_world_camera``, oriented by eq. 5.3-5.5.
+
+    Shapes:
+        o_centroid: ``(3,)`` -> ``T_world_sensor`` ``(n, 4, 4)``, ``start`` ``(n, 3)`` the viewpoints.
     """
     n = _check_count(n)
     o = as_vector(o_centroid, "o_centroid", 3, "a finite (3,) position")

@@ -53,15 +53,40 @@ DEFAULT_CLAMP_MIN = 0.1192
 DEFAULT_CLAMP_MAX = 0.971
 
 
+def _as_probability(p, name: str, *, closed: bool) -> np.ndarray:
+    """``p`` as a float64 array of probabilities in ``[0, 1]`` (``closed``) or ``(0, 1)``; a ``ValueError``
+    naming ``name`` for NaN, inf, anything outside that range, or something that is not numbers."""
+    try:
+        a = np.asarray(p, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected probabilities (numbers), got {p!r}") from None
+    ok = np.isfinite(a) & ((a >= 0.0) & (a <= 1.0) if closed else (a > 0.0) & (a < 1.0))
+    if not ok.all():
+        bad = a[~ok].ravel()[0]
+        raise ValueError(f"{name}: probabilities must lie in {'[0, 1]' if closed else '(0, 1)'}, "
+                         f"got {bad!r} ({int((~ok).sum())} of {a.size} out of range)")
+    return a
+
+
 def logit(p):
-    """Log-odds ``log p / (1 - p)`` of a probability in (0, 1)."""
-    p = np.asarray(p, dtype=np.float64)
+    """Log-odds ``L = log p / (1 - p)`` of a probability in (0, 1); eq. 5.7 / 7.10 use
+    ``l(hit) = logit(p_hit)``.
+
+    Shapes:
+        p: any shape, values in (0, 1) -> log-odds of the same shape.
+    """
+    p = _as_probability(p, "p", closed=False)
     return np.log(p) - np.log1p(-p)
 
 
 def binary_entropy(p):
-    """Per-cell Shannon entropy in nats, ``-p log p - (1 - p) log(1 - p)`` (the summand of eq. 5.6)."""
-    p = np.asarray(p, dtype=np.float64)
+    """Per-cell Shannon entropy in nats, ``-p log p - (1 - p) log(1 - p)`` (the summand of eq. 5.6 / 7.9);
+    0 at ``p = 0`` and ``p = 1``.
+
+    Shapes:
+        p: any shape, values in [0, 1] -> entropies of the same shape.
+    """
+    p = _as_probability(p, "p", closed=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         h = -(p * np.log(p) + (1.0 - p) * np.log1p(-p))
     return np.where((p <= 0.0) | (p >= 1.0), 0.0, h)
@@ -204,7 +229,8 @@ class OccupancyGrid:
         return self.log_odds > self.l_occupied
 
     def known_fraction(self, margin: float = 0.1) -> float:
-        """Fraction of cells whose probability is at least ``margin`` away from 0.5."""
+        """Fraction of cells whose probability is at least ``margin`` (in [0, 0.5]) away from 0.5."""
+        margin = as_real(margin, "margin", low=0.0, high=0.5)
         return float((np.abs(self.probabilities() - 0.5) >= margin).mean())
 
     def point_to_cell(self, points) -> np.ndarray:
@@ -212,16 +238,39 @@ class OccupancyGrid:
         pts = as_points(points, "points")
         return np.floor((pts - self.origin) / self.resolution).astype(np.int64)
 
+    def _as_cells(self, cells, inside: bool) -> np.ndarray:
+        """``cells`` as ``(N, 3)`` int64 cell coordinates; a ``ValueError`` naming ``cells`` for another
+        shape, non-integer values, or (with ``inside``) a cell outside ``[0, shape)``."""
+        a = np.asarray(cells)
+        if a.ndim != 2 or a.shape[1] != 3 or not (
+            np.issubdtype(a.dtype, np.integer) or (np.issubdtype(a.dtype, np.floating)
+                                                   and np.isfinite(a).all() and (a == np.round(a)).all())
+        ):
+            raise ValueError(f"cells: expected (N, 3) integer cell coordinates, got {a.dtype} {a.shape}")
+        a = a.astype(np.int64)
+        if inside and ((a < 0) | (a >= np.asarray(self.shape))).any(axis=1).any():
+            bad = a[((a < 0) | (a >= np.asarray(self.shape))).any(axis=1)][0]
+            raise ValueError(f"cells: {bad.tolist()} lies outside the grid of shape {self.shape}")
+        return a
+
     def cell_centers(self, cells=None) -> np.ndarray:
-        """Grid-frame centres of ``(N, 3)`` integer cells, or of all cells in flat order when None."""
+        """Grid-frame centres of integer cells (metres), or of all cells in flat order when None.
+
+        Shapes:
+            cells: ``(N, 3)`` int (may lie outside the grid) -> ``(N, 3)``; None -> ``(n_cells, 3)``.
+        """
         if cells is None:
             cells = np.stack(np.unravel_index(np.arange(self.n_cells), self.shape), axis=1)
-        cells = np.asarray(cells)
+        cells = self._as_cells(cells, inside=False)
         return self.origin + (cells + 0.5) * self.resolution
 
     def flat_index(self, cells) -> np.ndarray:
-        """Flat index of ``(N, 3)`` integer cells."""
-        cells = np.asarray(cells, dtype=np.int64)
+        """Flat index ``(ix * ny + iy) * nz + iz`` of cells inside the grid.
+
+        Shapes:
+            cells: ``(N, 3)`` int in ``[0, shape)`` -> ``(N,)`` int64.
+        """
+        cells = self._as_cells(cells, inside=True)
         return np.ravel_multi_index(cells.T, self.shape)
 
     # ------------------------------------------------------------------ ray traversal
@@ -409,7 +458,7 @@ class OccupancyGrid:
         in_grid = hit & ((end_cells >= 0) & (end_cells < np.asarray(self.shape))).all(axis=1)
         end_flat = np.full(o.shape[0], -1, dtype=np.int64)
         if in_grid.any():
-            end_flat[in_grid] = self.flat_index(end_cells[in_grid])
+            end_flat[in_grid] = np.ravel_multi_index(end_cells[in_grid].T, self.shape)
         free = trav.cell_index[trav.cell_index != end_flat[trav.ray_index]]
         self._apply(np.unique(free), np.unique(end_flat[in_grid]))
 
@@ -508,7 +557,7 @@ class OccupancyGrid:
             )
         if (action_index < 0).any():
             raise ValueError("action_index: must be non-negative")
-        n_act = int(action_index.max()) + 1 if n_actions is None else int(n_actions)
+        n_act = int(action_index.max()) + 1 if n_actions is None else as_int(n_actions, "n_actions")
         if n_act < int(action_index.max()) + 1:
             raise ValueError(
                 f"n_actions: {n_act} is smaller than action_index.max() + 1 = {int(action_index.max()) + 1}"

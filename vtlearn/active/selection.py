@@ -258,12 +258,25 @@ def next_best_action(
 
     Returns:
         Selection with the chosen ``kind``, its ``index`` within that ActionSet, and per-candidate
-        ``gains`` and ``costs`` (all candidates concatenated in the order given).
+        ``gains`` (eq. 5.8, nats) and ``costs`` (all candidates concatenated in the order given).
+
+    Shapes:
+        candidates: ``A_k`` actions in set ``k`` -> ``gains``, ``costs``: ``(A,)`` with ``A = sum_k A_k``;
+        ``T_world_sensor``: ``(4, 4)``.
     """
+    from vtlearn.active.actions import ActionSet
+    from vtlearn.active.occupancy import OccupancyGrid
     from vtlearn.active.sensors import Rays
 
+    if not isinstance(grid, OccupancyGrid):
+        raise ValueError(f"grid: expected an OccupancyGrid, got {type(grid).__name__}")
     if not candidates:
         raise ValueError("candidates: need at least one (ActionSet, sensor) pair")
+    for i, pair in enumerate(candidates):
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2 and isinstance(pair[0], ActionSet)
+                and callable(getattr(pair[1], "rays", None))):
+            raise ValueError(f"candidates[{i}]: expected an (ActionSet, sensor) pair such as "
+                             f"(sample_touch_actions(...), TactileArray()), got {type(pair).__name__}")
     parts, kinds, local = [], [], []
     for actions, sensor in candidates:
         if len(actions) == 0:

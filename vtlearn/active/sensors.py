@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtlearn.sim_data.sensors import SENSORS, TaxelSensor, get_sensor
-from vtlearn.validation import as_int, as_pair, as_real, to_numpy
+from vtlearn.validation import as_int, as_pair, as_real, as_surface_mesh, to_numpy
 
 __all__ = ["PinchSensor", "Rays", "TactileArray", "ToFCamera", "as_transforms", "cast_rays_on_mesh"]
 
@@ -195,6 +195,10 @@ class ToFCamera:
         if not (0 < fx_deg < 180 and 0 < fy_deg < 180):
             raise ValueError(f"fov_deg: each angle must lie in (0, 180) degrees, got {fov_deg}")
         stride = as_int(stride, "stride")
+        if stride // 2 >= min(width, height):
+            # the first kept pixel is stride // 2 in both directions: no beam would be left
+            raise ValueError(f"stride: {stride} keeps no pixel of a {width} x {height} image; "
+                             f"need stride // 2 < {min(width, height)}")
         max_range = as_real(max_range, "max_range", low=0.0, open_low=True, unit="m")
         self.width, self.height, self.stride = int(width), int(height), int(stride)
         self.fov_deg = (fx_deg, fy_deg)
@@ -246,20 +250,28 @@ def cast_rays_on_mesh(mesh, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
     """Simulate the measurement of ``rays`` on a triangle mesh with Open3D's RaycastingScene.
 
     Args:
-        mesh: a ``trimesh.Trimesh`` or an ``open3d.geometry.TriangleMesh`` in the grid frame.
+        mesh: a ``trimesh.Trimesh`` or an ``open3d.geometry.TriangleMesh`` in the grid frame, with
+            triangles, finite vertices and a positive area.
+        rays: a :class:`Rays` batch, e.g. from a sensor's ``rays(T)``.
 
     Returns:
         ranges: ``(R,)`` distance to the first surface, or ``max_range`` where none is met within it.
         hit: ``(R,)`` bool.
+
+    Shapes:
+        rays: ``R`` rays -> ranges ``(R,)``, hit ``(R,)``.
     """
     import open3d as o3d
+    import trimesh
 
-    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
-        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    else:
-        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    if len(vertices) == 0 or len(faces) == 0:
-        raise ValueError("mesh: has no triangles")
+    if not isinstance(rays, Rays):
+        raise ValueError(f"rays: expected a Rays batch (from a sensor's rays()), got {type(rays).__name__}")
+    if isinstance(mesh, o3d.geometry.TriangleMesh):
+        if len(mesh.triangles) == 0:
+            raise ValueError("mesh: has no triangles")
+        mesh = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), process=False)
+    mesh = as_surface_mesh(mesh, "mesh")
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))

@@ -33,7 +33,15 @@ from tqdm import tqdm
 
 from vtlearn.bench_utils import save_figure
 from vtlearn.classical.tiqf import SequentialTIQF, _quat_to_matrix, gaussian_kl, tiqf_update_moment
-from vtlearn.validation import as_int, as_transform
+from vtlearn.validation import (
+    as_int,
+    as_points,
+    as_real,
+    as_surface_mesh,
+    as_transform,
+    as_vector,
+    load_named,
+)
 
 __all__ = [
     "ActionSampler",
@@ -52,14 +60,13 @@ class MeshRaycaster:
     """Ray-mesh intersection in the model frame (Open3D ``RaycastingScene``, built once per mesh).
 
     Args:
-        mesh: the object mesh in its model frame.
+        mesh: the object mesh in its model frame (faces, finite vertices, area > 0).
     """
 
     def __init__(self, mesh: trimesh.Trimesh):
         import open3d as o3d
 
-        if len(mesh.faces) == 0:
-            raise ValueError("mesh: has no faces")
+        mesh = as_surface_mesh(mesh, "mesh")
         self._o3d = o3d
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(
@@ -101,8 +108,25 @@ class ActionSampler:
     margin: float = 0.1
     faces: tuple = ("+x", "-x", "+y", "-y", "+z", "-z")
 
+    def __post_init__(self):
+        self.lo = as_vector(self.lo, "lo", 3, "a finite (3,) box corner")
+        self.hi = as_vector(self.hi, "hi", 3, "a finite (3,) box corner")
+        if (self.hi <= self.lo).any():
+            raise ValueError(
+                f"hi: must exceed lo on every axis, got lo={self.lo.tolist()} hi={self.hi.tolist()}"
+            )
+        self.margin = as_real(self.margin, "margin", low=0.0)
+        faces = tuple(self.faces) if not isinstance(self.faces, str) else (self.faces,)
+        if not faces or any(f not in _FACE_AXES for f in faces):
+            raise ValueError(f"faces: expected a non-empty tuple of {tuple(_FACE_AXES)}, got {self.faces!r}")
+        self.faces = faces
+
     def sample(self, n: int, T_scene_model: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
-        """``n`` rays (origins, unit directions) in the scene frame, uniform over the chosen faces' area."""
+        """``n`` rays (origins, unit directions) in the scene frame, uniform over the chosen faces' area.
+
+        Shapes:
+            T_scene_model: ``(4, 4)`` the estimated pose -> origins ``(n, 3)``, directions ``(n, 3)``.
+        """
         n = as_int(n, "n")
         rng = np.random.default_rng(rng)
         pad = self.margin * float((self.hi - self.lo).max())
@@ -137,6 +161,17 @@ def lookahead_information_gain(
         x: ``(4,)``; P: ``(4, 4)``; scene_points, model_corr: ``(n, 3)``, n >= 1; z_hat, o_hat: ``(C, 3)``
         -> ``(C,)`` KL(posterior || prior).
     """
+    if criterion not in ("kl", "entropy"):
+        raise ValueError(f"criterion: expected 'kl' or 'entropy', got {criterion!r}")
+    scene_points = as_points(scene_points, "scene_points")
+    model_corr = as_points(model_corr, "model_corr")
+    if model_corr.shape != scene_points.shape:
+        raise ValueError(f"model_corr: expected shape {scene_points.shape} to match scene_points, "
+                         f"got {model_corr.shape}")
+    z_hat = as_points(z_hat, "z_hat")
+    o_hat = as_points(o_hat, "o_hat")
+    if o_hat.shape != z_hat.shape:
+        raise ValueError(f"o_hat: expected shape {z_hat.shape} to match z_hat, got {o_hat.shape}")
     v = np.concatenate([scene_points, model_corr], 1)  # nx6
     n = len(v)
     vm = v.mean(0)
@@ -147,11 +182,9 @@ def lookahead_information_gain(
     x_post, P_post = tiqf_update_moment(np.broadcast_to(x, (C, 4)), np.broadcast_to(P, (C, 4, 4)), M, rho)
     if criterion == "kl":
         return gaussian_kl(x_post, P_post, x, P)
-    if criterion == "entropy":
-        # entropy reduction 1/2 log(det P / det P+): the expected KL over measurements (mutual information)
-        # of a linear-Gaussian update; it leaves out the mean-shift term that eq. 4.25 evaluates at z^
-        return 0.5 * (np.linalg.slogdet(P)[1] - np.linalg.slogdet(P_post)[1])
-    raise ValueError(f"criterion: expected 'kl' or 'entropy', got {criterion!r}")
+    # entropy reduction 1/2 log(det P / det P+): the expected KL over measurements (mutual information)
+    # of a linear-Gaussian update; it leaves out the mean-shift term that eq. 4.25 evaluates at z^
+    return 0.5 * (np.linalg.slogdet(P)[1] - np.linalg.slogdet(P_post)[1])
 
 
 def select_action(
@@ -216,18 +249,37 @@ def simulate_touches(
     n_escapes: int = 3,
     raycaster: MeshRaycaster | None = None,
     criterion: str = "kl",
+    max_rounds: int = 100,
     seed=None,
 ) -> TouchTrace:
     """Algorithm 1 in simulation: touch the object at ``T_gt`` starting from the belief ``T_init``.
 
     A chosen ray that misses the real object gives no point (negative information is not used, as in the
-    thesis); the next candidate in the order is executed instead, so every step yields one contact.
+    thesis); the next candidate in the order is executed instead, so every step yields one contact. When
+    ``max_rounds`` fresh batches of ``n_candidates`` in a row all miss (the candidates are sampled on the box
+    at the estimate, so an estimate far from ``T_gt`` can leave none on the object), a ``ValueError``
+    naming ``T_init`` is raised instead of searching forever.
+
+    Args:
+        mesh: the object in its model frame (metres); n_touches: contacts to collect, >= 1;
+        n_candidates: candidate rays per step, >= 1; noise: contact-position noise std (m, >= 0);
+        n_model: model points sampled from the mesh; rho: TIQF correspondence uncertainty (eq. 4.18, > 0);
+        criterion: ``"kl"`` (eq. 4.24-4.25) or ``"entropy"``.
 
     Shapes:
-        T_gt, T_init: ``(4, 4)`` ``T_scene_model``.
+        T_gt, T_init: ``(4, 4)`` ``T_scene_model`` -> TouchTrace arrays ``(n_touches,)``.
     """
+    mesh = as_surface_mesh(mesh, "mesh")
     T_gt = as_transform(T_gt, "T_gt")
     T_init = as_transform(T_init, "T_init")
+    n_touches = as_int(n_touches, "n_touches")
+    n_candidates = as_int(n_candidates, "n_candidates")
+    n_model = as_int(n_model, "n_model", minimum=3)
+    max_rounds = as_int(max_rounds, "max_rounds")
+    noise = as_real(noise, "noise", low=0.0, unit="m")
+    rho = as_real(rho, "rho", low=0.0, open_low=True)
+    if criterion not in ("kl", "entropy"):
+        raise ValueError(f"criterion: expected 'kl' or 'entropy', got {criterion!r}")
     rng = np.random.default_rng(seed)
     model = trimesh.sample.sample_surface(mesh, n_model, seed=int(rng.integers(1 << 31)))[0].view(np.ndarray)
     caster = MeshRaycaster(mesh) if raycaster is None else raycaster
@@ -245,12 +297,21 @@ def simulate_touches(
     )
     t_err, r_err = [], []
     attempts = 0
+    misses = 0  # batches in a row without a contact
     while len(t_err) < n_touches:
         origins, dirs, order = select_action(filt, caster, sampler, n_candidates, rng, active, criterion)
         real, hit = caster.cast(origins[order], dirs[order], T_gt)
         attempts += int(np.argmax(hit)) + 1 if hit.any() else n_candidates
         if not hit.any():
+            misses += 1
+            if misses >= max_rounds:
+                raise ValueError(
+                    f"T_init: no candidate ray reached the object at T_gt in {max_rounds} rounds of "
+                    f"{n_candidates} after {len(t_err)} contacts; the estimate is too far from the true pose "
+                    f"for rays sampled on the box at the estimate"
+                )
             continue
+        misses = 0
         z = real[np.argmax(hit)] + rng.normal(scale=noise, size=3)
         T = filt.add(z[None])
         t_err.append(float(np.linalg.norm(T[:3, 3] - T_gt[:3, 3])))
@@ -320,10 +381,34 @@ def run_active_touch_benchmark(
     init_rot_deg: float = 30.0,
     plot_path=None,
 ) -> dict:
-    """Table 4.1 timing and Fig. 4.5 active-vs-random curves (see module doc)."""
+    """Table 4.1 timing and Fig. 4.5 active-vs-random curves (see module doc).
+
+    Args:
+        candidates, faces: candidate counts and mesh face counts of the timing table (integers >= 1 / >= 4).
+        repeats, trials, touches: timing repeats, active-vs-random trials and contacts per trial (>= 1).
+        mesh_spec: ``bunny``, ``shape:CATEGORY[:SEED]`` or a mesh file; object_size: its longest side (m).
+        init_trans: initial translation error bound per axis (m, >= 0); init_rot_deg: initial rotation
+            error bound (degrees, in [0, 180]; the thesis uses 30).
+        plot_path: where the active-vs-random curves are drawn (PNG), or None.
+
+    Returns:
+        ``lookahead_rows`` (seconds, the thesis's Table 4.1 seconds, ``speedup_vs_thesis`` = thesis / ours),
+        ``curve_rows`` (RMSE after k contacts, mm and degrees, and each active strategy's RMSE divided by
+        random's: ``active_over_random_trans`` < 1 means active is better), ``curves_rmse`` and ``setup``.
+    """
     from vtlearn.classical.registration_bench import load_benchmark_mesh
 
-    _, base = load_benchmark_mesh(mesh_spec)
+    if not len(candidates) or not len(faces):
+        raise ValueError(f"{'candidates' if not len(candidates) else 'faces'}: need at least one count")
+    candidates = [as_int(c, "candidates") for c in candidates]
+    faces = [as_int(f, "faces", minimum=4) for f in faces]  # 4: a tetrahedron
+    repeats = as_int(repeats, "repeats")
+    trials = as_int(trials, "trials")
+    touches = as_int(touches, "touches")
+    object_size = as_real(object_size, "object_size", low=0.0, open_low=True, unit="m")
+    init_trans = as_real(init_trans, "init_trans", low=0.0, unit="m")
+    init_rot_deg = as_real(init_rot_deg, "init_rot_deg", low=0.0, high=180.0, unit="deg")
+    _, base = load_named(load_benchmark_mesh, mesh_spec, "mesh_spec")
     base = base.copy()
     base.vertices = base.vertices * (object_size / 2.0)  # [-1, 1]^3 -> longest side object_size (m)
     rows = []
@@ -341,13 +426,15 @@ def run_active_touch_benchmark(
                     "thesis_s": THESIS_TABLE_4_1.get(f, {}).get(c),
                 }
             )
+            thesis_s, ours = rows[-1]["thesis_s"], rows[-1]["lookahead_s"]
+            rows[-1]["speedup_vs_thesis"] = thesis_s / ours if thesis_s is not None and ours > 0 else None
     rng = np.random.default_rng(seed)
     caster = MeshRaycaster(base)
     # "active" is eq. 4.24/4.25 (KL at the hypothetical measurement); "active_entropy" ranks by the entropy
     # reduction (the KL's expectation over measurements); "random" picks a random candidate
     strategies = {"active": ("kl", True), "active_entropy": ("entropy", True), "random": ("kl", False)}
     curves = {name: {"t": [], "r": []} for name in strategies}
-    for _ in tqdm(range(trials), desc="active vs random touch"):
+    for trial in tqdm(range(trials), desc="active vs random touch"):
         T_gt = np.eye(4)
         q = rng.normal(size=4)
         T_gt[:3, :3] = _quat_to_matrix(q / np.linalg.norm(q))
@@ -355,16 +442,25 @@ def run_active_touch_benchmark(
         T_init = _perturbed(T_gt, rng, init_trans, init_rot_deg)
         s = int(rng.integers(1 << 31))
         for name, (criterion, active) in strategies.items():
-            tr = simulate_touches(
-                base,
-                T_gt,
-                T_init,
-                n_touches=touches,
-                active=active,
-                criterion=criterion,
-                raycaster=caster,
-                seed=s,
-            )
+            try:
+                tr = simulate_touches(
+                    base,
+                    T_gt,
+                    T_init,
+                    n_touches=touches,
+                    active=active,
+                    criterion=criterion,
+                    raycaster=caster,
+                    seed=s,
+                )
+            except ValueError as exc:
+                if not str(exc).startswith("T_init:"):
+                    raise
+                raise ValueError(
+                    f"init_trans, init_rot_deg: trial {trial} ({name}) lost the object: "
+                    f"{str(exc).removeprefix('T_init: ')}; use a smaller initial error than "
+                    f"{init_trans} m / {init_rot_deg} deg"
+                ) from exc
             curves[name]["t"].append(tr.trans_err)
             curves[name]["r"].append(tr.rot_err_deg)
     curve_rows = []
@@ -372,12 +468,20 @@ def run_active_touch_benchmark(
         k: {"t": np.sqrt(np.mean(np.square(v["t"]), 0)), "r": np.sqrt(np.mean(np.square(v["r"]), 0))}
         for k, v in curves.items()
     }
+    def ratio(a: float, b: float):
+        return float(a / b) if b > 0 else None
+
     for k in range(touches):
         if k + 1 in (1, 3, 5, 10, 15, 20, 25, 30, 40, 50) or k == touches - 1:
             curve_rows.append(
                 {"touches": k + 1}
                 | {f"{name}_trans_rmse_mm": 1e3 * rmse[name]["t"][k] for name in strategies}
                 | {f"{name}_rot_rmse_deg": rmse[name]["r"][k] for name in strategies}
+                # < 1: the active strategy's error is below random's after k + 1 contacts
+                | {f"{name}_over_random_trans": ratio(rmse[name]["t"][k], rmse["random"]["t"][k])
+                   for name in ("active", "active_entropy")}
+                | {f"{name}_over_random_rot": ratio(rmse[name]["r"][k], rmse["random"]["r"][k])
+                   for name in ("active", "active_entropy")}
             )
     result = {
         "lookahead_rows": rows,
@@ -396,11 +500,11 @@ def run_active_touch_benchmark(
         "thesis_table_4_1": THESIS_TABLE_4_1,
     }
     if plot_path is not None:
-        result["plot"] = str(_plot_curves(rmse, plot_path))
+        result["plot"] = str(_plot_curves(rmse, plot_path, trials))
     return result
 
 
-def _plot_curves(rmse: dict, path):
+def _plot_curves(rmse: dict, path, trials: int):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -414,7 +518,10 @@ def _plot_curves(rmse: dict, path):
     axes[0].set_ylabel("translation RMSE (mm)")
     axes[1].set_ylabel("rotation RMSE (deg)")
     for ax in axes:
-        ax.set_xlabel("number of touches")
+        # Algorithm 1 touches at random until 3 points are measured: every strategy shares those
+        ax.axvline(3, color="0.6", lw=0.8, ls=":")
+        ax.set_xlabel("number of contacts (first 3 random for all)")
         ax.legend()
+    fig.suptitle(f"Active vs random touch, RMSE over {trials} trials (Fig. 4.5 analogue)")
     fig.tight_layout()
     return save_figure(fig, path, dpi=120)

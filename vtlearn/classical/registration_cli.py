@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from vtlearn.bench_utils import csv_list
-from vtlearn.cli_args import count, counts
+from vtlearn.cli_args import count, counts, real
 
 __all__ = ["register", "register_bench"]
 
@@ -294,14 +294,16 @@ def _cmd_bench_active_touch(args: argparse.Namespace) -> int:
     )
     print_table(
         result["lookahead_rows"],
-        ["faces", "candidates", "lookahead_s", "lookahead_median_s", "thesis_s"],
-        "one-step look-ahead time (Table 4.1 analogue)",
+        ["faces", "candidates", "lookahead_s", "lookahead_median_s", "thesis_s", "speedup_vs_thesis"],
+        "one-step look-ahead time (Table 4.1 analogue), seconds; speedup_vs_thesis = thesis_s / lookahead_s",
     )
     names = ("active", "active_entropy", "random")
     print_table(
         result["curve_rows"],
-        ["touches"] + [f"{n}_trans_rmse_mm" for n in names] + [f"{n}_rot_rmse_deg" for n in names],
-        "active vs random touch (Fig. 4.5 analogue), RMSE over trials",
+        ["touches"] + [f"{n}_trans_rmse_mm" for n in names] + [f"{n}_rot_rmse_deg" for n in names]
+        + [f"{n}_over_random_{w}" for w in ("trans", "rot") for n in ("active", "active_entropy")],
+        "active vs random touch (Fig. 4.5 analogue), RMSE over trials; *_over_random = strategy / random "
+        "(below 1: better than random)",
     )
     write_json(args.json, result)
     print(f"wrote {args.json} and {Path(args.json).with_suffix('.png')}")
@@ -424,10 +426,12 @@ def register_bench(bench_subparsers: Any) -> None:
     p.add_argument("--touches", type=count(1), default=25, help="touches per trial")
     p.add_argument("--mesh", default="bunny", help="mesh for the active-vs-random curves")
     p.add_argument(
-        "--init-rot-deg", type=float, default=30.0, help="initial rotation error bound (thesis 30)"
+        "--init-rot-deg", type=real(0.0, 180.0), default=30.0,
+        help="initial rotation error bound, degrees in [0, 180] (thesis 30)"
     )
     p.add_argument(
-        "--init-trans", type=float, default=0.02, help="initial translation error bound per axis (m)"
+        "--init-trans", type=real(0.0), default=0.02,
+        help="initial translation error bound per axis (m, >= 0)"
     )
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/active_touch.json", help="output JSON (.png beside)")
