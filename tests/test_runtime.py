@@ -122,8 +122,10 @@ def test_declutter_pushes_leaf_first_then_finishes(scene_objects):
         assert {e.child for e in first.children(tb)} == set(ids[:-1])
         assert [e.child for e in first.children(ids[0])] == [ids[-1]]
         T_target = rt.scene.T_world_object(tb)
-        actions, done = rt.declutter(tb, max_actions=8)
+        calls = []
+        actions, done = rt.declutter(tb, max_actions=8, progress=lambda *a: calls.append(a))
         assert done and 1 <= len(actions) <= 8
+        assert calls == [(k, 8) for k in range(1, len(actions) + 1)]  # one report per executed action
         assert actions[0]["object_id"] == ids[-1]  # the deepest leaf goes first
         assert all(a["kind"] == "push" and a["reachable"] and a["contact"] for a in actions)
         assert {a["arm"] for a in actions} <= {"tactile", "vision"}

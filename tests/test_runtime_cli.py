@@ -66,6 +66,9 @@ def test_explore_bar_ends_full_for_a_transparent_target(tmp_path, monkeypatch, c
     kinds = json.loads((out / "runtime.json").read_text())["episode"]["kinds"]
     assert kinds == ["touch", "touch"]  # the default target is a transparent wineglass
     assert [b for b in bars if b[0] == "explore"] == [("explore", 2, 2)]
+    declutter = [b for b in bars if b[0] == "declutter"]  # closed when the exploration starts
+    n_declutter = len(json.loads((out / "runtime.json").read_text())["declutter_actions"])
+    assert declutter == [("declutter", n_declutter, 1)]
 
 
 def test_explore_progress_follows_the_episode_total():

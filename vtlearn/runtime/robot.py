@@ -529,6 +529,7 @@ class TwoArmRuntime:
         *,
         policy: str = "graph",
         figure: str | Path | None = None,
+        progress: Callable[[int, int], None] | None = None,
         **graph_kwargs,
     ) -> tuple[list[dict], bool]:
         """Singulate ``target`` (thesis 5.2.2): observe, build the declutter graph, execute its next
@@ -544,6 +545,7 @@ class TwoArmRuntime:
                 An object whose action neither arm reached is passed over (the descent takes the next
                 heaviest branch) until an action succeeds; when nothing is left, decluttering stops.
             figure: save the first graph there (:meth:`~vtlearn.runtime.declutter.DeclutterGraph.figure`).
+            progress: ``progress(done, max_actions)`` after every executed action.
             graph_kwargs: passed to :meth:`~vtlearn.runtime.declutter.DeclutterGraph.build`.
 
         Returns:
@@ -577,6 +579,8 @@ class TwoArmRuntime:
             if edge is None or len(done_actions) == int(max_actions):
                 break  # every candidate is out of both arms' reach, or the budget is spent
             done_actions.append(self._execute(edge.action))
+            if progress is not None:
+                progress(len(done_actions), int(max_actions))
             # An object that no arm reached is passed over until something in the scene has moved.
             if done_actions[-1]["reachable"]:
                 blocked.clear()
@@ -795,6 +799,7 @@ class TwoArmRuntime:
         stiqf_restarts: int = 4,
         declutter_figure: str | Path | None = None,
         progress: Callable[[int, int], None] | None = None,
+        declutter_progress: Callable[[int, int], None] | None = None,
     ) -> RuntimeReport:
         """Declutter, then explore, then perceive (thesis Fig. 5.2, a-c). Perception needs both models;
         without them the report stops after exploration.
@@ -809,6 +814,8 @@ class TwoArmRuntime:
             stiqf_restarts: S-TIQF restarts of the pose estimate (5.2.4).
             declutter_figure: save the first declutter graph there.
             progress: ``progress(done, total)`` after every exploration action.
+            declutter_progress: ``declutter_progress(done, max_declutter_actions)`` after every declutter
+                action.
 
         Every argument is checked before the arms move: a bad ``strategy`` or ``n_touches`` raises a
         ``ValueError`` naming it, not after decluttering.
@@ -819,7 +826,7 @@ class TwoArmRuntime:
         report = RuntimeReport()
         t0 = time.perf_counter()
         report.declutter_actions, report.declutter_done = self.declutter(
-            target, max_declutter_actions, figure=declutter_figure
+            target, max_declutter_actions, figure=declutter_figure, progress=declutter_progress
         )
         obs = self.observe(self.scene.T_world_object(target)[:2, 3])
         report.transparent_detected = bool(obs.transparent.get(target, False))

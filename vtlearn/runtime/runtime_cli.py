@@ -183,8 +183,16 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             rt.add_object(c)
         rt.scene.step(120)  # let the free clutter settle
         before = rt.observe().frame.rgb
-        # the total is the episode's own: --n-touches, plus 3 views only for a target detected as opaque
-        bar = tqdm(total=args.n_touches, desc="explore", leave=False)
+        # the declutter bar's total is the action limit (it may finish early); the exploration bar's is the
+        # episode's own: --n-touches, plus 3 views only for a target detected as opaque
+        bars = {"declutter": tqdm(total=args.max_declutter, desc="declutter", unit="action", leave=False)}
+
+        def explore(done: int, total: int) -> None:
+            if "explore" not in bars:
+                bars["declutter"].close()
+                bars["explore"] = tqdm(total=args.n_touches, desc="explore", leave=False)
+            _explore_progress(bars["explore"])(done, total)
+
         report = rt.run(
             target,
             n_touches=args.n_touches,
@@ -192,9 +200,11 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             n_candidates=args.n_candidates,
             strategy=args.strategy,
             declutter_figure=out / "declutter.png",
-            progress=_explore_progress(bar),
+            progress=explore,
+            declutter_progress=lambda done, total: bars["declutter"].update(done - bars["declutter"].n),
         )
-        bar.close()
+        for bar in bars.values():
+            bar.close()
         after = rt.observe().frame.rgb
     _scene_figure(out / "scene.png", before, after, ("before decluttering", "after decluttering"))
     path = save_report(report, out)
