@@ -211,21 +211,10 @@ def test_track_leaves_a_csv_beside_the_frames_alone(track_inputs, capsys):
     assert "\n2 frames, " in capsys.readouterr().out
 
 
-def test_track_reads_csv_frames(track_inputs, capsys):
-    """.csv is a cloud format: .csv frames are tracked; only a .csv that is no cloud is skipped."""
-    tmp, argv = track_inputs
-    frames = tmp / "csv_frames"
-    for i in range(3):
-        write_cloud(frames / f"f{i}.csv", CLOUD + 0.001 * i)
-    (frames / "timestamps.csv").write_text("frame,t\n0,0.0\n")
-    argv[argv.index("--frames") + 1] = str(frames)
-    assert main([*argv, "--method", "icp"]) == 0
-    assert "\n3 frames, " in capsys.readouterr().out
-
-
 # ---------------------------------------------------------------------------------- 7. track reads once
 def test_track_reads_each_frame_file_once(track_inputs, capsys, monkeypatch):
-    """A .csv frame is read once: the read that tells a cloud from metadata is the read that tracks it."""
+    """.csv is a cloud format: .csv frames are tracked, each read once (the read that tells a cloud from
+    metadata is the read that tracks it), and only a .csv that is no cloud is skipped."""
     import vtlearn.io
 
     tmp, argv = track_inputs
