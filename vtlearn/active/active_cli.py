@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from vtlearn.bench_utils import ratio
 from vtlearn.cli_args import count, real
 
 __all__ = ["register_bench", "run_occupancy_bench"]
@@ -130,10 +131,6 @@ def _octomap_rows(grid, rays, n_actions: int, loop_actions: int) -> tuple[list[d
     return rows, info
 
 
-def _ratio(a: float, b: float):
-    return float(a / b) if b > 0 else None
-
-
 def run_occupancy_bench(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
@@ -197,7 +194,7 @@ def run_occupancy_bench(args: argparse.Namespace) -> int:
     for row in rows:
         # how many times the batched dense-grid gain's wall time each method takes (> 1: slower); the
         # CPU-time row is not a wall time, so it has no ratio
-        row["x batched"] = None if "CPU time" in row["method"] else _ratio(row["seconds"], batched_s)
+        row["x batched"] = None if "CPU time" in row["method"] else ratio(row["seconds"], batched_s)
     title = (
         f"Expected information gain, {args.actions} touch actions x {sensor.rays_per_action} taxel rays, "
         f"{'x'.join(map(str, grid.shape))} grid ({grid.resolution * 1000:.2f} mm cells)"
@@ -311,8 +308,8 @@ def run_exploration_bench(args: argparse.Namespace) -> int:
     T = args.touches
     random_row = next(r for r in rows if r["strategy"] == "random")
     for row in rows:
-        row[f"dH/random@{T}"] = _ratio(row[f"dH@{T} (nats)"], random_row[f"dH@{T} (nats)"])
-        row[f"coverage/random@{T}"] = _ratio(row[f"coverage@{T}"], random_row[f"coverage@{T}"])
+        row[f"dH/random@{T}"] = ratio(row[f"dH@{T} (nats)"], random_row[f"dH@{T} (nats)"])
+        row[f"coverage/random@{T}"] = ratio(row[f"coverage@{T}"], random_row[f"coverage@{T}"])
     columns = ["strategy"] + [f"dH@{k} (nats)" for k in checkpoints] + [f"coverage@{k}" for k in checkpoints]
     columns += [f"contacts@{T}", f"dH/random@{T}", f"coverage/random@{T}"]
     print_table(

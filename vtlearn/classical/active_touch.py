@@ -31,7 +31,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from vtlearn.bench_utils import save_figure
+from vtlearn.bench_utils import ratio, save_figure
 from vtlearn.classical.tiqf import SequentialTIQF, _quat_to_matrix, gaussian_kl, tiqf_update_moment
 from vtlearn.validation import (
     as_int,
@@ -468,9 +468,6 @@ def run_active_touch_benchmark(
         k: {"t": np.sqrt(np.mean(np.square(v["t"]), 0)), "r": np.sqrt(np.mean(np.square(v["r"]), 0))}
         for k, v in curves.items()
     }
-    def ratio(a: float, b: float):
-        return float(a / b) if b > 0 else None
-
     for k in range(touches):
         if k + 1 in (1, 3, 5, 10, 15, 20, 25, 30, 40, 50) or k == touches - 1:
             curve_rows.append(

@@ -201,7 +201,7 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
             strategy=args.strategy,
             declutter_figure=out / "declutter.png",
             progress=explore,
-            declutter_progress=lambda done, total: bars["declutter"].update(done - bars["declutter"].n),
+            declutter_progress=_explore_progress(bars["declutter"]),
         )
         for bar in bars.values():
             bar.close()

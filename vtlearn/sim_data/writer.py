@@ -651,7 +651,7 @@ def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> 
     """Record which mesh file each instance comes from in ``out/meshes.json``, or refuse (ValueError naming
     ``mesh_source``) to resume a dataset whose mesh folder has changed since: its finished shards hold
     another plan's instances, so kept shards and new ones could share an instance across splits."""
-    from vtlearn.sim_data.loaders import mesh_root
+    from vtlearn.sim_data.loaders import _relative, mesh_root
 
     root = mesh_root(cfg.mesh_source)
     rows = []
@@ -659,7 +659,7 @@ def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> 
         for it in items:
             f = Path(it["file"])
             rows.append({"instance": it["instance"], "split": split, "category": it["category"],
-                         "file": str(f.relative_to(root)) if f.is_relative_to(root) else str(f),
+                         "file": _relative(f, root),
                          "bytes": f.stat().st_size})
     new = {"mesh_source": str(cfg.mesh_source), "instances": rows}
     path = out / MESH_LIST
