@@ -80,6 +80,26 @@ def test_load_split_refuses_an_empty_split(empty_recon):
     assert len(load_split(empty_recon, "train")["label"]) > 0
 
 
+def test_load_split_takes_a_manifest_already_read(empty_recon, actor_ckpt, tmp_path, monkeypatch, capsys):
+    """`reconstruct --data` and `bench actor` read the manifest to check the data before the model, then
+    read it again in load_split; given the manifest, load_split reads no file for it and still checks it."""
+    import vtlearn.datamodules.shards as shards
+
+    manifest = load_manifest(empty_recon, "--data")
+    reads = []
+    real_load = shards.load_manifest
+    monkeypatch.setattr(shards, "load_manifest", lambda *a, **k: reads.append(a) or real_load(*a, **k))
+    assert len(load_split(empty_recon, "train", manifest=manifest)["label"]) > 0
+    assert reads == []
+    with pytest.raises(ValueError, match="--data: split 'test' of .* is empty"):
+        load_split(empty_recon, "test", name="--data", manifest=manifest)
+    with pytest.raises(ValueError, match="--data: .* is a .reconstruction. dataset, need .crossmodal."):
+        load_split(empty_recon, "train", name="--data", kind="crossmodal", manifest=manifest)
+    assert main(["reconstruct", "--ckpt", actor_ckpt, "--data", str(empty_recon), "--split", "train",
+                 "--out", str(tmp_path / "d.ply")]) == 0
+    assert len(reads) == 1, reads
+
+
 def test_commands_refuse_an_empty_split(empty_recon, actor_ckpt, tmp_path, capsys):
     err = _error(capsys, ["reconstruct", "--ckpt", actor_ckpt, "--data", str(empty_recon), "--out",
                           str(tmp_path / "d.ply")])
@@ -241,7 +261,22 @@ def test_gen_episodes_refuses_an_empty_source_split(cross_dir, tmp_path, capsys)
     manifest["shards"] = [m for m in manifest["shards"] if m["split"] != "test"]
     (src / "manifest.json").write_text(json.dumps(manifest))
     assert main(["gen-episodes", "--source", str(src), "--split", "test", "--out", str(tmp_path / "ep")]) == 2
-    assert f"source: split 'test' of {src} is empty" in capsys.readouterr().err
+    assert f"error: --source: split 'test' of {src} is empty" in capsys.readouterr().err
+    assert not (tmp_path / "ep").exists()
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--strategies", "active,nope"], "--strategies: expected a non-empty list of"),
+    (["--strategies", "random,random"], "--strategies: repeated names"),
+    (["--gain-mode", "exact"], "--gain-mode: expected 'raycast' or 'probabilistic'"),
+    (["--touches", "3", "--prefixes", "2,5"], "--prefixes: need values in [1, touches=3]"),
+    (["--candidates", "1"], "--candidates: "),
+    (["--split", "val2"], "--split: expected one of"),
+])
+def test_gen_episodes_errors_name_the_flag(flags, message, cross_dir, tmp_path, capsys):
+    """The errors named EpisodeDataConfig's fields (`strategies`, `n_candidates`), not the flags typed."""
+    err = _error(capsys, ["gen-episodes", "--source", str(cross_dir), "--out", str(tmp_path / "ep"), *flags])
+    assert err.startswith(f"vtlearn: error: {message}"), err
     assert not (tmp_path / "ep").exists()
 
 

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, wilcoxon_p
-from vtlearn.cli_args import category_list, count
+from vtlearn.cli_args import category_list, count, with_flag
 from vtlearn.validation import load_named
 
 THESIS = {
@@ -753,7 +753,23 @@ def _episode_prefixes(text: str | None, touches: int) -> list[int]:
         raise ValueError(f"--prefixes: need comma-separated integers, got {text!r}") from None
 
 
+# EpisodeDataConfig fields / generate_episode_dataset arguments -> the `gen-episodes` flags, for the errors
+_GEN_EPISODES_FLAGS = {
+    "source": "--source", "split": "--split", "strategies": "--strategies", "touches": "--touches",
+    "prefixes": "--prefixes", "min_points": "--min-points", "n_candidates": "--candidates",
+    "cells": "--cells", "gain_mode": "--gain-mode", "seed": "--seed", "shard_size": "--shard-size",
+    "out_dir": "--out", "workers": "--workers",
+}
+
+
 def _cmd_gen_episodes(args: argparse.Namespace) -> int:
+    try:
+        return _gen_episodes(args)
+    except (ValueError, FileNotFoundError) as exc:
+        raise (with_flag(exc, _GEN_EPISODES_FLAGS) or exc) from None
+
+
+def _gen_episodes(args: argparse.Namespace) -> int:
     from vtlearn.active.episode_data import EpisodeDataConfig, generate_episode_dataset
 
     cfg = EpisodeDataConfig(

@@ -161,7 +161,7 @@ PROGRESS_BYTES = 256 << 20
 
 def load_split(
     data_dir: str | Path, split: str, verify: bool = True, name: str = "data_dir",
-    kind: str | tuple[str, ...] | None = None,
+    kind: str | tuple[str, ...] | None = None, manifest: dict | None = None,
 ) -> dict[str, np.ndarray]:
     """Concatenate the shards of ``split``; ``tactile_offsets`` are rebased. Checks sha256 if ``verify``.
 
@@ -170,11 +170,13 @@ def load_split(
     split that holds no samples (``split 'test' of DIR is empty (...)``) and, with ``kind`` (one dataset
     kind or several accepted ones, see :func:`check_kind`), for a dataset of another kind. A split the
     manifest does not list is a ValueError naming ``split``. Splits of :data:`PROGRESS_BYTES` or more load
-    under a progress bar.
+    under a progress bar. ``manifest``: the folder's manifest, when the caller has already read it with
+    :func:`load_manifest` (it is not read again; the kind and split checks still run).
     """
     from vtlearn.sim_data.writer import sha256_file
 
-    manifest = load_manifest(data_dir, name)
+    if manifest is None:
+        manifest = load_manifest(data_dir, name)
     if kind is not None:
         check_kind(manifest, data_dir, kind, name)
     check_split(manifest, data_dir, split, name)

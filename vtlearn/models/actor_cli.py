@@ -109,7 +109,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         # an unseen simulated object: its stored tactile cloud and ground truth (canonical frame)
         from vtlearn.datamodules.shards import load_split, split_clouds
 
-        d = load_split(args.data, args.split, verify=True, name="--data")
+        d = load_split(args.data, args.split, verify=True, name="--data", manifest=manifest)
         clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
         if not 0 <= args.index < len(clouds):
             raise ValueError(
@@ -277,7 +277,8 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     if args.figure:
         _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
     gpis_variants = [] if args.no_gpis else _gpis_variants(args.gpis_normals)
-    class_names = list(_check_data(args.data, args.split)["class_names"])
+    manifest = _check_data(args.data, args.split)
+    class_names = list(manifest["class_names"])
     models = {"ACTOR": load_named(load_actor, args.ckpt, "--ckpt")}
     if args.ckpt_noattn:
         noattn = load_named(load_actor, args.ckpt_noattn, "--ckpt-noattn")
@@ -300,7 +301,7 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    d = load_split(args.data, args.split, verify=True, name="--data")
+    d = load_split(args.data, args.split, verify=True, name="--data", manifest=manifest)
     clouds = split_clouds(d["tactile_points"], d["tactile_offsets"])
     first = {}
     for j, inst in enumerate(d["tactile_instance"]):
