@@ -20,11 +20,13 @@ fit it (the config changed the architecture) is refused in one line naming the s
 ``predict`` writes its outputs to ``predictions.npz`` in the run's log folder
 (:class:`~vtlearn.prediction_writer.NpzPredictionWriter`) unless the config has a prediction writer.
 
-Logs: ``fit --ckpt_path last`` logs on into the version folder of the run it resumes (CSV and TensorBoard
-loggers; each checkpoint records their versions, :class:`LogVersions`), ``metrics.csv``'s earlier rows kept; a
-wandb logger starts a new run. A refused run leaves nothing on disk but an online wandb run: the ``last``
-checks come before the Trainer is built (and before its device banner), ``config.yaml`` is written once the
-model's ``setup`` has accepted the data, and a refusal there removes what the loggers had started.
+Logs: ``fit --ckpt_path last``, or ``--ckpt_path`` a checkpoint file of the same run (``epoch=3.ckpt``), logs
+on into the version folder of the run it resumes (CSV and TensorBoard loggers; each checkpoint records their
+versions, :class:`LogVersions`), ``metrics.csv``'s rows from before the checkpoint kept (those after it are
+logged again by the epochs retrained); a checkpoint of another run or log folder starts a new version, and
+says so; a wandb logger starts a new run. A refused run leaves nothing on disk but an online wandb run: the
+``last`` checks come before the Trainer is built (and before its device banner), ``config.yaml`` is written
+once the model's ``setup`` has accepted the data, and a refusal there removes what the loggers had started.
 """
 
 from __future__ import annotations
@@ -88,23 +90,24 @@ def _last_checkpoints(callbacks) -> tuple[list[Path], list[Path]]:
 
 
 def _version_key(logger) -> str:
-    """A logger's entry in :class:`LogVersions`: its class and root folder (a CSV and a TensorBoard logger
-    may share one root and still have versions of their own)."""
-    return f"{type(logger).__name__}:{os.path.normpath(logger.root_dir)}"
+    """A logger's entry in :class:`LogVersions`: its class and absolute root folder (a CSV and a TensorBoard
+    logger may share one root and still have versions of their own; a relative root names another folder
+    when train.py runs from another working directory)."""
+    return f"{type(logger).__name__}:{os.path.abspath(logger.root_dir)}"
 
 
 class LogVersions(Callback):
     """Records in each checkpoint the version folder of each CSV and TensorBoard logger, by the logger's class
-    and root folder, so that ``fit --ckpt_path last`` logs on into the folder of the run it resumes."""
+    and root folder, so that ``fit --ckpt_path`` logs on into the folder of the run it resumes. The record is
+    a key of the checkpoint (``checkpoint[LogVersions.key]``), not callback state: a plain Lightning Trainer
+    resuming the checkpoint without this callback has no state of it to miss (it warned "callbacks used to
+    create the checkpoint need to be provided")."""
 
-    state_key = "train.py:log_versions"
+    key = "train.py:log_versions"
 
-    def setup(self, trainer, pl_module, stage: str) -> None:
-        self._loggers = trainer.loggers
-
-    def state_dict(self) -> dict:
-        return {"versions": {_version_key(lg): lg.version for lg in getattr(self, "_loggers", [])
-                             if isinstance(lg, (CSVLogger, TensorBoardLogger))}}
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        checkpoint[self.key] = {_version_key(lg): lg.version for lg in trainer.loggers
+                                if isinstance(lg, (CSVLogger, TensorBoardLogger))}
 
 
 def _rows_before(text: str, step: int) -> str:
@@ -120,28 +123,37 @@ def _rows_before(text: str, step: int) -> str:
     return out.getvalue()
 
 
-def _continue_versions(trainer, checkpoint: dict) -> None:
+def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> list:
     """Points the trainer's CSV and TensorBoard loggers that the config gives no ``version`` at the version
-    folders ``checkpoint`` records for them (:class:`LogVersions`). Lightning's CSV writer deletes the
-    ``metrics.csv`` it finds there: its rows logged before the checkpoint's global step are put back (by the
-    main process) and its columns kept, so the resumed epochs' rows follow them, each epoch once."""
-    versions = (checkpoint.get("callbacks") or {}).get(LogVersions.state_key, {}).get("versions", {})
+    folders ``checkpoint`` records for them (:class:`LogVersions`); returns those it records none for (they
+    start a new version). Lightning's CSV writer deletes the ``metrics.csv`` it finds there: its rows logged
+    before the checkpoint's global step are put back (by the main process) and its columns kept, so the
+    resumed epochs' rows follow them, each epoch once (also from an earlier epoch's checkpoint). ``kept``
+    receives each ``metrics.csv`` path with its whole text from before, to be put back if the run is then
+    refused."""
+    versions = checkpoint.get(LogVersions.key) or {}
+    unrecorded = []
     for lg in trainer.loggers:
         if not isinstance(lg, (CSVLogger, TensorBoardLogger)) or lg._version is not None:
             continue
         if _version_key(lg) not in versions:
+            unrecorded.append(lg)
             continue
         lg._version = versions[_version_key(lg)]  # the loggers take one only at construction
         if not isinstance(lg, CSVLogger) or not trainer.is_global_zero:
             continue
         path = Path(lg.log_dir) / "metrics.csv"
-        rows = _rows_before(path.read_text(), int(checkpoint.get("global_step", 0))) if path.is_file() else ""
+        text = path.read_text() if path.is_file() else ""
+        if text and kept is not None:
+            kept[path] = text
+        rows = _rows_before(text, int(checkpoint.get("global_step", 0))) if text else ""
         with warnings.catch_warnings():  # "Previous log files ... will be deleted": they are put back below
             warnings.filterwarnings("ignore", message="Experiment logs directory")
             writer = lg.experiment
         if rows:
             path.write_text(rows)
             writer.metrics_keys = next(csv.reader(rows.splitlines()), [])
+    return unrecorded
 
 
 def _new_dirs(paths) -> list[Path]:
@@ -262,10 +274,11 @@ class VtlearnCLI(LightningCLI):
                           f"{before[key]!r} (a checkpoint keeps the hyper-parameters it was trained with)",
                           file=sys.stderr)
 
-    def _check_last(self, subcommand: str, callbacks) -> dict | None:
+    def _check_last(self, subcommand: str, callbacks) -> tuple[Path, dict] | None:
         """``--ckpt_path last``, among the checkpoint folders of the trainer's ``callbacks``; returns the
-        checkpoint found, if any. With no ``last.ckpt`` there, ``validate``, ``test`` and ``predict`` are
-        refused (they would score untrained weights; ``fit`` starts from scratch, as in Lightning). Lightning
+        checkpoint found, if any, with its path. With no ``last.ckpt`` there, ``validate``, ``test`` and
+        ``predict`` are refused (they would score untrained weights; ``fit`` starts from scratch, as in
+        Lightning). Lightning
         loads the file into the model the config built, without its hyper-parameters: one of another class,
         or whose weights do not fit (the config changed the architecture), is refused in one line naming the
         settings that differ, instead of a state-dict traceback. Settings that differ without changing the
@@ -309,7 +322,7 @@ class VtlearnCLI(LightningCLI):
             else:
                 print(f"train.py: note: model.{k}: the config's {b!r} applies on resuming from {path} "
                       f"(trained with {a!r})", file=sys.stderr)
-        return data
+        return path, data
 
     def instantiate_classes(self) -> None:
         try:
@@ -320,27 +333,36 @@ class VtlearnCLI(LightningCLI):
     def instantiate_trainer(self, **kwargs):
         """The ``--ckpt_path last`` checks, and the note that ``validate``/``test``/``predict`` without
         ``--ckpt_path`` run the config's freshly initialised weights, come before the Trainer is built, so a
-        refusal is not printed below its device banner. ``fit`` resuming from a ``last.ckpt`` that records
-        its loggers' versions (:class:`LogVersions`) logs on into those version folders."""
+        refusal is not printed below its device banner. ``fit`` resuming from a checkpoint (``last`` or a
+        file) that records its loggers' versions (:class:`LogVersions`) logs on into those version folders;
+        one that records none for a logger (another run's, or another log folder's) starts a new version,
+        and says so."""
         sub = self.subcommand
         if sub is None:
             return super().instantiate_trainer(**kwargs)
         callbacks = {**self._get(self.config_init, "trainer", default={}), **kwargs}.get("callbacks") or []
         resumed = self._check_last(sub, callbacks if isinstance(callbacks, list) else [callbacks])
+        if resumed is None and getattr(self, "_ckpt_data", None) is not None:
+            resumed = self.config_init[sub]["ckpt_path"], self._ckpt_data
         if sub != "fit" and self.config_init[sub].get("ckpt_path") is None:
             print(f"train.py: note: {sub} without --ckpt_path runs the config's freshly initialised weights; "
                   "pass --ckpt_path last (or a checkpoint file) for a trained model", file=sys.stderr)
         trainer = super().instantiate_trainer(**kwargs)
         if sub == "fit":
-            if resumed is not None:
-                _continue_versions(trainer, resumed)
+            self._kept_logs: dict = {}
+            unrecorded = [] if resumed is None else _continue_versions(trainer, resumed[1], self._kept_logs)
+            if unrecorded:
+                logs = ", ".join(f"{type(lg).__name__} in {lg.root_dir}" for lg in unrecorded)
+                print(f"train.py: note: {resumed[0]} records no log version for {logs} (a checkpoint of "
+                      f"another run or log folder); logging into a new version folder", file=sys.stderr)
             trainer.callbacks.append(LogVersions())
         return trainer
 
     def _run_subcommand(self, subcommand: str) -> None:
         """A run refused by the model's ``setup`` (a :class:`~vtlearn.validation.ConfigMismatchError`) leaves
         nothing behind: the loggers start before it; their offline wandb runs and the folders this run made,
-        now empty, are removed."""
+        now empty, are removed, and a resumed ``metrics.csv`` gets back the rows it had (those after the
+        checkpoint were dropped to be logged again)."""
         loggers = self.trainer.loggers
         logs = [self.trainer.log_dir] + [lg.log_dir for lg in loggers
                                          if isinstance(lg, (CSVLogger, TensorBoardLogger))]
@@ -351,6 +373,8 @@ class VtlearnCLI(LightningCLI):
         except ConfigMismatchError:
             if self.trainer.is_global_zero:  # one process cleans up; the others may still be writing
                 _discard_offline_wandb_runs(loggers)
+                for path, text in getattr(self, "_kept_logs", {}).items():
+                    path.write_text(text)
                 for d in made:
                     with contextlib.suppress(OSError):  # not empty, or gone already
                         d.rmdir()

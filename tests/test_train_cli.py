@@ -176,9 +176,8 @@ def test_a_resumed_csv_log_keeps_its_rows_when_new_columns_come(tmp_path, monkey
     (folder / "metrics.csv").write_text("epoch,step,val/acc\n0,1,0.5\n1,3,0.625\n")
     logger = CSVLogger(tmp_path, name="log")
     trainer = L.Trainer(logger=logger, accelerator="cpu", enable_progress_bar=False)
-    record = {"global_step": 2,
-              "callbacks": {LogVersions.state_key: {"versions": {f"CSVLogger:{tmp_path / 'log'}": 3}}}}
-    _continue_versions(trainer, record)
+    record = {"global_step": 2, LogVersions.key: {f"CSVLogger:{tmp_path / 'log'}": 3}}
+    assert _continue_versions(trainer, record) == []
     logger.log_metrics({"epoch": 1, "val/acc": 0.75, "val/loss": 0.25}, step=3)
     logger.save()
     assert logger.log_dir == str(folder)
@@ -226,3 +225,72 @@ def test_a_refusal_comes_before_the_trainer_banner(cross_dir, tmp_path):
     assert err[-1].startswith("train.py: error: ckpt_path: 'last' found no last.ckpt in")
     assert not any("GPU available" in ln or "TPU available" in ln for ln in err), "\n".join(err)
     assert list(tmp_path.iterdir()) == []
+
+
+EVERY_EPOCH = ["--trainer.callbacks.init_args.save_top_k=-1",
+               "--trainer.callbacks.init_args.filename={epoch}"]  # epoch=0.ckpt, epoch=1.ckpt, ...
+
+
+def test_fit_from_an_epoch_checkpoint_logs_on_into_its_version_folder(run, tmp_path):
+    """fit --ckpt_path FILE, a checkpoint of an earlier epoch of the same run, continues that run's version
+    folder like --ckpt_path last (it started a new version_N); metrics.csv drops the rows of the epochs it
+    trains again, so each step is logged once. A checkpoint of another log folder starts a new version, and
+    says so."""
+    logs = tmp_path / "runs" / "log" / "lightning_logs"
+    ckpts = tmp_path / "runs" / "xavtnet_quick" / "checkpoints"
+    assert run("fit", "--trainer.max_epochs=3", CSV, *EVERY_EPOCH)[0] == 0
+    first = _rows(logs / "version_0" / "metrics.csv")
+    assert sorted({int(r["epoch"]) for r in first if r["val/acc"]}) == [0, 1, 2]
+    epoch0 = ckpts / "epoch=0.ckpt"
+    assert run("fit", "--trainer.max_epochs=3", f"--ckpt_path={epoch0}", CSV, *EVERY_EPOCH)[0] == 0
+    assert not any("records no log version" in ln for ln in run.lines)
+    assert sorted(p.name for p in logs.iterdir()) == ["version_0"]
+    rows = _rows(logs / "version_0" / "metrics.csv")
+    for key in ("val/acc", "train/loss"):
+        logged = [(int(r["epoch"]), int(r["step"])) for r in rows if r[key]]
+        assert sorted(e for e, _ in logged) == [0, 1, 2]  # each epoch once: the retrained ones replaced
+        assert sorted(logged) == sorted((int(r["epoch"]), int(r["step"])) for r in first if r[key])
+    assert rows[0] == first[0]  # epoch 0's rows, from before the checkpoint, kept as they were
+    # a resume the model's setup refuses (model and data disagree) keeps every row, the later epochs' too
+    before = (logs / "version_0" / "metrics.csv").read_text()
+    code, err = run("fit", "--trainer.max_epochs=3", f"--ckpt_path={epoch0}", CSV, *EVERY_EPOCH,
+                    "--data.init_args.normalize=none")  # the checkpoint was trained on centred clouds
+    assert code == 2 and err.startswith("train.py: error: input_normalize:"), err
+    assert (logs / "version_0" / "metrics.csv").read_text() == before
+    other = CSV.replace("runs/log", "runs/other")
+    assert run("fit", "--trainer.max_epochs=2", f"--ckpt_path={epoch0}", other)[0] == 0
+    root = Path("runs/other/lightning_logs")
+    assert (f"train.py: note: {epoch0} records no log version for CSVLogger in {root} (a checkpoint of "
+            "another run or log folder); logging into a new version folder") in run.lines
+    assert sorted(p.name for p in (tmp_path / root).iterdir()) == ["version_0"]
+    assert sorted(p.name for p in logs.iterdir()) == ["version_0"]
+
+
+def test_a_plain_trainer_resumes_a_train_py_checkpoint_without_a_callback_warning(run, tmp_path, cross_dir):
+    """train.py's log-version record is a key of the checkpoint, not the state of a callback that a plain
+    Lightning Trainer lacks: resuming with one no longer warns "callbacks used to create the checkpoint need
+    to be provided ... ['train.py:log_versions']"; the record still loads with weights_only=True."""
+    import warnings
+
+    import lightning as L
+
+    from train import LogVersions
+    from vtlearn.datamodules import CrossModalDataModule
+    from vtlearn.models.xavtnet import XAVTNet
+
+    assert run("fit", "--trainer.max_epochs=1", CSV)[0] == 0
+    last = tmp_path / "runs" / "xavtnet_quick" / "checkpoints" / "last.ckpt"
+    n = len(json.loads((Path(cross_dir) / "manifest.json").read_text())["class_names"])
+    model = XAVTNet(num_classes=n, global_dim=32, fc_dims=[16, 8], max_points=128)
+    data = CrossModalDataModule(data_dir=cross_dir, batch_size=4, normalize="center")
+    trainer = L.Trainer(max_epochs=2, limit_train_batches=2, limit_val_batches=1, logger=False,
+                        accelerator="cpu", enable_progress_bar=False, enable_model_summary=False,
+                        default_root_dir=tmp_path / "plain")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        trainer.fit(model, datamodule=data, ckpt_path=last)
+    assert trainer.current_epoch == 2 and trainer.global_step == 4  # resumed: one more epoch of 2 batches
+    said = [str(w.message) for w in caught if "callbacks used to create the checkpoint" in str(w.message)]
+    assert said == []
+    record = torch.load(last, weights_only=True)[LogVersions.key]
+    assert record == {f"CSVLogger:{tmp_path / 'runs' / 'log' / 'lightning_logs'}": 0}
