@@ -25,6 +25,7 @@ from vtlearn.runtime.declutter import (
     rect_iou,
     segmented_cloud,
 )
+from vtlearn.runtime.runtime_bench import declutter_figure, singulated_within
 
 
 def box_cloud(cx, cy, sx, sy, h=0.04, yaw=0.0, spacing=0.002):
@@ -341,3 +342,35 @@ def test_clouds_in_millimetres_are_refused_naming_the_cloud():
         occupancy_masks({1: good[1], 2: 1000 * good[2]})
     # a large object in metres is fine
     DeclutterGraph.build({**good, 3: box_cloud(0.5, 0, 0.8, 0.4)}, 1)
+
+
+# ------------------------------------------------------------------------------ the bench's figure
+def _declutter_result():
+    """`run_declutter_benchmark`'s result for 3 scenes, two policies, at most 4 actions (hand-made)."""
+    def run(scene, policy, done, actions, grasps, unreachable=0):
+        return {"scene": scene, "target": "mug", "clutter": ["can"], "policy": policy, "done": done,
+                "actions": actions, "grasps": grasps, "pushes": actions - grasps, "unreachable": unreachable,
+                "seconds": 1.0}
+
+    runs = [run(0, "graph", True, 0, 0), run(1, "graph", True, 2, 1), run(2, "graph", True, 3, 1),
+            run(0, "random", True, 1, 1), run(1, "random", False, 4, 0, 2), run(2, "random", True, 3, 2)]
+    summary = {p: {"scenes": 3} for p in ("graph", "random")}
+    settings = {"scenes": 3, "n_clutter": 1, "policies": ["graph", "random"], "max_actions": 4, "seed": 0}
+    return {"runs": runs, "summary": summary, "settings": settings}
+
+
+def test_singulated_within_counts_finished_scenes_by_action_budget():
+    r = _declutter_result()
+    # graph finished after 0, 2 and 3 actions; random after 1 and 3, and failed one scene after 4
+    np.testing.assert_allclose(singulated_within(r, "graph"), [1 / 3, 1 / 3, 2 / 3, 1, 1])
+    np.testing.assert_allclose(singulated_within(r, "random"), [0, 1 / 3, 1 / 3, 2 / 3, 2 / 3])
+    with pytest.raises(ValueError, match="policy: no runs of 'nearest'"):
+        singulated_within(r, "nearest")
+
+
+def test_declutter_figure_draws_a_hand_made_result(tmp_path):
+    path = declutter_figure(_declutter_result(), tmp_path / "sub" / "declutter.png")
+    assert path == tmp_path / "sub" / "declutter.png" and path.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="result: no runs"):
+        declutter_figure({**_declutter_result(), "runs": []}, tmp_path / "empty.png")
+    assert not (tmp_path / "empty.png").exists()

@@ -10,6 +10,7 @@ from vtlearn.runtime.articulation import KinematicArticulationSim, detect_articu
 from vtlearn.runtime.manipulation_bench import (
     ARTICULATION_CATEGORIES,
     PUSH_METHODS,
+    articulation_figure,
     heuristic_articulation,
     run_articulation_benchmark,
     run_pushing_benchmark,
@@ -63,7 +64,11 @@ def test_bench_articulation_one_trial_noiseless(tmp_path):
             assert x["axis_deg"] < 1e-4
             assert x["truth"] == "prismatic" or x["pivot_mm"] < 1e-3
     assert r["summary"]["rigid"]["relative_motion"]["accuracy"] == 1.0
-    assert [p.name for p in tmp_path.iterdir()] == ["art.json"]
+    # the figure goes beside the JSON by default, and the JSON names it
+    assert r["figure"] == str(tmp_path / "art.png") and (tmp_path / "art.png").stat().st_size > 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["art.json", "art.png"]
+    # the JSON read back (nulls where the heuristic has no axis) draws too
+    assert articulation_figure(r, tmp_path / "again.png").stat().st_size > 1000
 
 
 def test_bench_articulation_tracked_by_artreg(tmp_path):
@@ -123,6 +128,9 @@ def test_bad_flags_and_arguments(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("vtlearn: error: --objects: need some of")
     assert main(["bench", "articulation", "--categories", "door", "--json", js]) == 2
     assert capsys.readouterr().err.startswith("vtlearn: error: --categories: need some of")
+    # a figure path that cannot be written is refused before the run, not after it
+    assert main(["bench", "articulation", "--figure", str(tmp_path), "--json", js]) == 2
+    assert capsys.readouterr().err.startswith(f"vtlearn: error: --figure: {tmp_path} is a folder")
     assert not (tmp_path / "x.json").exists()
     with pytest.raises(ValueError, match="trials"):
         run_pushing_benchmark(trials=0)
@@ -134,12 +142,18 @@ def test_bad_flags_and_arguments(tmp_path, capsys):
         run_articulation_benchmark(trials=0)
     with pytest.raises(ValueError, match="observe, execute"):
         heuristic_articulation(None, None)
+    with pytest.raises(ValueError, match="result: no runs"):
+        articulation_figure({"runs": [], "summary": {}, "overall": {}}, tmp_path / "x.png")
 
 
 def test_articulation_table_prints_a_dash_where_a_value_does_not_apply(tmp_path, capsys):
-    js = tmp_path / "a.json"
-    assert main(["bench", "articulation", "--trials", "1", "--categories", "rigid", "--json", str(js)]) == 0
+    js, fig = tmp_path / "a.json", tmp_path / "figs" / "rigid.png"
+    argv = ["bench", "articulation", "--trials", "1", "--categories", "rigid", "--json", str(js)]
+    assert main([*argv, "--figure", str(fig)]) == 0
     out = capsys.readouterr().out
+    # --figure replaces the default path; a rigid object has no axis to draw, and the figure still draws
+    assert f"wrote {js} and {fig}" in out and json.loads(js.read_text())["figure"] == str(fig)
+    assert fig.stat().st_size > 1000 and not (tmp_path / "a.png").exists()
     table = [line for line in out.splitlines() if line.startswith("| rigid")]
     assert len(table) == 2 and "nan" not in out
     # a rigid object has no axis, and noisy truth no tracking error: "-" in the table, null in the JSON

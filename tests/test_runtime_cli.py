@@ -1,5 +1,5 @@
 """`vtlearn runtime`'s console output: the warning for a target outside the model's classes, and the
-explore progress bar's total."""
+explore progress bar's total; `vtlearn bench declutter`'s figure."""
 
 import io
 import json
@@ -78,3 +78,23 @@ def test_explore_progress_follows_the_episode_total():
         update(i, 23)
     assert (bar.n, bar.total) == (23, 23)
     bar.close()
+
+
+def test_bench_declutter_writes_its_figure_beside_the_json_or_at_figure(tmp_path, capsys):
+    argv = ["bench", "declutter", "--scenes", "1", "--clutter", "1", "--policies", "graph",
+            "--max-actions", "2"]
+    js = tmp_path / "d.json"
+    assert main([*argv, "--json", str(js)]) == 0
+    r = json.loads(js.read_text())
+    assert r["figure"] == str(tmp_path / "d.png") and (tmp_path / "d.png").stat().st_size > 10_000
+    assert r["settings"]["max_actions"] == 2
+    assert f"wrote {js} and {tmp_path / 'd.png'}" in capsys.readouterr().out
+    js2, fig = tmp_path / "e.json", tmp_path / "figs" / "declutter.png"
+    assert main([*argv, "--json", str(js2), "--figure", str(fig)]) == 0
+    assert json.loads(js2.read_text())["figure"] == str(fig) and fig.stat().st_size > 10_000
+    assert not (tmp_path / "e.png").exists()
+    capsys.readouterr()
+    # a figure path that cannot be written is refused before any scene is built
+    assert main([*argv, "--json", str(tmp_path / "f.json"), "--figure", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith(f"vtlearn: error: --figure: {tmp_path} is a folder")
+    assert not (tmp_path / "f.json").exists()

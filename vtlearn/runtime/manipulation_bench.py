@@ -34,7 +34,8 @@ poses observed with Gaussian noise. Two methods on the same instance:
   pose is prismatic. It gives the joint type, not an axis.
 
 Reported: joint-type accuracy, actions per detection, and for the relative-motion method the angle between
-the estimated and true joint axes and the distance of the estimated pivot from the true hinge line.
+the estimated and true joint axes and the distance of the estimated pivot from the true hinge line;
+:func:`articulation_figure` draws the accuracy and the per-trial errors.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ __all__ = [
     "pushing_figure",
     "heuristic_articulation",
     "run_articulation_benchmark",
+    "articulation_figure",
     "register_bench",
 ]
 
@@ -534,6 +536,89 @@ def run_articulation_benchmark(
     }
 
 
+def _finite(values) -> np.ndarray:
+    """The finite numbers of ``values`` as float64: NaN and None (a JSON null) dropped."""
+    a = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+    return a[np.isfinite(a)]
+
+
+def articulation_figure(result: dict, path) -> Path:
+    """Joint-type accuracy per category and method, and the estimated joints' errors: the axis angle and the
+    pivot's distance from the true hinge line, one point per correct detection, the bar at their median.
+
+    Args:
+        result: :func:`run_articulation_benchmark`'s result, or its JSON read back (nulls for NaN).
+        path: the figure's path (``.png``).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vtlearn.bench_utils import save_figure
+
+    runs, summary, overall = result["runs"], result["summary"], result["overall"]
+    if not runs:
+        raise ValueError("result: no runs to draw")
+    cats, methods = list(summary), list(overall)
+    colours = dict(zip(methods, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    width = 0.8 / len(methods)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    ax = axes[0]
+    groups = [*cats, "all"]
+    for j, m in enumerate(methods):
+        acc = [summary[c][m]["accuracy"] for c in cats] + [overall[m]["accuracy"]]
+        x = np.arange(len(groups)) + (j - (len(methods) - 1) / 2) * width
+        ax.bar(x, acc, width, label=m, color=colours[m])
+    ax.set_xticks(range(len(groups)), groups, rotation=30, ha="right")
+    ax.set_ylim(0, 1.25)  # room for the legend above the bars
+    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.set_ylabel("joint-type accuracy")
+    ax.set_title("detection accuracy", fontsize=10)
+    ax.legend(fontsize=7, loc="upper center", ncol=len(methods))
+    for ax, key, label, joints in (
+        (axes[1], "axis_deg", "axis angle error (deg)", ("revolute", "prismatic")),
+        (axes[2], "pivot_mm", "pivot to true hinge line (mm)", ("revolute",)),
+    ):
+        shown = [c for c in cats if JOINT_TYPE.get(c) in joints]
+        values = {
+            (c, m): _finite([x[key] for x in runs if x["category"] == c and x["method"] == m])
+            for c in shown
+            for m in methods
+        }
+        # the methods that estimate this (the heuristic gives no axis)
+        estimating = [m for m in methods if any(values[c, m].size for c in shown)]
+        for j, m in enumerate(estimating):
+            legend = f"{m} (bar: median)"  # once per method
+            for i, c in enumerate(shown):
+                v = values[c, m]
+                if not v.size:
+                    continue
+                x0 = i + (j - (len(estimating) - 1) / 2) * width
+                ax.bar(x0, np.median(v), width, color=colours[m], alpha=0.4, label=legend)
+                legend = None
+                ax.plot(x0 + np.linspace(-width / 4, width / 4, v.size), v, ".", color=colours[m], ms=5)
+        if estimating:
+            ax.set_xticks(range(len(shown)), shown, rotation=30, ha="right")
+            ax.legend(fontsize=7)
+        else:
+            ax.set_xticks([])
+            ax.text(0.5, 0.5, "no estimate", transform=ax.transAxes, ha="center", va="center")
+        ax.set_ylabel(label)
+        ax.set_title(f"{label.split(' (')[0]}, per correct detection", fontsize=10)
+    st = result["settings"]
+    poses = (
+        "poses tracked by ArtReg"
+        if st["tracker"] == "artreg"
+        else f"pose noise {st['noise_mm']} mm / {st['noise_deg']} deg"
+    )
+    fig.suptitle(
+        f"Articulation detection (thesis 6.2.2), {st['trials']} instances per category, {poses}", fontsize=11
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return save_figure(fig, path)
+
+
 # ------------------------------------------------------------------------------------------- CLI
 def _int_at_least_1(text: str) -> int:
     try:
@@ -653,6 +738,7 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
 def _cmd_bench_articulation(args: argparse.Namespace) -> int:
     from vtlearn.bench_utils import machine_info, print_table, write_json
 
+    figure = Path(args.figure) if args.figure else Path(args.json).with_suffix(".png")
     try:
         result = run_articulation_benchmark(
             trials=args.trials,
@@ -714,9 +800,11 @@ def _cmd_bench_articulation(args: argparse.Namespace) -> int:
         "(pivot: distance to the true hinge line). Thesis 6.3.2: qualitative only (5 real trials per joint "
         "type, no accuracy or axis error reported)."
     )
+    articulation_figure(result, figure)
     result["machine"] = machine_info()
+    result["figure"] = str(figure)
     write_json(args.json, result)
-    print(f"wrote {args.json}")
+    print(f"wrote {args.json} and {figure}")
     return 0
 
 
@@ -754,4 +842,5 @@ def register_bench(bench_subparsers: Any) -> None:
     )
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/articulation.json", help="output JSON")
+    p.add_argument("--figure", default=None, help="output figure (default: the JSON path with .png)")
     p.set_defaults(func=_cmd_bench_articulation)

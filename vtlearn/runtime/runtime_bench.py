@@ -14,15 +14,23 @@ active reconstruction of transparent objects (random: about 3 cm).
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from vtlearn.active.closed_loop import TOUCH_STRATEGIES
 from vtlearn.validation import as_int
 
-__all__ = ["THESIS", "run_declutter_benchmark", "run_runtime_benchmark"]
+__all__ = [
+    "THESIS",
+    "declutter_figure",
+    "run_declutter_benchmark",
+    "run_runtime_benchmark",
+    "singulated_within",
+]
 
 THESIS = {
     "success_rate": 0.88,
@@ -172,8 +180,9 @@ def run_declutter_benchmark(
     the same scene in a fresh simulation and acts until the target is singulated (no object within
     ``mu_d`` of it) or ``max_actions`` actions were spent.
 
-    Returns ``{"runs": [...], "summary": {policy: {...}}}``; ``actions_mean`` is over the scenes every
-    policy finished, so the policies are compared on the same scenes.
+    Returns ``{"runs": [...], "summary": {policy: {...}}, "settings": {...}}``; ``actions_mean`` is over the
+    scenes every policy finished, so the policies are compared on the same scenes. :func:`declutter_figure`
+    draws it.
     """
     from vtlearn.runtime.robot import DECLUTTER_POLICIES, TwoArmRuntime
     from vtlearn.sim_data.shapes import CATEGORIES, TRANSPARENT_PROB
@@ -231,4 +240,79 @@ def run_declutter_benchmark(
             "unreachable": sum(x["unreachable"] for x in r),
             "seconds_mean": float(np.mean([x["seconds"] for x in r])),
         }
-    return {"runs": runs, "summary": summary}
+    settings = {
+        "scenes": int(scenes),
+        "n_clutter": int(n_clutter),
+        "policies": policies,
+        "max_actions": int(max_actions),
+        "seed": int(seed),
+    }
+    return {"runs": runs, "summary": summary, "settings": settings}
+
+
+def singulated_within(result: dict, policy: str) -> np.ndarray:
+    """The fraction of the scenes whose target ``policy`` singulated within ``k`` actions, for
+    ``k = 0 .. max_actions`` (index ``k``); the last entry is the policy's success rate.
+
+    Args:
+        result: :func:`run_declutter_benchmark`'s result, or its JSON read back.
+        policy: one of the result's policies.
+
+    Shapes:
+        returns ``(max_actions + 1,)``.
+    """
+    runs = [x for x in result["runs"] if x["policy"] == policy]
+    if not runs:
+        raise ValueError(f"policy: no runs of {policy!r} in the result (policies {list(result['summary'])})")
+    done = np.array([x["actions"] for x in runs if x["done"]], dtype=np.int64)
+    k = np.arange(int(result["settings"]["max_actions"]) + 1)
+    return (done[None, :] <= k[:, None]).sum(axis=1) / len(runs)
+
+
+def declutter_figure(result: dict, path) -> Path:
+    """Per policy, the targets singulated within a growing action budget, and the actions a scene took by
+    kind (grasps, pushes, and those no arm reached), from :func:`run_declutter_benchmark`'s result.
+
+    Args:
+        result: :func:`run_declutter_benchmark`'s result, or its JSON read back.
+        path: the figure's path (``.png``).
+
+    Returns:
+        The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vtlearn.bench_utils import save_figure
+
+    policies, st = list(result["summary"]), result["settings"]
+    if not result["runs"]:
+        raise ValueError("result: no runs to draw")
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for policy, style in zip(policies, itertools.cycle(("-o", "--s", ":^", "-.v"))):
+        curve = singulated_within(result, policy)  # equal curves stay apart by line style and marker
+        ax.step(np.arange(curve.size), curve, style, where="post", ms=4, label=f"{policy} ({curve[-1]:.0%})")
+    ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
+    ax.set_xlabel("action budget")
+    ax.set_ylabel("targets singulated (fraction of scenes)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("singulated within k actions", fontsize=10)
+    ax.legend(fontsize=8, loc="lower right")
+    kinds = (("grasps", "grasps"), ("pushes", "pushes"), ("unreachable", "no arm reached"))
+    width = 0.8 / len(kinds)
+    for j, (key, label) in enumerate(kinds):
+        per_scene = [np.mean([x[key] for x in result["runs"] if x["policy"] == p]) for p in policies]
+        bx.bar(np.arange(len(policies)) + (j - (len(kinds) - 1) / 2) * width, per_scene, width, label=label)
+    bx.set_xticks(range(len(policies)), policies)
+    bx.set_ylabel("actions per scene, mean")
+    bx.set_title("actions by kind", fontsize=10)
+    bx.legend(fontsize=8)
+    fig.suptitle(
+        f"Decluttering (thesis 5.2.2), {st['scenes']} scenes with {st['n_clutter']} clutter objects, "
+        f"at most {st['max_actions']} actions",
+        fontsize=11,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return save_figure(fig, path)

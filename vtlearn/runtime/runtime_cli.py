@@ -354,7 +354,7 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
 
     from vtlearn.bench_utils import machine_info, print_table, write_json
     from vtlearn.runtime.robot import DECLUTTER_POLICIES
-    from vtlearn.runtime.runtime_bench import run_declutter_benchmark
+    from vtlearn.runtime.runtime_bench import declutter_figure, run_declutter_benchmark
     from vtlearn.sim_data.shapes import CATEGORIES
 
     most = len(CATEGORIES) - 2  # categories other than the target's, less the always transparent wineglass
@@ -363,6 +363,7 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
     policies = csv_list(args.policies)
     if not policies or any(x not in DECLUTTER_POLICIES for x in policies):
         raise ValueError(f"--policies: expected some of {DECLUTTER_POLICIES}, got {policies}")
+    figure = Path(args.figure) if args.figure else Path(args.json).with_suffix(".png")
     bar = tqdm(total=args.scenes * len(policies), desc="scenes x policies")
     t0 = time.perf_counter()
     result = run_declutter_benchmark(
@@ -397,9 +398,10 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
         f"Decluttering, {args.scenes} scenes with {args.clutter} clutter objects, at most {args.max_actions} "
         "actions (thesis 5.2.2; actions_mean over the scenes every policy finished)",
     )
-    result.update(machine=machine_info(), seconds=round(time.perf_counter() - t0, 1))
+    declutter_figure(result, figure)
+    result.update(machine=machine_info(), figure=str(figure), seconds=round(time.perf_counter() - t0, 1))
     write_json(args.json, result)
-    print(f"wrote {args.json}")
+    print(f"wrote {args.json} and {figure}")
     return 0
 
 
@@ -435,6 +437,7 @@ def register_bench(bench_subparsers) -> None:
                    help="action limit per scene (default %(default)s)")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", default="runs/bench/declutter.json", help="output JSON")
+    p.add_argument("--figure", default=None, help="output figure (default: the JSON path with .png)")
     p.set_defaults(func=_cmd_bench_declutter)
 
     p = bench_subparsers.add_parser(
