@@ -80,6 +80,20 @@ def test_load_split_refuses_an_empty_split(empty_recon):
     assert len(load_split(empty_recon, "train")["label"]) > 0
 
 
+def test_an_empty_split_made_by_a_zero_fraction_says_so(recon_dir, tmp_path):
+    """`gen-data --splits 1,0,0` leaves val empty on purpose; the error advised more --per-category."""
+    def no_val(m):
+        m["config"]["split_fractions"] = [0.85, 0.0, 0.15]
+        m["shards"] = [s for s in m["shards"] if s["split"] != "val"]
+        return m
+
+    data = _copy(recon_dir, tmp_path / "recon", no_val)
+    msg = (r"--data: split 'val' of .* is empty \(its --splits fraction is 0, so it was made empty on "
+           r"purpose\); regenerate with a val fraction above 0 in --splits")
+    with pytest.raises(ValueError, match=msg):
+        load_split(data, "val", name="--data")
+
+
 def test_load_split_takes_a_manifest_already_read(empty_recon, actor_ckpt, tmp_path, monkeypatch, capsys):
     """`reconstruct --data` and `bench actor` read the manifest to check the data before the model, then
     read it again in load_split; given the manifest, load_split reads no file for it and still checks it."""

@@ -203,3 +203,144 @@ def test_resuming_a_mesh_dataset_made_before_meshes_json_is_refused(tmp_path):
     (tmp_path / "out" / "meshes.json").unlink()  # as an older vtlearn left it
     with pytest.raises(ValueError, match=r"out_dir: .* holds shards made from .* before vtlearn recorded"):
         generate_dataset(cfg, tmp_path / "out", progress=False)
+
+
+# ------------------------------------------------------------------ --keep-split: ModelNet's own split
+def _modelnet(root, cats=("cup", "vase"), n_train=6, n_test=3):
+    """A ModelNet-like tree: ``<cat>/train/<cat>_0001.off`` ... then ``<cat>/test/...``, numbered on."""
+    for c, cat in enumerate(cats):
+        k = 0
+        for split, n in (("train", n_train), ("test", n_test)):
+            for i in range(n):
+                k += 1
+                _box(root / cat / split / f"{cat}_{k:04d}.off", (1 + 0.1 * i, 2 + c, 3))
+    return root
+
+
+def _plan_files(cfg):
+    """Split -> the mesh files (relative to mesh_source) that generation would make its instances from."""
+    from pathlib import Path
+
+    from vtlearn.sim_data.writer import _usable_meshes, plan_instances
+
+    plan = plan_instances(*_usable_meshes(cfg, False))
+    return {s: [str(Path(it["file"]).relative_to(cfg.mesh_source)) for it in v] for s, v in plan.items()}
+
+
+def test_modelnet_items_record_the_folder_they_came_from(tmp_path):
+    _modelnet(tmp_path / "mn", cats=("cup",), n_train=2, n_test=1)
+    items = scan_mesh_folder(tmp_path / "mn")
+    assert [(i["file"].split("/")[-2], i["source_split"]) for i in items] == \
+        [("test", "test"), ("train", "train"), ("train", "train")]
+    _two_category_folder(tmp_path / "folders", n=1)  # layouts without a split of their own record none
+    assert all("source_split" not in i for i in scan_mesh_folder(tmp_path / "folders"))
+    with pytest.raises(ValueError, match="by_source_split: the meshes of .* have no train/test split"):
+        scan_mesh_folder(tmp_path / "folders", per_category=1, by_source_split=True)
+
+
+def test_without_keep_split_modelnet_meshes_are_split_as_before(tmp_path):
+    """The default ignores ModelNet's folders (test meshes land in train): the plan of the version before
+    --keep-split, hard-coded, so that recording the source folder in the items changes no split."""
+    cfg = GenConfig(categories=None, per_category=9, mesh_source=str(_modelnet(tmp_path / "mn")))
+    files = _plan_files(cfg)
+    assert files["val"] == ["cup/train/cup_0004.off", "vase/train/vase_0006.off"]
+    assert files["test"] == ["cup/train/cup_0001.off", "vase/train/vase_0005.off"]
+    assert len(files["train"]) == 14 and "cup/test/cup_0007.off" in files["train"]
+
+
+def test_keep_split_puts_every_test_folder_mesh_in_test_and_takes_val_from_train_meshes(tmp_path):
+    root = _modelnet(tmp_path / "mn")
+    every = {str(p.relative_to(root)) for p in root.glob("*/*/*.off")}
+    test_folder = {f for f in every if "/test/" in f}
+    cfg = GenConfig(categories=None, per_category=10, mesh_source=str(root), keep_split=True)
+    files = _plan_files(cfg)
+    assert set(files["test"]) == test_folder and len(files["test"]) == 6
+    assert set(files["train"]) | set(files["val"]) == every - test_folder
+    assert not set(files["train"]) & set(files["val"])
+    # each category's 6 train meshes split 0.7:0.15 into train and val
+    assert sorted(f.split("/")[0] for f in files["val"]) == ["cup", "vase"]
+    assert _plan_files(cfg) == files  # seeded: the same plan again
+    other = _plan_files(GenConfig(categories=None, per_category=10, mesh_source=str(root), keep_split=True,
+                                  seed=1))
+    assert other["test"] == files["test"] and set(other["val"]) <= every - test_folder
+
+
+def test_keep_split_caps_each_folder_at_per_category_and_allows_no_val(tmp_path):
+    root = _modelnet(tmp_path / "mn", cats=("cup",))
+    files = _plan_files(GenConfig(categories=None, per_category=2, mesh_source=str(root), keep_split=True))
+    assert files["test"] == ["cup/test/cup_0007.off", "cup/test/cup_0008.off"]  # the first 2 of each folder
+    assert sorted(files["train"] + files["val"]) == ["cup/train/cup_0001.off", "cup/train/cup_0002.off"]
+    assert len(files["val"]) == 1
+    files = _plan_files(GenConfig(categories=None, per_category=10, mesh_source=str(root), keep_split=True,
+                                  split_fractions=[0.85, 0.0, 0.15]))
+    assert files["val"] == [] and len(files["train"]) == 6 and len(files["test"]) == 3
+
+
+def test_keep_split_dataset_records_source_splits_and_is_resumed_only_with_the_flag(tmp_path):
+    from vtlearn.sim_data.writer import planned_instances
+
+    root = _modelnet(tmp_path / "mn", cats=("cup",), n_train=1, n_test=1)
+    cfg = GenConfig(kind="reconstruction", categories=None, per_category=5, touches=4, pinches=1,
+                    split_fractions=[1.0, 0.0, 0.0], mesh_source=str(root), keep_split=True)
+    m = generate_dataset(cfg, tmp_path / "out", progress=False)
+    assert [m["splits"][s]["instances"] for s in ("train", "val", "test")] == [1, 0, 1]
+    rows = json.loads((tmp_path / "out" / "meshes.json").read_text())["instances"]
+    assert sorted((r["split"], r["source_split"], r["file"]) for r in rows) == [
+        ("test", "test", "cup/test/cup_0002.off"), ("train", "train", "cup/train/cup_0001.off")]
+    made_with = GenConfig(**m["config"])  # `vtlearn preview` maps each instance back to its file
+    assert {i: it["file"] for i, it in planned_instances(tmp_path / "out", made_with).items()} == \
+        {r["instance"]: str(root / r["file"]) for r in rows}
+    assert generate_dataset(cfg, tmp_path / "out", progress=False) == m  # resumes: nothing to redo
+    cfg.keep_split = False
+    with pytest.raises(ValueError, match="out_dir: .*keep_split: true in the folder, false asked"):
+        generate_dataset(cfg, tmp_path / "out", progress=False)
+
+
+def test_modelnet_folders_made_before_keep_split_still_resume(tmp_path):
+    """Their config.json has no keep_split key and their meshes.json rows no source_split."""
+    root = _modelnet(tmp_path / "mn", cats=("cup",), n_train=3, n_test=1)
+    cfg = GenConfig(kind="reconstruction", categories=None, per_category=4, mesh_source=str(root))
+    out = tmp_path / "out"
+    assert generate_dataset(cfg, out, progress=False, max_shards=0) == {}
+    rows = json.loads((out / "meshes.json").read_text())["instances"]
+    assert len(rows) == 4 and all("source_split" not in r for r in rows)
+    old = json.loads((out / "config.json").read_text())
+    del old["keep_split"]
+    (out / "config.json").write_text(json.dumps(old))
+    assert generate_dataset(cfg, out, progress=False, max_shards=0) == {}
+
+
+def test_keep_split_refusals_name_the_flag(tmp_path, capsys):
+    from vtlearn.cli import main
+
+    with pytest.raises(ValueError, match="keep_split: .* procedural shapes have none"):
+        GenConfig(keep_split=True)
+    with pytest.raises(ValueError, match="keep_split: .* both 0"):
+        GenConfig(mesh_source=str(tmp_path), keep_split=True, split_fractions=[0.0, 0.0, 1.0])
+
+    def refused(*flags):
+        argv = ["gen-data", "reconstruction", "--out", str(tmp_path / "out"), "--keep-split", *flags]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.splitlines()[-1]  # after the mesh check's warnings and progress bar
+        assert err.startswith("vtlearn: error: --keep-split: "), err
+        return err
+
+    refused()  # procedural shapes
+    _two_category_folder(tmp_path / "folders", n=3)
+    assert "have no train/test split of their own" in refused("--meshes", str(tmp_path / "folders"))
+    assert "have no train/test split" in refused("--meshes", "pybullet_data", "--categories", "bunny")
+    root = _modelnet(tmp_path / "mn", cats=("cup", "vase"), n_train=3, n_test=1)
+    for f in (root / "cup" / "test").glob("*.off"):
+        f.unlink()
+    assert "has no test meshes of 'cup'" in refused("--meshes", str(root))
+    for f in (root / "vase" / "train").glob("*.off"):
+        f.unlink()
+    assert "has no train meshes of 'vase'" in refused("--meshes", str(root), "--categories", "vase")
+    # meshes there but unusable: found once they are read
+    root = _modelnet(tmp_path / "mn2", cats=("cup",), n_train=2, n_test=1)
+    (root / "cup" / "train" / "cup_0002.off").write_text("garbage")
+    err = refused("--meshes", str(root))
+    assert "only 1 usable train mesh(es) of 'cup'" in err and "leave split 'val' with none" in err
+    (root / "cup" / "test" / "cup_0003.off").write_text("garbage")
+    assert "no usable test meshes of 'cup'" in refused("--meshes", str(root), "--splits", "1,0,0")
+    assert not list((tmp_path / "out").glob("*.npz"))

@@ -123,10 +123,18 @@ def split_is_empty(manifest: dict, split: str) -> bool:
 
 def empty_split_error(manifest: dict, data_dir, split: str, name: str = "data_dir") -> ValueError:
     """The ValueError (naming ``name``) for a ``split`` of ``data_dir`` that holds no samples, with the cause
-    and the fix: for ``gen-data`` datasets, too few ``--per-category`` instances for the split fractions."""
+    and the fix: for ``gen-data`` datasets, a ``--splits`` fraction of 0 or too few ``--per-category``
+    instances for the split fractions."""
     config = manifest.get("config") if isinstance(manifest.get("config"), dict) else {}
     per = config.get("per_category")
-    if manifest.get("kind") in ("reconstruction", "crossmodal") and isinstance(per, int):
+    fractions = config.get("split_fractions")
+    splits = ("train", "val", "test")  # vtlearn.sim_data.writer.SPLITS, the order of --splits
+    zero = (isinstance(fractions, list) and len(fractions) == len(splits) and split in splits
+            and fractions[splits.index(split)] == 0)
+    if manifest.get("kind") in ("reconstruction", "crossmodal") and zero:
+        why = "its --splits fraction is 0, so it was made empty on purpose"
+        fix = f"regenerate with a {split} fraction above 0 in --splits, or use another split"
+    elif manifest.get("kind") in ("reconstruction", "crossmodal") and isinstance(per, int):
         fix = "regenerate with more --per-category"
         try:
             from vtlearn.sim_data.writer import min_per_category

@@ -23,7 +23,7 @@ _GEN_DATA_FLAGS = {
     "shard_size": "--shard-size", "sections": "--sections", "sensor": "--sensor", "touches": "--touches",
     "pinches": "--pinches", "views": "--views", "image_width": "--width", "image_height": "--height",
     "visual_crop_margin": "--visual-crop-margin", "tactile_clouds": "--tactile-clouds",
-    "mesh_source": "--meshes", "out_dir": "--out", "workers": "--workers",
+    "mesh_source": "--meshes", "keep_split": "--keep-split", "out_dir": "--out", "workers": "--workers",
 }
 
 
@@ -57,6 +57,7 @@ def _gen_data(args: argparse.Namespace) -> int:
         visual_crop_margin=None if args.no_visual_crop else args.visual_crop_margin,
         tactile_clouds=args.tactile_clouds,
         mesh_source=args.meshes or "procedural",
+        keep_split=args.keep_split,
     )
     manifest = generate_dataset(cfg, args.out, workers=args.workers)
     print(
@@ -149,6 +150,11 @@ def register(sub) -> None:
         help="use real meshes instead of procedural ones: a ShapeNetCore v2, ModelNet40 or "
         "category-per-folder directory, or 'pybullet_data' (default: procedural meshes)",
     )
+    p.add_argument("--keep-split", action="store_true",
+                   help="with --meshes of a ModelNet40/10 tree: keep its own train/test split (its test "
+                   "meshes are the test split, its train meshes are split into train and val in the "
+                   "--splits train:val ratio) and take up to --per-category meshes from each "
+                   "(default: split all meshes by --splits)")
     p.add_argument("--workers", type=count(1), default=1,
                    help="worker processes writing shards (default: %(default)s)")
     p.set_defaults(func=_cmd_gen_data)

@@ -6,18 +6,24 @@ Supported layouts (detected automatically by :func:`scan_mesh_folder`):
   ``ROOT/<synset>/<model>/model.obj``. Categories get readable names (``02691156`` -> ``airplane``) from a
   built-in table of the 55 ShapeNetCore synsets, then from ``ROOT/taxonomy.json`` (its first name), else
   they keep the synset id. ShapeNet is y-up, so its meshes are turned z-up.
-* ModelNet40 / ModelNet10: ``ROOT/<category>/{train,test}/*.off`` (z-up). ModelNet's own train/test
-  folders are not kept: gen-data splits the instances by ``--splits``.
+* ModelNet40 / ModelNet10: ``ROOT/<category>/{train,test}/*.off`` (z-up). Each item records the folder
+  it came from as ``"source_split"`` (``"train"`` or ``"test"``). gen-data splits the instances by
+  ``--splits`` and ignores those folders, unless ``--keep-split`` is given: then every kept mesh of a
+  ``test`` folder is a test instance, and the kept ``train`` meshes are split into train and val in the
+  ratio of the train and val fractions of ``--splits``, so that results compare with published ModelNet
+  numbers. ``--per-category N`` then takes up to N usable meshes from each of a category's two folders
+  (``vtlearn gen-data crossmodal --meshes ModelNet40 --keep-split --per-category 1000`` keeps every mesh:
+  no ModelNet40 folder holds more than 889).
 * Category per folder: ``ROOT/<category>/*.{obj,off,ply,stl}`` (z-up).
 * ``"pybullet_data"``: the meshes shipped with pybullet (bunny, duck, teddy, mug, 50 random_urdfs objects).
 
 Hidden files (``.DS_Store``, macOS ``._*`` copies) are ignored. Each item is ``{"category", "file",
-"scale_m"}`` plus ``"up": "y"`` for y-up meshes. ``scale_m`` is a nominal real size in metres for the
-category, because these meshes carry no metric scale: every mesh is centred and scaled to a largest
-extent of 1 whatever its units (mm, m, or none). Meshes that cannot be read, are empty, have non-finite
-vertices, zero area, are flat (one plane), or have non-manifold edges (shared by more than two faces, once
-duplicate faces are dropped) are skipped, with one warning per mesh and a count. They never crash a run.
-Open meshes are kept.
+"scale_m"}`` plus ``"up": "y"`` for y-up meshes and ``"source_split"`` for ModelNet meshes. ``scale_m`` is
+a nominal real size in metres for the category, because these meshes carry no metric scale: every mesh is
+centred and scaled to a largest extent of 1 whatever its units (mm, m, or none). Meshes that cannot be
+read, are empty, have non-finite vertices, zero area, are flat (one plane), or have non-manifold edges
+(shared by more than two faces, once duplicate faces are dropped) are skipped, with one warning per mesh
+and a count. They never crash a run. Open meshes are kept.
 """
 
 from __future__ import annotations
@@ -150,10 +156,12 @@ def load_mesh_item(item: dict):
     return mesh
 
 
-def _item(category: str, path: Path, up: str = "z") -> dict:
+def _item(category: str, path: Path, up: str = "z", source_split: str | None = None) -> dict:
     item = {"category": category, "file": str(path), "scale_m": NOMINAL_SIZE_M.get(category, DEFAULT_SIZE_M)}
     if up != "z":
         item["up"] = up
+    if source_split is not None:
+        item["source_split"] = source_split
     return item
 
 
@@ -196,7 +204,7 @@ def scan_shapenet(root: str | Path) -> list[dict]:
 
 def scan_modelnet(root: str | Path) -> list[dict]:
     root = Path(root)
-    return [_item(p.parts[-3], p) for p in _visible(sorted(root.glob("*/*/*.off")))
+    return [_item(p.parts[-3], p, source_split=p.parts[-2]) for p in _visible(sorted(root.glob("*/*/*.off")))
             if p.parts[-2] in ("train", "test")]
 
 
@@ -239,13 +247,19 @@ def _relative(file: str | Path, root: Path) -> str:
 
 
 def scan_mesh_folder(spec: str | Path, check: bool = True, categories=None, per_category: int | None = None,
-                     progress: bool = False) -> list[dict]:
+                     progress: bool = False, by_source_split: bool = False) -> list[dict]:
     """Items of a real mesh dataset; layout detected from ``spec`` (see module docstring).
 
     Only ``categories`` (all when None) are kept. With ``check``, each category's meshes are read in sorted
     order until ``per_category`` usable ones are found (all when None), under a progress bar when
     ``progress``; unusable ones are skipped with a warning each, then one warning counting them by reason.
     The items are the same as checking every mesh and keeping the first ``per_category`` of each category.
+    With ``by_source_split`` (datasets with a split of their own, ``gen-data --keep-split``),
+    ``per_category`` applies to each source split of a category instead: up to ``per_category`` usable
+    train meshes and up to ``per_category`` usable test meshes.
+
+    Raises:
+        ValueError: ``by_source_split`` is set for a layout whose items have no ``"source_split"``.
     """
     from tqdm.auto import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
@@ -264,16 +278,21 @@ def scan_mesh_folder(spec: str | Path, check: bool = True, categories=None, per_
             )
     if categories is not None:
         items = [it for it in items if it["category"] in set(categories)]
+    if by_source_split and any("source_split" not in it for it in items):
+        raise ValueError(f"by_source_split: the meshes of {spec} have no train/test split of their own (only "
+                         "ModelNet40/10 trees, <category>/{train,test}/*.off, have one)")
     if not check:
         return items
-    by_cat: dict[str, list[dict]] = {}
+    # the groups per_category caps: categories, or each category's source splits
+    groups: dict[tuple, list[dict]] = {}
     for it in items:
-        by_cat.setdefault(it["category"], []).append(it)
-    todo = sum(len(v) if per_category is None else min(len(v), per_category) for v in by_cat.values())
+        key = (it["category"], it.get("source_split") if by_source_split else None)
+        groups.setdefault(key, []).append(it)
+    todo = sum(len(v) if per_category is None else min(len(v), per_category) for v in groups.values())
     good, skipped = [], []
     redirect = logging_redirect_tqdm() if progress else contextlib.nullcontext()
     with redirect, tqdm(total=todo, desc="checking meshes", unit="mesh", disable=not progress) as bar:
-        for cat_items in by_cat.values():
+        for cat_items in groups.values():
             kept = 0
             for it in cat_items:
                 if per_category is not None and kept >= per_category:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -58,8 +59,9 @@ class GenConfig:
     Field checks run on construction (``ValueError`` naming the field): counts ``per_category``,
     ``shard_size``, ``dense_points``, ``touches``, ``views``, ``visual_points``, ``image_width``,
     ``image_height``, ``tactile_clouds`` are integers >= 1, ``pinches`` and ``seed`` integers >= 0,
-    ``sections`` >= 8. :meth:`validate` (called by :func:`generate_dataset`) also checks ``sensor`` and
-    that ``mesh_source`` is ``"procedural"``, ``"pybullet_data"`` or an existing directory.
+    ``sections`` >= 8, ``keep_split`` a bool that needs a ``mesh_source``. :meth:`validate` (called by
+    :func:`generate_dataset`) also checks ``sensor`` and that ``mesh_source`` is ``"procedural"``,
+    ``"pybullet_data"`` or an existing directory.
     ``categories=None`` means all: the 12 procedural ones, or every category of ``mesh_source`` with a usable
     mesh (:func:`generate_dataset` records the list it found).
     """
@@ -90,6 +92,9 @@ class GenConfig:
     tactile_min_points: int = 30
     tactile_max_points: int = 120
     mesh_source: str = "procedural"  # or a directory of meshes, one subfolder per category
+    # keep mesh_source's own train/test split (ModelNet): see plan_instances; per_category then caps each
+    # of a category's source splits
+    keep_split: bool = False
     # the version of the touch sampler (vtlearn.sim_data.tactile.bbox_faces): 1 pressed the +x and +y faces
     # from inside the box in place of the -x and -y faces; a folder made with 1 is refused on resume
     touch_sampler: int = TOUCH_SAMPLER
@@ -140,6 +145,14 @@ class GenConfig:
         f = np.asarray(self.split_fractions, dtype=float)
         if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
+        if not isinstance(self.keep_split, bool):
+            raise ValueError(f"keep_split: need True or False, got {self.keep_split!r}")
+        if self.keep_split and self.mesh_source == "procedural":
+            raise ValueError("keep_split: keeps a mesh dataset's own train/test split, but procedural shapes "
+                             "have none; use it with mesh_source (--meshes) a ModelNet40/10 tree")
+        if self.keep_split and not f[0] + f[1] > 0:
+            raise ValueError(f"keep_split: the train meshes are split into train and val in the ratio of the "
+                             f"train and val split_fractions, which are both 0 (got {f})")
         if self.visual_crop_margin is not None:
             as_real(self.visual_crop_margin, "visual_crop_margin", low=0.0)
         as_int(self.tactile_min_points, "tactile_min_points")
@@ -179,21 +192,64 @@ def min_per_category(fractions) -> int:
 def _check_split_sizes(cfg: GenConfig, per_category: int, what: str = "per_category",
                        why: str = "") -> None:
     """A ValueError naming ``what`` when ``per_category`` instances leave a split with a positive fraction
-    empty (every consumer of that split would then have no data); ``why`` says where the count comes from."""
-    counts = _split_counts(per_category, cfg.split_fractions)
-    empty = [s for s, f, c in zip(SPLITS, cfg.split_fractions, counts, strict=True) if f > 0 and c == 0]
+    empty (every consumer of that split would then have no data); ``why`` says where the count comes from.
+    With ``cfg.keep_split`` the instances are a category's train meshes, split into train and val only."""
+    splits, fractions = SPLITS, cfg.split_fractions
+    if cfg.keep_split:
+        splits, fractions = SPLITS[:2], _train_val_fractions(cfg.split_fractions)
+    counts = _split_counts(per_category, fractions)
+    empty = [s for s, f, c in zip(splits, fractions, counts, strict=True) if f > 0 and c == 0]
     if empty:
-        need = min_per_category(cfg.split_fractions)
-        fractions = ", ".join(f"{s} {f:g}" for s, f in zip(SPLITS, cfg.split_fractions, strict=True))
+        need = min_per_category(fractions)
+        shown = ", ".join(f"{s} {f:g}" for s, f in zip(splits, cfg.split_fractions, strict=False))
+        if cfg.keep_split:
+            shown += "; keep_split splits the train meshes alone into train and val"
         raise ValueError(
             f"{what}: {why}{per_category} instance(s) per category leave split {empty[0]!r} with none "
-            f"(split fractions {fractions}); need at least {need}, one per split with a non-zero fraction, "
+            f"(split fractions {shown}); need at least {need}, one per split with a non-zero fraction, "
             f"or fractions that leave that split out (--splits, e.g. 1,0,0 for a training set only)"
         )
 
 
+def _train_val_fractions(fractions) -> list[float]:
+    """The train and val ``fractions``, rescaled to sum to 1: how ``keep_split`` splits the train meshes."""
+    train, val = float(fractions[0]), float(fractions[1])
+    return [train / (train + val), val / (train + val)]
+
+
+def _kept_split_items(cfg: GenConfig, items: list[dict]) -> list[dict]:
+    """The first ``per_category`` of each source split of one category's ``items``, in their order."""
+    kept = {"train": 0, "test": 0}
+    out = []
+    for m in items:
+        if kept[m["source_split"]] < cfg.per_category:
+            kept[m["source_split"]] += 1
+            out.append(m)
+    return out
+
+
+def _check_kept_split(cfg: GenConfig, category: str, items: list[dict], usable: str = "") -> None:
+    """A ValueError naming ``keep_split`` when ``category``'s mesh ``items`` (with their ``source_split``)
+    have no test or no train meshes, or too few train meshes for a val split with a positive fraction;
+    ``usable`` is ``"usable "`` once the meshes were read."""
+    n = Counter(m.get("source_split") for m in items)
+    for split in ("test", "train"):
+        if n[split] == 0:
+            raise ValueError(f"keep_split: {cfg.mesh_source} has no {usable}{split} meshes of {category!r} "
+                             f"({category}/{split}/*.off), so its own split cannot be kept; leave the "
+                             "category out (--categories) or drop --keep-split")
+    _check_split_sizes(cfg, n["train"], "keep_split",
+                       f"{cfg.mesh_source} has only {n['train']} {usable}train mesh(es) of {category!r}: ")
+
+
 def plan_instances(cfg: GenConfig, mesh_items: list[dict] | None = None) -> dict[str, list[dict]]:
-    """Assign every instance to one split (by instance, deterministic per seed)."""
+    """Assign every instance to one split (by instance, deterministic per seed).
+
+    Each category's instances are split by ``cfg.split_fractions`` in a seeded random order. With
+    ``cfg.keep_split`` the mesh items keep their ``"source_split"``: every test mesh is a test instance,
+    and the train meshes are split into train and val in the ratio of the train and val fractions (the
+    test fraction is not used); ``per_category`` caps each source split of a category.
+    """
     rng = np.random.default_rng([cfg.seed, 7919])
     plan: dict[str, list[dict]] = {s: [] for s in SPLITS}
     for label, cat in enumerate(cfg.categories):
@@ -203,12 +259,17 @@ def plan_instances(cfg: GenConfig, mesh_items: list[dict] | None = None) -> dict
                 for i in range(cfg.per_category)
             ]
         else:
-            items = [
-                dict(m, label=label, index=i)
-                for i, m in enumerate([m for m in mesh_items if m["category"] == cat][: cfg.per_category])
-            ]
+            cat_items = [m for m in mesh_items if m["category"] == cat]
+            cat_items = _kept_split_items(cfg, cat_items) if cfg.keep_split else cat_items[: cfg.per_category]
+            items = [dict(m, label=label, index=i) for i, m in enumerate(cat_items)]
+        if cfg.keep_split:
+            plan["test"] += [it for it in items if it["source_split"] == "test"]
+            items = [it for it in items if it["source_split"] == "train"]
         order = rng.permutation(len(items))
-        counts = _split_counts(len(items), cfg.split_fractions)
+        if cfg.keep_split:
+            counts = [*_split_counts(len(items), _train_val_fractions(cfg.split_fractions)), 0]
+        else:
+            counts = _split_counts(len(items), cfg.split_fractions)
         start = 0
         for split, c in zip(SPLITS, counts, strict=True):
             plan[split] += [items[j] for j in sorted(order[start : start + c])]
@@ -606,7 +667,8 @@ MESH_LIST = "meshes.json"
 
 def _usable_meshes(cfg: GenConfig, progress: bool) -> tuple[GenConfig, list[dict]]:
     """``cfg`` with its categories resolved (all of ``mesh_source`` when None), and the first
-    ``per_category`` usable meshes of each category (ValueError / FileNotFoundError naming the field)."""
+    ``per_category`` usable meshes of each category, or with ``keep_split`` of each category's train and
+    test meshes (ValueError / FileNotFoundError naming the field)."""
     from dataclasses import replace
 
     from vtlearn.sim_data.loaders import scan_mesh_folder
@@ -624,8 +686,15 @@ def _usable_meshes(cfg: GenConfig, progress: bool) -> tuple[GenConfig, list[dict
             every = sorted({m["category"] for m in scan_mesh_folder(cfg.mesh_source, check=False)})
             raise ValueError(f"categories: no meshes of {missing} in mesh_source {cfg.mesh_source} (it has: "
                              f"{', '.join(every)})")
+    if cfg.keep_split:
+        if any("source_split" not in m for m in scanned):
+            raise ValueError(f"keep_split: the meshes of {cfg.mesh_source} have no train/test split of their "
+                             "own (only ModelNet40/10 trees, <category>/{train,test}/*.off, have one); drop "
+                             "--keep-split to split them by --splits")
+        for cat in found:
+            _check_kept_split(cfg, cat, [m for m in scanned if m["category"] == cat])
     mesh_items = scan_mesh_folder(cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category,
-                                  progress=progress, check=True)
+                                  progress=progress, check=True, by_source_split=cfg.keep_split)
     usable = list(dict.fromkeys(m["category"] for m in mesh_items))
     categories = cfg.categories
     if categories is None:
@@ -638,19 +707,28 @@ def _usable_meshes(cfg: GenConfig, progress: bool) -> tuple[GenConfig, list[dict
         raise ValueError(f"categories: no usable meshes of {missing or 'any category'} in mesh_source "
                          f"{cfg.mesh_source} (the skipped meshes are logged above)")
     for cat in categories:
-        have = sum(m["category"] == cat for m in mesh_items)
-        if have < cfg.per_category:
-            _check_split_sizes(cfg, have, "mesh_source",
-                               f"{cfg.mesh_source} has only {have} usable mesh(es) of {cat!r}: ")
-            log.warning("%s has only %d usable mesh(es) of %r, fewer than per_category=%d: using them all",
-                        cfg.mesh_source, have, cat, cfg.per_category)
+        cat_items = [m for m in mesh_items if m["category"] == cat]
+        if cfg.keep_split:  # per_category caps each source split
+            _check_kept_split(cfg, cat, cat_items, "usable ")
+            n = Counter(m["source_split"] for m in cat_items)
+            short = [f"{n[s]} usable {s}" for s in ("train", "test") if n[s] < cfg.per_category]
+        else:
+            have = len(cat_items)
+            if have < cfg.per_category:
+                _check_split_sizes(cfg, have, "mesh_source",
+                                   f"{cfg.mesh_source} has only {have} usable mesh(es) of {cat!r}: ")
+            short = [f"{have} usable"] if have < cfg.per_category else []
+        if short:
+            log.warning("%s has only %s mesh(es) of %r, fewer than per_category=%d: using them all",
+                        cfg.mesh_source, " and ".join(short), cat, cfg.per_category)
     return replace(cfg, categories=list(categories)), mesh_items
 
 
 def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> None:
-    """Record which mesh file each instance comes from in ``out/meshes.json``, or refuse (ValueError naming
-    ``mesh_source``) to resume a dataset whose mesh folder has changed since: its finished shards hold
-    another plan's instances, so kept shards and new ones could share an instance across splits."""
+    """Record which mesh file each instance comes from in ``out/meshes.json`` (with ``keep_split``, also the
+    ``source_split`` it was kept from), or refuse (ValueError naming ``mesh_source``) to resume a dataset
+    whose mesh folder has changed since: its finished shards hold another plan's instances, so kept shards
+    and new ones could share an instance across splits."""
     from vtlearn.sim_data.loaders import _relative, mesh_root
 
     root = mesh_root(cfg.mesh_source)
@@ -661,6 +739,8 @@ def _claim_mesh_list(out: Path, cfg: GenConfig, plan: dict[str, list[dict]]) -> 
             rows.append({"instance": it["instance"], "split": split, "category": it["category"],
                          "file": _relative(f, root),
                          "bytes": f.stat().st_size})
+            if cfg.keep_split:  # only then: meshes.json of datasets made without it stay as they were
+                rows[-1]["source_split"] = it["source_split"]
     new = {"mesh_source": str(cfg.mesh_source), "instances": rows}
     path = out / MESH_LIST
     if not path.exists() and any(out.glob("*.npz")):
@@ -695,7 +775,8 @@ def planned_instances(data_dir: str | Path, cfg: GenConfig) -> dict[int, dict]:
     path = Path(data_dir) / MESH_LIST
     if cfg.mesh_source == "procedural" or not path.exists():
         items = None if cfg.mesh_source == "procedural" else scan_mesh_folder(
-            cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category)
+            cfg.mesh_source, categories=cfg.categories, per_category=cfg.per_category,
+            by_source_split=cfg.keep_split)
         return {it["instance"]: it for split in plan_instances(cfg, items).values() for it in split}
     root = mesh_root(cfg.mesh_source)
     scanned = scan_mesh_folder(cfg.mesh_source, check=False, categories=cfg.categories)
@@ -705,6 +786,8 @@ def planned_instances(data_dir: str | Path, cfg: GenConfig) -> dict[int, dict]:
         f = str(root / r["file"])
         item = scanned.get(f) or {"category": r["category"], "file": f,
                                   "scale_m": NOMINAL_SIZE_M.get(r["category"], DEFAULT_SIZE_M)}
+        if "source_split" in r:
+            item = {**item, "source_split": r["source_split"]}
         out[int(r["instance"])] = {**item, "instance": int(r["instance"])}
     return out
 
@@ -732,8 +815,9 @@ def generate_dataset(
     if cfg.mesh_source != "procedural":
         cfg, mesh_items = _usable_meshes(cfg, progress)
     cfg_dict = asdict(cfg)
-    # pre-crop datasets resume; those of touch sampler 1 (no such key) are refused
-    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None, "touch_sampler": 1})
+    # pre-crop and pre-keep_split datasets resume; those of touch sampler 1 (no such key) are refused
+    claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None, "touch_sampler": 1,
+                                               "keep_split": False})
     plan = plan_instances(cfg, mesh_items)
     if mesh_items is not None:
         _claim_mesh_list(out, cfg, plan)
