@@ -23,10 +23,12 @@ fit it (the config changed the architecture) is refused in one line naming the s
 Logs: ``fit --ckpt_path last``, or ``--ckpt_path`` a checkpoint file of the same run (``epoch=3.ckpt``), logs
 on into the version folder of the run it resumes (CSV and TensorBoard loggers; each checkpoint records their
 versions, :class:`LogVersions`), ``metrics.csv``'s rows from before the checkpoint kept (those after it are
-logged again by the epochs retrained); a checkpoint of another run or log folder starts a new version, and
-says so; a wandb logger starts a new run. A refused run leaves nothing on disk but an online wandb run: the
-``last`` checks come before the Trainer is built (and before its device banner), ``config.yaml`` is written
-once the model's ``setup`` has accepted the data, and a refusal there removes what the loggers had started.
+logged again by the epochs retrained; the file as it was stays beside it, ``metrics.before-step<N>.csv``); a
+checkpoint that records no version in the logger's folder (written with another log folder) starts a new
+version, and says so; a wandb logger starts a new run. A refused run leaves nothing on disk but an online
+wandb run: the ``last`` checks come before the Trainer is built (and before its device banner),
+``config.yaml`` is written once the model's ``setup`` has accepted the data, and a refusal there removes what
+the loggers had started.
 """
 
 from __future__ import annotations
@@ -104,10 +106,24 @@ class LogVersions(Callback):
     create the checkpoint need to be provided")."""
 
     key = "train.py:log_versions"
+    # checkpoints of 2026-12-04 kept the record as this callback's state under this name; with the name,
+    # train.py resuming one has the callback its state belongs to (no "please add the callbacks" warning).
+    # The state itself is empty now, and Lightning saves no empty state.
+    state_key = "train.py:log_versions"
 
     def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         checkpoint[self.key] = {_version_key(lg): lg.version for lg in trainer.loggers
                                 if isinstance(lg, (CSVLogger, TensorBoardLogger))}
+
+
+def _recorded_versions(checkpoint: dict) -> dict:
+    """The logger versions ``checkpoint`` records (:class:`LogVersions`), by :func:`_version_key`; also from
+    the callback state of the first checkpoints that recorded them, whose keys held the root folder as
+    given (relative to the working directory)."""
+    if isinstance(checkpoint.get(LogVersions.key), dict):
+        return checkpoint[LogVersions.key]
+    old = ((checkpoint.get("callbacks") or {}).get(LogVersions.state_key) or {}).get("versions") or {}
+    return {f"{k.partition(':')[0]}:{os.path.abspath(k.partition(':')[2])}": v for k, v in old.items()}
 
 
 def _rows_before(text: str, step: int) -> str:
@@ -128,10 +144,11 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
     folders ``checkpoint`` records for them (:class:`LogVersions`); returns those it records none for (they
     start a new version). Lightning's CSV writer deletes the ``metrics.csv`` it finds there: its rows logged
     before the checkpoint's global step are put back (by the main process) and its columns kept, so the
-    resumed epochs' rows follow them, each epoch once (also from an earlier epoch's checkpoint). ``kept``
-    receives each ``metrics.csv`` path with its whole text from before, to be put back if the run is then
-    refused."""
-    versions = checkpoint.get(LogVersions.key) or {}
+    resumed epochs' rows follow them, each epoch once (also from an earlier epoch's checkpoint). The rows it
+    drops are not lost: the whole file from before is kept beside it as ``metrics.before-step<N>.csv``.
+    ``kept`` receives each ``metrics.csv`` path with its text from before and that copy, so that a refused
+    run can put them back."""
+    versions = _recorded_versions(checkpoint)
     unrecorded = []
     for lg in trainer.loggers:
         if not isinstance(lg, (CSVLogger, TensorBoardLogger)) or lg._version is not None:
@@ -144,9 +161,20 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
             continue
         path = Path(lg.log_dir) / "metrics.csv"
         text = path.read_text() if path.is_file() else ""
+        step = int(checkpoint.get("global_step", 0))
+        rows = _rows_before(text, step) if text else ""
+        copy = None
+        if rows.count("\n") < text.count("\n"):  # rows of the epochs trained again: keep the file as it was
+            copy = path.with_name(f"metrics.before-step{step}.csv")
+            n = 1
+            while copy.exists():
+                n += 1
+                copy = path.with_name(f"metrics.before-step{step}-{n}.csv")
+            copy.write_text(text)
+            print(f"train.py: note: {path}'s rows from step {step} on are logged again by the resumed run; "
+                  f"the file as it was is kept in {copy.name}", file=sys.stderr)
         if text and kept is not None:
-            kept[path] = text
-        rows = _rows_before(text, int(checkpoint.get("global_step", 0))) if text else ""
+            kept[path] = (text, copy)
         with warnings.catch_warnings():  # "Previous log files ... will be deleted": they are put back below
             warnings.filterwarnings("ignore", message="Experiment logs directory")
             writer = lg.experiment
@@ -353,8 +381,8 @@ class VtlearnCLI(LightningCLI):
             unrecorded = [] if resumed is None else _continue_versions(trainer, resumed[1], self._kept_logs)
             if unrecorded:
                 logs = ", ".join(f"{type(lg).__name__} in {lg.root_dir}" for lg in unrecorded)
-                print(f"train.py: note: {resumed[0]} records no log version for {logs} (a checkpoint of "
-                      f"another run or log folder); logging into a new version folder", file=sys.stderr)
+                print(f"train.py: note: {resumed[0]} records no log version for {logs} (it was written with "
+                      f"another log folder); logging into a new version folder", file=sys.stderr)
             trainer.callbacks.append(LogVersions())
         return trainer
 
@@ -373,8 +401,10 @@ class VtlearnCLI(LightningCLI):
         except ConfigMismatchError:
             if self.trainer.is_global_zero:  # one process cleans up; the others may still be writing
                 _discard_offline_wandb_runs(loggers)
-                for path, text in getattr(self, "_kept_logs", {}).items():
+                for path, (text, copy) in getattr(self, "_kept_logs", {}).items():
                     path.write_text(text)
+                    if copy is not None:
+                        copy.unlink(missing_ok=True)
                 for d in made:
                     with contextlib.suppress(OSError):  # not empty, or gone already
                         d.rmdir()

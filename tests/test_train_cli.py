@@ -185,6 +185,26 @@ def test_a_resumed_csv_log_keeps_its_rows_when_new_columns_come(tmp_path, monkey
         {"epoch": "0", "step": "1", "val/acc": "0.5", "val/loss": ""},
         {"epoch": "1", "step": "3", "val/acc": "0.75", "val/loss": "0.25"},
     ]
+    # the dropped row is not lost: the file as it was stays beside it
+    assert (folder / "metrics.before-step2.csv").read_text() == "epoch,step,val/acc\n0,1,0.5\n1,3,0.625\n"
+
+
+def test_a_checkpoint_with_the_first_record_layout_still_continues_its_folder(tmp_path, monkeypatch):
+    """The first checkpoints with log versions (2026-12-04) kept them as callback state, keyed by the root
+    folder as given; they continue their folder, and train.py's callback still owns that state."""
+    import lightning as L
+    from lightning.pytorch.loggers import CSVLogger
+
+    monkeypatch.syspath_prepend(str(ROOT))
+    monkeypatch.chdir(tmp_path)
+    from train import LogVersions, _continue_versions
+
+    (tmp_path / "log" / "version_2").mkdir(parents=True)
+    trainer = L.Trainer(logger=CSVLogger("log", name=""), accelerator="cpu", enable_progress_bar=False)
+    old = {"global_step": 0, "callbacks": {"train.py:log_versions": {"versions": {"CSVLogger:log": 2}}}}
+    assert _continue_versions(trainer, old) == []
+    assert Path(trainer.logger.log_dir).resolve() == (tmp_path / "log" / "version_2").resolve()
+    assert LogVersions().state_key == "train.py:log_versions"
 
 
 def test_a_refused_run_leaves_nothing_on_disk(run, tmp_path, cross_dir):
@@ -240,6 +260,7 @@ def test_fit_from_an_epoch_checkpoint_logs_on_into_its_version_folder(run, tmp_p
     ckpts = tmp_path / "runs" / "xavtnet_quick" / "checkpoints"
     assert run("fit", "--trainer.max_epochs=3", CSV, *EVERY_EPOCH)[0] == 0
     first = _rows(logs / "version_0" / "metrics.csv")
+    text_first = (logs / "version_0" / "metrics.csv").read_text()
     assert sorted({int(r["epoch"]) for r in first if r["val/acc"]}) == [0, 1, 2]
     epoch0 = ckpts / "epoch=0.ckpt"
     assert run("fit", "--trainer.max_epochs=3", f"--ckpt_path={epoch0}", CSV, *EVERY_EPOCH)[0] == 0
@@ -251,17 +272,23 @@ def test_fit_from_an_epoch_checkpoint_logs_on_into_its_version_folder(run, tmp_p
         assert sorted(e for e, _ in logged) == [0, 1, 2]  # each epoch once: the retrained ones replaced
         assert sorted(logged) == sorted((int(r["epoch"]), int(r["step"])) for r in first if r[key])
     assert rows[0] == first[0]  # epoch 0's rows, from before the checkpoint, kept as they were
-    # a resume the model's setup refuses (model and data disagree) keeps every row, the later epochs' too
-    before = (logs / "version_0" / "metrics.csv").read_text()
+    # the rows of the epochs trained again are not lost: the file as it was is kept beside the new one
+    step = torch.load(epoch0, weights_only=True)["global_step"]
+    copy = logs / "version_0" / f"metrics.before-step{step}.csv"
+    assert copy.read_text() == text_first
+    assert any(f"the file as it was is kept in {copy.name}" in ln for ln in run.lines)
+    # a resume the model's setup refuses (model and data disagree) keeps every row, the later epochs' too,
+    # and leaves no copy
+    before = {p.name: p.read_text() for p in (logs / "version_0").glob("*.csv")}
     code, err = run("fit", "--trainer.max_epochs=3", f"--ckpt_path={epoch0}", CSV, *EVERY_EPOCH,
                     "--data.init_args.normalize=none")  # the checkpoint was trained on centred clouds
     assert code == 2 and err.startswith("train.py: error: input_normalize:"), err
-    assert (logs / "version_0" / "metrics.csv").read_text() == before
+    assert {p.name: p.read_text() for p in (logs / "version_0").glob("*.csv")} == before
     other = CSV.replace("runs/log", "runs/other")
     assert run("fit", "--trainer.max_epochs=2", f"--ckpt_path={epoch0}", other)[0] == 0
     root = Path("runs/other/lightning_logs")
-    assert (f"train.py: note: {epoch0} records no log version for CSVLogger in {root} (a checkpoint of "
-            "another run or log folder); logging into a new version folder") in run.lines
+    assert (f"train.py: note: {epoch0} records no log version for CSVLogger in {root} (it was written with "
+            "another log folder); logging into a new version folder") in run.lines
     assert sorted(p.name for p in (tmp_path / root).iterdir()) == ["version_0"]
     assert sorted(p.name for p in logs.iterdir()) == ["version_0"]
 
