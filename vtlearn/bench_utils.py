@@ -213,6 +213,33 @@ def _output_file(path, what: str) -> Path:
     return p
 
 
+def figure_suffixes() -> tuple[str, ...]:
+    """The file suffixes matplotlib can save a figure as (.png, .pdf, .svg, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted("." + k for k in FigureCanvasBase.get_supported_filetypes()))
+
+
+def check_figure_path(path, name: str) -> Path:
+    """:func:`check_output_path` for a figure, and a ``ValueError`` naming ``name`` when matplotlib cannot
+    write its format (``--figure x.txt``), so a command refuses it before its run, not after."""
+    p = check_output_path(path, name, "figure")
+    suffixes = figure_suffixes()
+    if p.suffix.lower() not in suffixes:
+        got = f"format {p.suffix!r}" if p.suffix else "file without a suffix"
+        raise ValueError(f"{name}: unsupported figure {got} ({path}); expected one of {', '.join(suffixes)}")
+    return p
+
+
+def write_json_and_figure(path, result: dict, figure, draw) -> None:
+    """Write ``result`` as JSON at ``path``, then draw it with ``draw(result, figure)`` and record the
+    figure's path in the JSON (``"figure"``): a figure that fails leaves the results on disk."""
+    write_json(path, result)
+    draw(result, figure)
+    result["figure"] = str(figure)
+    write_json(path, result)
+
+
 def write_json(path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON (numpy converted), creating parent folders. The text goes to a
     temporary file beside ``path`` first and is renamed over it, so a killed run never leaves half a file."""

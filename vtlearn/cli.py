@@ -143,13 +143,18 @@ _OUTPUT_OPTIONS = (("json", "JSON", False), ("figure", "figure", False), ("plot"
 
 
 def _check_output_options(args: argparse.Namespace) -> None:
-    """Refuse a ``--json`` that is a folder (and the like) before the command runs, not after a long bench."""
-    from vtlearn.bench_utils import check_output_path
+    """Refuse a ``--json`` that is a folder (and the like), or a ``--figure``/``--plot`` in a format
+    matplotlib cannot write, before the command runs, not after a long bench."""
+    from vtlearn.bench_utils import check_figure_path, check_output_path
 
     for attr, what, folder in _OUTPUT_OPTIONS:
         value = getattr(args, attr, None)
         if isinstance(value, str) and value:
-            check_output_path(value, "--" + attr.replace("_", "-"), what, folder=folder)
+            name = "--" + attr.replace("_", "-")
+            if attr in ("figure", "plot"):
+                check_figure_path(value, name)
+            else:
+                check_output_path(value, name, what, folder=folder)
 
 
 # commands that write shards atomically and skip the finished ones on a rerun

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import csv_list
+from vtlearn.bench_utils import check_figure_path, csv_list
 from vtlearn.cli_args import count
 
 log = logging.getLogger(__name__)
@@ -35,13 +35,6 @@ def _check_output_file(path: str, flag: str, what: str, suffixes: tuple[str, ...
     if p.suffix.lower() not in suffixes:
         got = f"format {p.suffix!r}" if p.suffix else "file without a suffix"
         raise ValueError(f"{flag}: unsupported {what} {got} ({path}); expected one of {', '.join(suffixes)}")
-
-
-def _figure_suffixes() -> tuple[str, ...]:
-    """The file suffixes matplotlib can save a figure as (.png, .pdf, .svg, ...)."""
-    from matplotlib.backend_bases import FigureCanvasBase
-
-    return tuple(sorted("." + k for k in FigureCanvasBase.get_supported_filetypes()))
 
 
 def _check_data(data: str, split: str) -> dict:
@@ -76,7 +69,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         if Path(args.mesh).resolve() == Path(args.out).resolve():
             raise ValueError(f"--mesh: {args.mesh} is also --out; give the mesh its own file")
     if args.figure:
-        _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
+        check_figure_path(args.figure, "--figure")
     if args.gt and not Path(args.gt).is_file():
         raise FileNotFoundError(f"--gt: no such file: {args.gt}")
     if args.input is not None:
@@ -275,7 +268,7 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
     if args.markdown:
         check_output_path(args.markdown, "--markdown", "markdown table")
     if args.figure:
-        _check_output_file(args.figure, "--figure", "figure", _figure_suffixes())
+        check_figure_path(args.figure, "--figure")
     gpis_variants = [] if args.no_gpis else _gpis_variants(args.gpis_normals)
     manifest = _check_data(args.data, args.split)
     class_names = list(manifest["class_names"])

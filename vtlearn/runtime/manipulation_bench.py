@@ -603,7 +603,9 @@ def articulation_figure(result: dict, path) -> Path:
             ax.legend(fontsize=7)
         else:
             ax.set_xticks([])
-            ax.text(0.5, 0.5, "no estimate", transform=ax.transAxes, ha="center", va="center")
+            # no joint of this kind asked for, or no correct detection of one to measure
+            why = "no correct detection" if shown else "no such joint in these categories"
+            ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center")
         ax.set_ylabel(label)
         ax.set_title(f"{label.split(' (')[0]}, per correct detection", fontsize=10)
     st = result["settings"]
@@ -613,7 +615,8 @@ def articulation_figure(result: dict, path) -> Path:
         else f"pose noise {st['noise_mm']} mm / {st['noise_deg']} deg"
     )
     fig.suptitle(
-        f"Articulation detection (thesis 6.2.2), {st['trials']} instances per category, {poses}", fontsize=11
+        f"Articulation detection (thesis 6.2.2), {st['trials']} instance{'s' * (st['trials'] != 1)} per "
+        f"category, {poses}", fontsize=11
     )
     fig.tight_layout(rect=(0, 0, 1, 0.93))
     return save_figure(fig, path)
@@ -654,7 +657,7 @@ def _not_available(row: dict) -> dict:
 
 
 def _cmd_bench_pushing(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.bench_utils import machine_info, print_table, write_json_and_figure
 
     try:
         result = run_pushing_benchmark(
@@ -727,16 +730,14 @@ def _cmd_bench_pushing(args: argparse.Namespace) -> int:
         "Success rate per object",
     )
     figure = Path(args.figure) if args.figure else Path(args.json).with_suffix(".png")
-    pushing_figure(result, figure)
     result["machine"] = machine_info()
-    result["figure"] = str(figure)
-    write_json(args.json, result)
+    write_json_and_figure(args.json, result, figure, pushing_figure)
     print(f"wrote {args.json} and {figure}")
     return 0
 
 
 def _cmd_bench_articulation(args: argparse.Namespace) -> int:
-    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.bench_utils import machine_info, print_table, write_json_and_figure
 
     figure = Path(args.figure) if args.figure else Path(args.json).with_suffix(".png")
     try:
@@ -800,10 +801,8 @@ def _cmd_bench_articulation(args: argparse.Namespace) -> int:
         "(pivot: distance to the true hinge line). Thesis 6.3.2: qualitative only (5 real trials per joint "
         "type, no accuracy or axis error reported)."
     )
-    articulation_figure(result, figure)
     result["machine"] = machine_info()
-    result["figure"] = str(figure)
-    write_json(args.json, result)
+    write_json_and_figure(args.json, result, figure, articulation_figure)
     print(f"wrote {args.json} and {figure}")
     return 0
 

@@ -352,7 +352,7 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
 def _cmd_bench_declutter(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from vtlearn.bench_utils import machine_info, print_table, write_json
+    from vtlearn.bench_utils import machine_info, print_table, write_json_and_figure
     from vtlearn.runtime.robot import DECLUTTER_POLICIES
     from vtlearn.runtime.runtime_bench import declutter_figure, run_declutter_benchmark
     from vtlearn.sim_data.shapes import CATEGORIES
@@ -398,9 +398,8 @@ def _cmd_bench_declutter(args: argparse.Namespace) -> int:
         f"Decluttering, {args.scenes} scenes with {args.clutter} clutter objects, at most {args.max_actions} "
         "actions (thesis 5.2.2; actions_mean over the scenes every policy finished)",
     )
-    declutter_figure(result, figure)
-    result.update(machine=machine_info(), figure=str(figure), seconds=round(time.perf_counter() - t0, 1))
-    write_json(args.json, result)
+    result.update(machine=machine_info(), seconds=round(time.perf_counter() - t0, 1))
+    write_json_and_figure(args.json, result, figure, declutter_figure)
     print(f"wrote {args.json} and {figure}")
     return 0
 
