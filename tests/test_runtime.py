@@ -310,7 +310,18 @@ def test_bench_runtime_smoke(tmp_path, tiny_models, capsys):
     assert [a[k] for k in same] == [r[k] for k in same]
     assert a["category"] == "wineglass" and a["actions"] == 3 + (0 if a["transparent_detected"] else 3)
     assert 0.0 <= d["summary"]["active"]["success_rate"] <= 1.0 and out.with_suffix(".png").is_file()
+    assert d["figure"] == str(out.with_suffix(".png"))
     assert "thesis (real robots)" in capsys.readouterr().out
+    # the figure is drawn from the JSON read back too (null for a failed perception), and --figure moves it
+    from vtlearn.runtime.runtime_bench import runtime_figure
+
+    d["runs"][0]["adi_cm"] = None
+    assert runtime_figure(d, tmp_path / "again.png").stat().st_size > 10_000
+    fig = tmp_path / "figs" / "runtime.pdf"
+    assert main([*args, "--n-candidates", "4", "--strategies", "random", "--json", str(tmp_path / "b2.json"),
+                 "--figure", str(fig)]) == 0
+    assert fig.is_file() and not (tmp_path / "b2.png").exists()
+    assert json.loads((tmp_path / "b2.json").read_text())["figure"] == str(fig)
     assert main([*args, "--strategies", "greedy", "--json", str(out)]) == 2
     assert "strategies" in capsys.readouterr().err
 

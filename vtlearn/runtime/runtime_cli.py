@@ -252,12 +252,11 @@ def _cmd_runtime(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_runtime(args: argparse.Namespace) -> int:
-    import numpy as np
     from tqdm import tqdm
 
     from vtlearn.active.closed_loop import TOUCH_STRATEGIES
-    from vtlearn.bench_utils import machine_info, print_table, ratio, save_figure, write_json
-    from vtlearn.runtime.runtime_bench import run_runtime_benchmark
+    from vtlearn.bench_utils import machine_info, print_table, ratio, write_json_and_figure
+    from vtlearn.runtime.runtime_bench import run_runtime_benchmark, runtime_figure
     from vtlearn.sim_data.shapes import CATEGORIES
 
     strategies = csv_list(args.strategies)
@@ -323,29 +322,10 @@ def _cmd_bench_runtime(args: argparse.Namespace) -> int:
         f"Two-arm runtime, {args.scenes} cluttered scenes, {args.n_touches} touches "
         f"(success: decluttered and ADI < 3 cm, thesis 5.4.2)",
     )
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
-    for ax, key, bound, unit in (
-        (axes[0], "chamfer_mm", 20.0, "Chamfer distance (mm)"),
-        (axes[1], "adi_cm", 3.0, "ADI (cm)"),
-    ):
-        data = [[x[key] for x in result["runs"] if x["strategy"] == n and np.isfinite(x[key])] for n in s]
-        ax.boxplot(data, showfliers=True)
-        ax.set_xticks(range(1, len(s) + 1), list(s))
-        ax.axhline(bound, color="r", ls="--", label="thesis bound")
-        ax.set_ylabel(unit)
-        ax.legend()
-    fig.suptitle("Two-arm runtime on cluttered scenes (thesis 5.4.2 analogue)")
-    fig.tight_layout()
-    png = Path(args.json).with_suffix(".png")
-    save_figure(fig, png)
-    result.update(machine=machine_info(), figure=str(png), seconds=round(time.perf_counter() - t0, 1))
-    write_json(args.json, result)
-    print(f"wrote {args.json} and {png}")
+    figure = Path(args.figure) if args.figure else Path(args.json).with_suffix(".png")
+    result.update(machine=machine_info(), seconds=round(time.perf_counter() - t0, 1))
+    write_json_and_figure(args.json, result, figure, runtime_figure)
+    print(f"wrote {args.json} and {figure}")
     return 0
 
 
@@ -452,7 +432,8 @@ def register_bench(bench_subparsers) -> None:
         "--n-candidates", type=count(1), default=40, help="candidates per active step (default %(default)s)"
     )
     p.add_argument("--seed", type=count(0), default=0)
-    p.add_argument("--json", default="runs/bench/runtime.json", help="output JSON (figure beside it)")
+    p.add_argument("--json", default="runs/bench/runtime.json", help="output JSON")
+    p.add_argument("--figure", default=None, help="output figure (default: the JSON path with .png)")
     p.set_defaults(func=_cmd_bench_runtime)
 
 
