@@ -80,10 +80,12 @@ def test_significance_helpers_match_hand_computations_and_say_when_undefined():
 def test_format_table_prints_none_as_a_dash():
     from vtlearn.bench_utils import format_table
 
-    text = format_table([{"m": "artreg", "p": None}, {"m": "icp", "p": 0.0123}, {"m": "pf"}], ["m", "p"], "t")
-    rows = text.splitlines()
-    assert rows[0] == "### t"
-    assert [r.split("|")[2].strip() for r in rows[3:]] == ["-", "0.012", ""]
+    rows = [{"m": "artreg", "p": None}, {"m": "icp", "p": 0.0123}, {"m": "pf"},
+            {"m": "fgr", "p": float("nan")}, {"m": "go", "p": float("inf")}]
+    text = format_table(rows, ["m", "p"], "t").splitlines()
+    assert text[0] == "### t"
+    # a value that does not exist is "-" whether it is None or NaN (a mean over no runs), as null in the JSON
+    assert [r.split("|")[2].strip() for r in text[3:]] == ["-", "0.012", "", "-", "-"]
 
 
 def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(monkeypatch):

@@ -131,7 +131,7 @@ def _fmt(v: Any) -> str:
         return "-"  # not available (e.g. a p-value of fewer than two runs), as the tables' blank cells
     if isinstance(v, (float, np.floating)):
         if not math.isfinite(v):
-            return "nan"
+            return "-"  # no value (a mean over no runs, a ratio to 0): null in the JSON, as None is
         a = abs(v)
         return f"{v:.3g}" if (a != 0 and (a < 1e-2 or a >= 1e5)) else f"{v:.3f}"
     return str(v)
@@ -139,7 +139,7 @@ def _fmt(v: Any) -> str:
 
 def format_table(rows: list[dict], columns: list[str], title: str | None = None) -> str:
     """A markdown-style table of ``rows`` (dicts) restricted to ``columns``; None and missing cells
-    print as "-" and "", non-finite floats as "nan"."""
+    print as "-" and "", and so do non-finite floats (the JSON holds null for both)."""
     cells = [[_fmt(r.get(c, "")) for c in columns] for r in rows]
     widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(columns)]
     lines = []
