@@ -648,3 +648,30 @@ def test_train_py_reports_a_bad_config_in_one_line(tmp_path, tiny_crossmodal, ca
             "  - data_dir: missing\n  - Expected a <class 'NoneType'>\nGiven value: ...")
     assert _reason(ValueError(text)) == "data_dir: missing"
     assert _reason(ValueError("plain")) == "plain"
+
+
+def test_benches_write_their_json_before_a_figure_that_fails(tmp_path, tiny_crossmodal, monkeypatch):
+    """The trained results reach the JSON before any figure is drawn: a figure that raises (a full disk, a
+    matplotlib backend error) loses the figure, not the trainings."""
+    import vtlearn.models.xavtnet_cli as xcli
+    from vtlearn.cli import main
+
+    def boom(*a, **k):
+        raise RuntimeError("figure failed")
+
+    monkeypatch.setattr(xcli, "_confusion_figure", boom)
+    cfg = _tiny_config(tmp_path, tiny_crossmodal)
+    out = tmp_path / "cm.json"
+    with pytest.raises(RuntimeError, match="figure failed"):
+        main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
+              "--json", str(out)])
+    res = json.loads(out.read_text())
+    assert [r["variant"] for r in res["runs"]] == ["noda"] and res["figures"] == {}
+
+    monkeypatch.setattr(xcli, "save_figure", boom)
+    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    out = tmp_path / "al.json"
+    with pytest.raises(RuntimeError, match="figure failed"):
+        main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)])
+    res = json.loads(out.read_text())
+    assert set(res["curves"]) == {"entropy", "random"} and res["plot"] == str(tmp_path / "al.png")

@@ -84,9 +84,10 @@ def _setup(args):
 
 
 def _write(args, name: str, result: dict, plot) -> None:
-    out = Path(args.json or f"runs/bench/{name.replace('-', '_')}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2))
+    from vtlearn.bench_utils import write_json
+
+    # atomic, and before the plot: a plot that fails loses no results
+    out = write_json(args.json or f"runs/bench/{name.replace('-', '_')}.json", result)
     png = out.with_suffix(".png")
     plot(result, png)
     print(f"wrote {out} and {png}")

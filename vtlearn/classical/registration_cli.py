@@ -348,6 +348,8 @@ def _cmd_bench_hand_eye(args: argparse.Namespace) -> int:
     print_table([{"method": name, **r["position_mm_median_per_mesh"]} for name, r in s.items()],
                 ["method", *mesh_names], "Median position error (mm) per calibration object (a "
                 "near-symmetric object leaves the rotation about its axis unobserved)")
+    result["machine"] = machine_info()
+    write_json(args.json, result)  # before the figure: a figure that fails loses no results
     import matplotlib
 
     matplotlib.use("Agg")
@@ -367,7 +369,6 @@ def _cmd_bench_hand_eye(args: argparse.Namespace) -> int:
     fig.tight_layout()
     png = Path(args.json).with_suffix(".png")
     save_figure(fig, png)
-    result["machine"] = machine_info()
     result["figure"] = str(png)
     write_json(args.json, result)
     print(f"wrote {args.json} and {png}")

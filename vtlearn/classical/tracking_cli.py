@@ -482,6 +482,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     )
 
     res["thesis"] = {"articulated_cm": THESIS_ARTICULATED_CM, "table_6_2_cm": THESIS_TABLE_6_2_CM}
+    write_json(args.json, res)  # before the plots: a plot that fails loses no results
     res["plots"] = _plots(Path(args.plots or Path(args.json).parent), art_vals, methods, traj_example)
     write_json(args.json, res)
     print(f"wrote {args.json}, " + ", ".join(res["plots"]))

@@ -427,14 +427,6 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
                 title=f"Recognition on the same tactile clouds: accuracy {acc:.3f} (Table 8.1 style)",
             )
         )
-        if args.figure:
-            from vtlearn.models.actor_figures import confusion_figure
-
-            cf = confusion_figure(conf, class_names, title=f"tactile recognition, accuracy {acc:.3f}")
-            cpath = Path(args.figure).with_name(Path(args.figure).stem + "_confusion.png")
-            cpath.parent.mkdir(parents=True, exist_ok=True)
-            cf.savefig(cpath, dpi=100)
-            print(f"wrote {cpath}")
 
     ttext = ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in targets.items())
     # with --no-gpis no GPIS ran, so there are no failures to report
@@ -467,6 +459,15 @@ def _cmd_bench_actor(args: argparse.Namespace) -> int:
             "\n\n".join(text) + f"\n\ntargets: {ttext}{gtext}\n"
         )
         print(f"wrote {args.markdown}")
+    if args.figure and recognition is not None:  # figures after the JSON: a failing one loses no results
+        from vtlearn.models.actor_figures import confusion_figure
+
+        cf = confusion_figure(np.asarray(recognition["confusion"]), recognition["class_names"],
+                              title=f"tactile recognition, accuracy {recognition['accuracy']:.3f}")
+        cpath = Path(args.figure).with_name(Path(args.figure).stem + "_confusion.png")
+        cpath.parent.mkdir(parents=True, exist_ok=True)
+        cf.savefig(cpath, dpi=100)
+        print(f"wrote {cpath}")
     if args.figure:
         from vtlearn.models.actor_figures import reconstruction_figure
 

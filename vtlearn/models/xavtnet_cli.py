@@ -701,7 +701,15 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
 
-    figures = {}
+    result = {
+        "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
+        "seeds": seeds, "model_base": base, "rows": rows, "runs": per_run, "checks": checks,
+        "class_names": class_names, "figures": {}, "machine": machine_info(),
+        "accelerator": args.accelerator, "workers": args.workers,
+        "note": "trainings run side by side (--workers); fit_s timings are noisy",
+    }
+    write_json(args.json, result)  # before the figures: a figure that fails loses no trained results
+    figures = result["figures"]
     if not args.no_figures:
         conf_runs = [r for r in per_run if r["variant"] == "vtloss"] or per_run
         conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
@@ -718,13 +726,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             _tsne_figure(panels, class_names, Path(figures["tsne"]), seeds[0])
         for name, path in figures.items():
             print(f"{name}: {path}")
-    write_json(args.json, {
-        "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
-        "seeds": seeds, "model_base": base, "rows": rows, "runs": per_run, "checks": checks,
-        "class_names": class_names, "figures": figures, "machine": machine_info(),
-        "accelerator": args.accelerator, "workers": args.workers,
-        "note": "trainings run side by side (--workers); fit_s timings are noisy",
-    })
+    if figures:
+        write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 
@@ -1067,6 +1070,16 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
                     "Paired against random over seeds and query rounds (accuracy points)")
     ratio = ratios.get("entropy")
     plot = _plot_path(args)
+    write_json(args.json, {  # before the plot: a plot that fails loses no trained results
+        "bench": "active-learning", **meta,
+        "curves": curves, "table_7_1": rows, "table_7_1_sustained": stay_rows,
+        "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios, "ratios_2pct_sustained": ratios_stay,
+        "ratios_2pct_text": ratio_texts,
+        "paired_vs_random": paired, "bootstrap_2pct": boot,
+        "plot": str(plot),
+        "machine": machine_info(),
+    })
+    print(f"wrote {args.json}")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1086,15 +1099,6 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
     fig.tight_layout()
     save_figure(fig, plot, dpi=120)
     print(f"plot: {plot}")
-    write_json(args.json, {
-        "bench": "active-learning", **meta,
-        "curves": curves, "table_7_1": rows, "table_7_1_sustained": stay_rows,
-        "ratio_entropy_random_2pct": ratio, "ratios_2pct": ratios, "ratios_2pct_sustained": ratios_stay,
-        "ratios_2pct_text": ratio_texts,
-        "paired_vs_random": paired, "bootstrap_2pct": boot,
-        "machine": machine_info(),
-    })
-    print(f"wrote {args.json}")
     return 0
 
 
