@@ -374,3 +374,10 @@ def test_declutter_figure_draws_a_hand_made_result(tmp_path):
     with pytest.raises(ValueError, match="result: no runs"):
         declutter_figure({**_declutter_result(), "runs": []}, tmp_path / "empty.png")
     assert not (tmp_path / "empty.png").exists()
+    # a result without its settings (another bench's JSON, or one from before they were recorded)
+    old = {k: v for k, v in _declutter_result().items() if k != "settings"}
+    with pytest.raises(ValueError, match=r"^result: no settings; not a `vtlearn bench declutter` result"):
+        declutter_figure(old, tmp_path / "old.png")
+    with pytest.raises(ValueError, match=r"^result: no settings.max_actions"):
+        singulated_within({**old, "settings": {"scenes": 3}}, "graph")
+    assert not (tmp_path / "old.png").exists()

@@ -251,6 +251,17 @@ def run_declutter_benchmark(
     return {"runs": runs, "summary": summary, "settings": settings}
 
 
+def _check_declutter_result(result: dict) -> None:
+    """A ValueError naming ``result`` when it lacks what the declutter figures read (a JSON of another bench,
+    or one written before ``settings`` was recorded, 2026-12-04)."""
+    missing = [k for k in ("runs", "summary", "settings") if k not in result]
+    if not missing and "max_actions" not in result["settings"]:
+        missing = ["settings.max_actions"]
+    if missing:
+        raise ValueError(f"result: no {', '.join(missing)}; not a `vtlearn bench declutter` result of this "
+                         "version (rerun the bench to draw it)")
+
+
 def singulated_within(result: dict, policy: str) -> np.ndarray:
     """The fraction of the scenes whose target ``policy`` singulated within ``k`` actions, for
     ``k = 0 .. max_actions`` (index ``k``); the last entry is the policy's success rate.
@@ -262,6 +273,7 @@ def singulated_within(result: dict, policy: str) -> np.ndarray:
     Shapes:
         returns ``(max_actions + 1,)``.
     """
+    _check_declutter_result(result)
     runs = [x for x in result["runs"] if x["policy"] == policy]
     if not runs:
         raise ValueError(f"policy: no runs of {policy!r} in the result (policies {list(result['summary'])})")
@@ -288,6 +300,7 @@ def declutter_figure(result: dict, path) -> Path:
 
     from vtlearn.bench_utils import save_figure
 
+    _check_declutter_result(result)
     policies, st = list(result["summary"]), result["settings"]
     if not result["runs"]:
         raise ValueError("result: no runs to draw")
