@@ -258,7 +258,7 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
     for strategy in ("entropy", "random"):
         assert res["curves"][strategy]["n_labels"] == [3, 5]
         assert set(res["curves"][strategy]["labels_to_reach"]) == {"10%", "5%", "3%", "2%"}
-    assert (tmp_path / "al.png").exists()
+    assert (tmp_path / "al.png").exists() and res["figure"] == str(tmp_path / "al.png")
     # two worker processes: the same curves and full-pool reference as the serial run
     out2 = tmp_path / "al2.json"
     assert main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--workers", "2",
@@ -674,4 +674,4 @@ def test_benches_write_their_json_before_a_figure_that_fails(tmp_path, tiny_cros
     with pytest.raises(RuntimeError, match="figure failed"):
         main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)])
     res = json.loads(out.read_text())
-    assert set(res["curves"]) == {"entropy", "random"} and res["plot"] == str(tmp_path / "al.png")
+    assert set(res["curves"]) == {"entropy", "random"} and "figure" not in res  # recorded once drawn
