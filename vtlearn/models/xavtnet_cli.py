@@ -120,6 +120,10 @@ VARIANTS["vtloss_g12_mt_con_pl"] = {**VARIANTS["vtloss_g12_mt_con"], "pseudo_lab
 VARIANTS["vtloss_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt"], "pseudo_label_weight": 10.0,
                                   "pseudo_label_groups": True}
 VARIANTS["noda_vote"] = {"da_method": "none", "pseudo_label_weight": 10.0, "pseudo_label_groups": True}
+# Table 7.2's "MMD only" ablation of the rows above that align the pooled feature too: CORAL off, all else
+# equal, so that VTLoss's CORAL share can be read where alignment reaches further than fc1 and fc2.
+VARIANTS["mmd_g12"] = {**VARIANTS["vtloss_g12"], "use_coral": False}
+VARIANTS["mmd_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt_vote"], "use_coral": False}
 # Beyond the thesis: the teacher row's mean teacher with no alignment (no MK-MMD, no CORAL): no-DA plus the
 # consistency, so that the teacher row's margin over no-DA splits into the teacher's share and VTLoss's.
 VARIANTS["noda_mt"] = {"da_method": "none", **{k: VARIANTS["vtloss_g12_mt"][k] for k in ("consistency_weight",
