@@ -984,6 +984,8 @@ def test_da_layers_as_one_name_is_that_layer():
     ("vtloss_fc2", True, True, ("fc2",), False),
     ("vtloss", True, True, ("fc1", "fc2"), False),
     ("dann", False, False, (), True),
+    ("mmd_g12", True, False, ("global", "fc1", "fc2"), False),
+    ("mmd_g12_mt_vote", True, False, ("global", "fc1", "fc2"), False),
 ])
 def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
     """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
