@@ -244,6 +244,51 @@ def test_vtloss_gradcheck_and_errors():
         VTLoss(layers=("fc1", "fc2", "fc1"))
 
 
+def test_vtloss_lam_balance_keeps_coral_term_equal_to_the_weighted_ce():
+    """Deep CORAL's balance rule online: λ_t = α·mean(CE) / mean(CORAL) over exponential means that are
+    bias-corrected, so the first step's weighted CORAL term equals its α·CE exactly."""
+    loss = VTLoss(alpha=2.0, beta=3.0, lam=5.0, lam_balance=0.5)
+    steps = [_feats(seed) for seed in (11, 12, 13)]
+    ce_means = cor_means = 0.0
+    for i, (logits, labels, fs, ft) in enumerate(steps, start=1):
+        ce = torch.nn.functional.cross_entropy(logits, labels)
+        mmd = mk_mmd(fs["fc1"], ft["fc1"]) + mk_mmd(fs["fc2"], ft["fc2"])
+        cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
+        ce_means = 0.5 * ce_means + 0.5 * ce.item()
+        cor_means = 0.5 * cor_means + 0.5 * cor.item()
+        lam = 2.0 * ce_means / cor_means  # the bias corrections cancel in the ratio
+        total, parts = loss(logits, labels, fs, ft)
+        assert parts["lam"].item() == pytest.approx(lam)
+        assert total.item() == pytest.approx((2 * ce + 3 * mmd + lam * cor).item())
+        if i == 1:  # one step: λ·CORAL is exactly α·CE, whatever the λ = 5 passed
+            assert (lam * cor).item() == pytest.approx((2 * ce).item())
+    # eval mode reads the last training λ and leaves the means alone
+    state = loss.balance_state.clone()
+    loss.eval()
+    logits, labels, fs, ft = _feats(14)
+    _, parts = loss(logits, labels, fs, ft)
+    assert parts["lam"].item() == pytest.approx(lam)
+    assert torch.equal(loss.balance_state, state)
+    # the means travel with the state dict; the rows without the rule keep theirs as they were
+    assert "balance_state" in loss.state_dict() and "balance_state" not in VTLoss().state_dict()
+    # a CORAL sum of 0 caps λ rather than dividing by 0
+    capped = VTLoss(lam_balance=0.0)
+    same = {"fc1": fs["fc1"], "fc2": fs["fc2"]}
+    _, parts = capped(logits, labels, same, same)
+    assert parts["lam"].item() == VTLoss.LAM_BALANCE_MAX
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(lam_balance=1.0), "lam_balance"),
+    (dict(lam_balance=-0.1), "lam_balance"),
+    (dict(lam_balance=float("nan")), "lam_balance"),
+    (dict(lam_balance=0.9, use_coral=False), "lam_balance: sets the CORAL weight"),
+])
+def test_vtloss_lam_balance_rejects_bad_settings(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        VTLoss(**kwargs)
+
+
 def naive_local_mmd(xs, ys, xt, pt, h):
     """DSAN's LMMD written out: per class present in both domains, a weighted V-statistic over pairs."""
 

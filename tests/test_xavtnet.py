@@ -986,6 +986,8 @@ def test_da_layers_as_one_name_is_that_layer():
     ("dann", False, False, (), True),
     ("mmd_g12", True, False, ("global", "fc1", "fc2"), False),
     ("mmd_g12_mt_vote", True, False, ("global", "fc1", "fc2"), False),
+    ("vtloss_bal", True, True, ("fc1", "fc2"), False),
+    ("coral_bal", False, True, ("fc1", "fc2"), False),
 ])
 def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
     """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
@@ -1009,3 +1011,5 @@ def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd
     terms = {k for k in logged if k.startswith(("mmd_", "coral_"))}
     assert terms == {f"{t}_{layer}" for t, on in (("mmd", mmd), ("coral", coral_)) if on for layer in layers}
     assert ("domain" in logged) == dann
+    # the balance-rule rows set λ each step (Deep CORAL's rule, online) and log it
+    assert (model.vtloss.lam_balance is not None) == row.endswith("_bal") == ("lam" in logged)

@@ -20,8 +20,13 @@ VTLoss fc2         ``layers=("fc2",)``
 VTLoss             defaults
 =================  =====================================================
 
-Beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional LMMD of
-DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class probabilities.
+Beyond the thesis, ``lam_balance`` sets λ during training by Deep CORAL's balance rule (Sun & Saenko
+2016: λ such that the CORAL and classification losses are about equal at the end of training), from
+running means of the two: ``λ_t = α·mean(CE)_t / mean(CORAL)_t``. The thesis fixes λ = 10; the rule,
+read off the end of a λ = 10 training, gives λ ≈ 500-650 (docs/xavtnet.md), and applying it online
+tracks the ratio as both terms fall. Also beyond the thesis, ``mmd_conditional=True`` replaces each
+layer's MK-MMD by the class-conditional LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the
+source labels and the target class probabilities.
 """
 
 from __future__ import annotations
@@ -51,13 +56,26 @@ class VTLoss(nn.Module):
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD options (see :func:`mk_mmd`).
         mmd_conditional: the class-conditional LMMD (:func:`~vtlearn.losses.lmmd.local_mmd`, biased
             estimator) in place of MK-MMD; ``forward`` then needs ``target_probs``.
+        lam_balance: ``None`` (default): λ is ``lam``, as in eq. 7.8. A momentum ``m`` in [0, 1): λ is
+            set each training step by Deep CORAL's balance rule (module docstring),
+            ``λ_t = α·mean(CE)_t / mean(CORAL)_t``, over exponential means of the detached source
+            cross-entropy and CORAL sum with momentum ``m``, bias-corrected as Adam's moments (so the
+            first step uses that step's ratio); ``lam`` is then unused. λ_t is capped at
+            :attr:`LAM_BALANCE_MAX`. The means update in training mode only and are saved with the
+            module (a resumed run keeps them). Needs ``use_coral``.
 
     Shapes:
         logits_source (n_s, k), labels_source (n_s,) int64,
         features_source[name] (n_s, d_name), features_target[name] (n_t, d_name),
         target_probs (n_t, k) (``mmd_conditional`` only)
-        -> (scalar total, dict of detached scalar parts: "ce", "mmd", "coral", "mmd_<layer>", ...)
+        -> (scalar total, dict of detached scalar parts: "ce", "mmd", "coral", "mmd_<layer>", ...;
+        "lam" with ``lam_balance``)
     """
+
+    #: the largest λ that ``lam_balance`` sets, a guard against a CORAL sum of 0 (an unbounded weight), not
+    #: a limit on the rule: eq. 7.8's object-frame trainings end with CE ≈ 0.3 and a CORAL sum near 5·10⁻⁵,
+    #: where the rule asks for λ ≈ 6·10⁴ (a first cap of 10⁴ bound from the second epoch on; stop 51).
+    LAM_BALANCE_MAX = 1e6
 
     def __init__(
         self,
@@ -71,6 +89,7 @@ class VTLoss(nn.Module):
         mmd_kernel_mul: float = 2.0,
         mmd_unbiased: bool = False,
         mmd_conditional: bool = False,
+        lam_balance: float | None = None,
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
@@ -92,6 +111,14 @@ class VTLoss(nn.Module):
         self.kernel_kwargs = dict(num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul))
         self.mmd_kwargs = {**self.kernel_kwargs, "unbiased": bool(mmd_unbiased)}
         self.mmd_conditional = bool(mmd_conditional)
+        if lam_balance is not None:
+            lam_balance = as_real(lam_balance, "lam_balance", low=0.0, high=1.0, open_high=True)
+            if not self.use_coral:
+                raise ValueError("lam_balance: sets the CORAL weight λ, but use_coral is off")
+        self.lam_balance = lam_balance
+        if lam_balance is not None:  # only then, so that the state dicts of eq. 7.8's rows stay as they were
+            # the balance rule's running means: [CE, CORAL sum, steps], saved in checkpoints
+            self.register_buffer("balance_state", torch.zeros(3, dtype=torch.float64))
 
     @property
     def adapts(self) -> bool:
@@ -155,12 +182,34 @@ class VTLoss(nn.Module):
             total = total + da_scale * self.beta * mmd_sum
             parts["mmd"] = mmd_sum.detach()
         if self.use_coral:
-            total = total + da_scale * self.lam * coral_sum
+            balanced = self.lam_balance is not None
+            lam = self._balanced_lam(ce.detach(), coral_sum.detach()) if balanced else self.lam
+            total = total + da_scale * lam * coral_sum
             parts["coral"] = coral_sum.detach()
+            if balanced:
+                parts["lam"] = ce.new_tensor(lam)
         return total, parts
+
+    def _balanced_lam(self, ce: torch.Tensor, coral_sum: torch.Tensor) -> float:
+        """λ_t of ``lam_balance`` (Deep CORAL's balance rule, online): the running means take this step's
+        values in training mode; in eval mode the λ of the last training step is returned."""
+        state = self.balance_state
+        if self.training:
+            m = self.lam_balance
+            state[0] = m * state[0] + (1 - m) * ce.to(state)
+            state[1] = m * state[1] + (1 - m) * coral_sum.to(state)
+            state[2] += 1
+        if state[2] == 0:
+            return self.lam
+        correction = 1 - self.lam_balance ** state[2]  # Adam's bias correction; cancels in the ratio
+        ce_mean, coral_mean = state[0] / correction, state[1] / correction
+        if coral_mean <= 0:
+            return self.LAM_BALANCE_MAX
+        return float(min(self.alpha * ce_mean / coral_mean, self.LAM_BALANCE_MAX))
 
     def extra_repr(self) -> str:
         return (
             f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
-            f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}"
+            f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}, "
+            f"lam_balance={self.lam_balance}"
         )

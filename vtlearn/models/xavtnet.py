@@ -266,6 +266,10 @@ class XAVTNet(L.LightningModule):
             name ``"global"``, the max-pooled PointNet feature that fc1 reads: the pool is where a cloud's
             point count acts (a max over 30-120 touched points against one over 256 seen ones).
         alpha, beta, lam: VTLoss weights α, β, λ (thesis: 10, 10, 10).
+        lam_balance: ``None`` (default): λ is ``lam``. A momentum in [0, 1): λ is set each step by Deep
+            CORAL's balance rule from running means of the source cross-entropy and the CORAL sum
+            (:class:`~vtlearn.losses.vtloss.VTLoss`; beyond the thesis); logged as ``train/lam``. Needs
+            ``da_method="vtloss"`` with ``use_coral``.
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
         mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
@@ -409,6 +413,7 @@ class XAVTNet(L.LightningModule):
         mmd_kernel_mul: float = 2.0,
         mmd_unbiased: bool = False,
         mmd_conditional: bool = False,
+        lam_balance: float | None = None,
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
@@ -541,6 +546,9 @@ class XAVTNet(L.LightningModule):
             if repeated:
                 raise ValueError(f"da_layers: {repeated} named more than once, which would count its "
                                  "alignment terms twice")
+        if lam_balance is not None and not (da_method == "vtloss" and use_coral):
+            raise ValueError(f"lam_balance: sets VTLoss's CORAL weight, but da_method={da_method!r} with "
+                             f"use_coral={use_coral} has no CORAL term")
         as_real(feature_transform_weight, "feature_transform_weight", low=0.0)
         as_real(weight_decay, "weight_decay", low=0.0)
         # a zero weight or ramp leaves the discriminator without effect on the encoder: the DANN row is no-DA
@@ -568,7 +576,7 @@ class XAVTNet(L.LightningModule):
         self.vtloss = VTLoss(
             alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
             mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
-            mmd_conditional=mmd_conditional,
+            mmd_conditional=mmd_conditional, lam_balance=lam_balance if vt else None,
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
         self._memory = (

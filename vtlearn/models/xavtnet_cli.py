@@ -124,13 +124,18 @@ VARIANTS["noda_vote"] = {"da_method": "none", "pseudo_label_weight": 10.0, "pseu
 # equal, so that VTLoss's CORAL share can be read where alignment reaches further than fc1 and fc2.
 VARIANTS["mmd_g12"] = {**VARIANTS["vtloss_g12"], "use_coral": False}
 VARIANTS["mmd_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt_vote"], "use_coral": False}
+# Beyond the thesis: VTLoss and CORAL only with λ set during training by Deep CORAL's balance rule (λ·CORAL
+# kept equal to α·CE from running means with momentum 0.9; losses/vtloss.py), the rule the fixed λ = 500
+# rows apply once, at the end of a λ = 10 training.
+VARIANTS["vtloss_bal"] = {**_VTLOSS, "lam_balance": 0.9}
+VARIANTS["coral_bal"] = {**VARIANTS["coral"], "lam_balance": 0.9}
 # Beyond the thesis: the teacher row's mean teacher with no alignment (no MK-MMD, no CORAL): no-DA plus the
 # consistency, so that the teacher row's margin over no-DA splits into the teacher's share and VTLoss's.
 VARIANTS["noda_mt"] = {"da_method": "none", **{k: VARIANTS["vtloss_g12_mt"][k] for k in ("consistency_weight",
                                                                           "consistency_threshold")}}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
-                   "_fm", "_mix", "_con", "_vote")
+                   "_fm", "_mix", "_con", "_vote", "_bal")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
