@@ -63,6 +63,10 @@ class VTLoss(nn.Module):
             first step uses that step's ratio); ``lam`` is then unused. λ_t is capped at
             :attr:`LAM_BALANCE_MAX`. The means update in training mode only and are saved with the
             module (a resumed run keeps them). Needs ``use_coral``.
+            A negative result, kept to be rerun: on xAVTNet's clouds the rule runs away (λ ∝ 1/CORAL, and a
+            larger λ shrinks CORAL further), λ reaches the cap and the classifier stops learning
+            (docs/xavtnet.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ once, as the
+            fixed ``lam`` does.
 
     Shapes:
         logits_source (n_s, k), labels_source (n_s,) int64,

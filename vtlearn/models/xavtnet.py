@@ -269,7 +269,8 @@ class XAVTNet(L.LightningModule):
         lam_balance: ``None`` (default): λ is ``lam``. A momentum in [0, 1): λ is set each step by Deep
             CORAL's balance rule from running means of the source cross-entropy and the CORAL sum
             (:class:`~vtlearn.losses.vtloss.VTLoss`; beyond the thesis); logged as ``train/lam``. Needs
-            ``da_method="vtloss"`` with ``use_coral``.
+            ``da_method="vtloss"`` with ``use_coral``. It runs away on these clouds and the training
+            collapses (stop 51); a fixed ``lam`` is the working setting.
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
         mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target

@@ -126,7 +126,8 @@ VARIANTS["mmd_g12"] = {**VARIANTS["vtloss_g12"], "use_coral": False}
 VARIANTS["mmd_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt_vote"], "use_coral": False}
 # Beyond the thesis: VTLoss and CORAL only with λ set during training by Deep CORAL's balance rule (λ·CORAL
 # kept equal to α·CE from running means with momentum 0.9; losses/vtloss.py), the rule the fixed λ = 500
-# rows apply once, at the end of a λ = 10 training.
+# rows apply once, at the end of a λ = 10 training. A negative result: online, λ ∝ 1/CORAL runs away and the
+# training collapses (docs/xavtnet.md, stop 51).
 VARIANTS["vtloss_bal"] = {**_VTLOSS, "lam_balance": 0.9}
 VARIANTS["coral_bal"] = {**VARIANTS["coral"], "lam_balance": 0.9}
 # Beyond the thesis: the teacher row's mean teacher with no alignment (no MK-MMD, no CORAL): no-DA plus the
