@@ -23,10 +23,13 @@ VTLoss             defaults
 Beyond the thesis, ``lam_balance`` sets λ during training by Deep CORAL's balance rule (Sun & Saenko
 2016: λ such that the CORAL and classification losses are about equal at the end of training), from
 running means of the two: ``λ_t = α·mean(CE)_t / mean(CORAL)_t``. The thesis fixes λ = 10; the rule,
-read off the end of a λ = 10 training, gives λ ≈ 500-650 (docs/xavtnet.md), and applying it online
-tracks the ratio as both terms fall. Also beyond the thesis, ``mmd_conditional=True`` replaces each
-layer's MK-MMD by the class-conditional LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the
-source labels and the target class probabilities.
+read off the end of a λ = 10 training in the centred frame, gives λ ≈ 500-650 (docs/xavtnet.md).
+Applied online, the ratio feeds back (λ ∝ 1/CORAL, and a larger λ shrinks CORAL) and, on xAVTNet's
+clouds, runs away to the cap and stalls the classifier (stop 51).
+
+Also beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional
+LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class
+probabilities.
 """
 
 from __future__ import annotations
@@ -63,10 +66,10 @@ class VTLoss(nn.Module):
             first step uses that step's ratio); ``lam`` is then unused. λ_t is capped at
             :attr:`LAM_BALANCE_MAX`. The means update in training mode only and are saved with the
             module (a resumed run keeps them). Needs ``use_coral``.
-            A negative result, kept to be rerun: on xAVTNet's clouds the rule runs away (λ ∝ 1/CORAL, and a
-            larger λ shrinks CORAL further), λ reaches the cap and the classifier stops learning
-            (docs/xavtnet.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ once, as the
-            fixed ``lam`` does.
+            Kept as a documented negative result: on xAVTNet's clouds the rule runs away (λ ∝ 1/CORAL,
+            and a larger λ shrinks CORAL further), λ reaches the cap and the classifier hardly learns
+            (docs/xavtnet.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ once, as
+            the fixed ``lam`` does.
 
     Shapes:
         logits_source (n_s, k), labels_source (n_s,) int64,
@@ -78,7 +81,7 @@ class VTLoss(nn.Module):
 
     #: the largest λ that ``lam_balance`` sets, a guard against a CORAL sum of 0 (an unbounded weight), not
     #: a limit on the rule: eq. 7.8's object-frame trainings end with CE ≈ 0.3 and a CORAL sum near 5·10⁻⁵,
-    #: where the rule asks for λ ≈ 6·10⁴ (a first cap of 10⁴ bound from the second epoch on; stop 51).
+    #: where the rule asks for λ ≈ 5·10⁴ (a first cap of 10⁴ bound from the second epoch on; stop 51).
     LAM_BALANCE_MAX = 1e6
 
     def __init__(
