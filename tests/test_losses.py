@@ -245,8 +245,8 @@ def test_vtloss_gradcheck_and_errors():
 
 
 def test_vtloss_lam_balance_keeps_coral_term_equal_to_the_weighted_ce():
-    """Deep CORAL's balance rule online: λ_t = α·mean(CE) / mean(CORAL) over exponential means that are
-    bias-corrected, so the first step's weighted CORAL term equals its α·CE exactly."""
+    """Deep CORAL's balance rule online: λ_t = α·mean(CE) / mean(CORAL) over exponential means started at
+    0, whose common factor cancels, so the first step's weighted CORAL term equals its α·CE exactly."""
     loss = VTLoss(alpha=2.0, beta=3.0, lam=5.0, lam_balance=0.5)
     steps = [_feats(seed) for seed in (11, 12, 13)]
     ce_means = cor_means = 0.0
@@ -256,7 +256,7 @@ def test_vtloss_lam_balance_keeps_coral_term_equal_to_the_weighted_ce():
         cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
         ce_means = 0.5 * ce_means + 0.5 * ce.item()
         cor_means = 0.5 * cor_means + 0.5 * cor.item()
-        lam = 2.0 * ce_means / cor_means  # the bias corrections cancel in the ratio
+        lam = 2.0 * ce_means / cor_means
         total, parts = loss(logits, labels, fs, ft)
         assert parts["lam"].item() == pytest.approx(lam)
         assert total.item() == pytest.approx((2 * ce + 3 * mmd + lam * cor).item())

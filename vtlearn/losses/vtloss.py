@@ -62,10 +62,10 @@ class VTLoss(nn.Module):
         lam_balance: ``None`` (default): λ is ``lam``, as in eq. 7.8. A momentum ``m`` in [0, 1): λ is
             set each training step by Deep CORAL's balance rule (module docstring),
             ``λ_t = α·mean(CE)_t / mean(CORAL)_t``, over exponential means of the detached source
-            cross-entropy and CORAL sum with momentum ``m``, bias-corrected as Adam's moments (so the
-            first step uses that step's ratio); ``lam`` is then unused. λ_t is capped at
-            :attr:`LAM_BALANCE_MAX`. The means update in training mode only and are saved with the
-            module (a resumed run keeps them). Needs ``use_coral``.
+            cross-entropy and CORAL sum with momentum ``m``, started at 0 (their common start-up factor
+            cancels in the ratio, so the first step uses that step's ratio); ``lam`` is then unused.
+            λ_t is capped at :attr:`LAM_BALANCE_MAX`. The means update in training mode only and are
+            saved with the module (a resumed run keeps them). Needs ``use_coral``.
             Kept as a documented negative result: on xAVTNet's clouds the rule runs away (λ ∝ 1/CORAL,
             and a larger λ shrinks CORAL further), λ reaches the cap and the classifier hardly learns
             (docs/xavtnet.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ once, as
@@ -122,10 +122,10 @@ class VTLoss(nn.Module):
             lam_balance = as_real(lam_balance, "lam_balance", low=0.0, high=1.0, open_high=True)
             if not self.use_coral:
                 raise ValueError("lam_balance: sets the CORAL weight λ, but use_coral is off")
-        self.lam_balance = lam_balance
-        if lam_balance is not None:  # only then, so that the state dicts of eq. 7.8's rows stay as they were
-            # the balance rule's running means: [CE, CORAL sum, steps], saved in checkpoints
+            # the balance rule's running means [CE, CORAL sum, steps], saved in checkpoints; registered only
+            # with the rule on, so that the state dicts of eq. 7.8's rows stay as they were
             self.register_buffer("balance_state", torch.zeros(3, dtype=torch.float64))
+        self.lam_balance = lam_balance
 
     @property
     def adapts(self) -> bool:
@@ -208,11 +208,10 @@ class VTLoss(nn.Module):
             state[2] += 1
         if state[2] == 0:
             return self.lam
-        correction = 1 - self.lam_balance ** state[2]  # Adam's bias correction; cancels in the ratio
-        ce_mean, coral_mean = state[0] / correction, state[1] / correction
-        if coral_mean <= 0:
+        # the means start at 0; Adam's bias correction would divide both by 1 − m^t, which cancels here
+        if state[1] <= 0:
             return self.LAM_BALANCE_MAX
-        return float(min(self.alpha * ce_mean / coral_mean, self.LAM_BALANCE_MAX))
+        return float(min(self.alpha * state[0] / state[1], self.LAM_BALANCE_MAX))
 
     def extra_repr(self) -> str:
         return (
