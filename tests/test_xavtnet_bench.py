@@ -106,6 +106,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
     assert len(res["runs"]) == 4 and all(0 <= r["tactile_acc"] <= 100 for r in res["runs"])
     assert "vtloss_minus_noda" in res["checks"]
+    # what each row sets over model_base is recorded with its numbers
+    assert res["variant_settings"]["noda"] == {"da_method": "none"}
+    assert res["variant_settings"]["vtloss"]["da_layers"] == ["fc1", "fc2"]
     assert (res["accelerator"], res["workers"]) == ("cpu", 1)
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
     assert Path(res["figures"]["tsne"]).parent == tmp_path / "cm"
@@ -125,7 +128,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     # the train-on-target upper bound is a variant of its own, scored like the others
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "tactile_oracle", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0
-    assert [r["variant"] for r in json.loads(out2.read_text())["runs"]] == ["tactile_oracle"]
+    res_oracle = json.loads(out2.read_text())
+    assert [r["variant"] for r in res_oracle["runs"]] == ["tactile_oracle"]
+    assert res_oracle["variant_settings"] == {"tactile_oracle": {"da_method": "none"}}
     # each information-maximisation row (beyond the thesis) is compared with no-DA
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_im", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0
@@ -675,3 +680,17 @@ def test_benches_write_their_json_before_a_figure_that_fails(tmp_path, tiny_cros
         main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)])
     res = json.loads(out.read_text())
     assert set(res["curves"]) == {"entropy", "random"} and "figure" not in res  # recorded once drawn
+
+
+def test_bench_crossmodal_records_the_balance_rules_cap():
+    """A row with the online balance rule records the cap on its λ_t beside its settings: the cap is a class
+    constant that a JSON would otherwise not show (stop 51 ran the same row at two caps)."""
+    from vtlearn.losses.vtloss import VTLoss
+    from vtlearn.models.xavtnet_cli import VARIANTS, _variant_settings
+
+    got = _variant_settings(["vtloss", "vtloss_bal", "coral_bal"])
+    assert got["vtloss"] == VARIANTS["vtloss"] and "lam_balance_max" not in got["vtloss"]
+    for name in ("vtloss_bal", "coral_bal"):
+        assert got[name] == {**VARIANTS[name], "lam_balance_max": VTLoss.LAM_BALANCE_MAX}
+    assert "lam_balance_max" not in VARIANTS["vtloss_bal"]  # the table itself is left as it was
+    json.dumps(got)

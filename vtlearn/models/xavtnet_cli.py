@@ -713,7 +713,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
-        "seeds": seeds, "model_base": base, "rows": rows, "runs": per_run, "checks": checks,
+        "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
+        "rows": rows, "runs": per_run, "checks": checks,
         "class_names": class_names, "figures": {}, "machine": machine_info(),
         "accelerator": args.accelerator, "workers": args.workers,
         "note": "trainings run side by side (--workers); fit_s timings are noisy",
@@ -740,6 +741,22 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
+
+
+def _variant_settings(variants: list[str]) -> dict[str, dict]:
+    """What each run row sets over ``model_base`` (its :data:`VARIANTS` entry; the oracle: no-DA's, trained
+    on labelled touches), and, for a row with Deep CORAL's online balance rule, the cap on its λ_t
+    (:attr:`~vtlearn.losses.vtloss.VTLoss.LAM_BALANCE_MAX`, a class constant), so that a JSON says which
+    setting made its numbers."""
+    from vtlearn.losses.vtloss import VTLoss
+
+    out = {}
+    for v in variants:
+        kw = dict(VARIANTS["noda" if v == ORACLE else v])
+        if kw.get("lam_balance") is not None:
+            kw["lam_balance_max"] = VTLoss.LAM_BALANCE_MAX
+        out[v] = kw
+    return out
 
 
 def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
