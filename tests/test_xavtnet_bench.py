@@ -6,6 +6,7 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -131,6 +132,18 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     res_oracle = json.loads(out2.read_text())
     assert [r["variant"] for r in res_oracle["runs"]] == ["tactile_oracle"]
     assert res_oracle["variant_settings"] == {"tactile_oracle": {"da_method": "none"}}
+    assert "discrepancy" not in res_oracle and "discrepancy" not in res_oracle["runs"][0]
+    # --discrepancy measures what each run leaves between the domains, and summarises it per row
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,mmd", "--seeds", "2",
+                 "--max-epochs", "1", "--discrepancy", "--no-figures", "--json", str(out2)]) == 0
+    res_d = json.loads(out2.read_text())
+    assert [r["variant"] for r in res_d["discrepancy"]] == ["noda", "mmd"]
+    for row in res_d["discrepancy"]:
+        runs = [r["discrepancy"] for r in res_d["runs"] if r["variant"] == row["variant"]]
+        assert row["seeds"] == 2 and len(runs) == 2
+        assert row["coral_fc1_mean"] == pytest.approx(np.mean([d["coral_fc1"] for d in runs]))
+        assert all(d["mmd_fc2"] >= -1e-6 and d["coral_fc2"] >= 0 for d in runs)
+    assert "Domain discrepancy left by each row" in capsys.readouterr().out
     # each information-maximisation row (beyond the thesis) is compared with no-DA
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_im", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0
@@ -694,3 +707,46 @@ def test_bench_crossmodal_records_the_balance_rules_cap():
         assert got[name] == {**VARIANTS[name], "lam_balance_max": VTLoss.LAM_BALANCE_MAX}
     assert "lam_balance_max" not in VARIANTS["vtloss_bal"]  # the table itself is left as it was
     json.dumps(got)
+
+
+def test_domain_discrepancy_is_zero_for_one_domain_and_grows_with_a_shift():
+    """--discrepancy measures eq. 7.5-7.7 on the eval-mode features of the whole visual and tactile test sets:
+    the same clouds in both give 0 for MMD and CORAL; target clouds stretched along z give both > 0, and
+    the values are those of mk_mmd and coral on the features read by hand. Torch's random state and the
+    training flag are left as they were."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from vtlearn.losses.coral import coral
+    from vtlearn.losses.mmd import mk_mmd
+    from vtlearn.models.xavtnet_cli import DISCREPANCY_LAYERS, _domain_discrepancy
+
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8]).train()
+    g = torch.Generator().manual_seed(3)
+    clouds = torch.randn(18, 20, 3, generator=g)
+
+    def loader(pts):
+        return _counting_loader([{"points": p, "lengths": torch.tensor(20), "label": torch.tensor(0)}
+                                 for p in pts], batch_size=7)
+
+    state = torch.random.get_rng_state()
+    same = _domain_discrepancy(model, SimpleNamespace(source_test_dataloader=loader(clouds),
+                                                      test_dataloader=loader(clouds)))
+    assert torch.equal(torch.random.get_rng_state(), state) and model.training
+    assert set(same) == {f"{k}_{layer}" for k in ("mmd", "coral") for layer in DISCREPANCY_LAYERS}
+    assert all(v == pytest.approx(0.0, abs=1e-12) for v in same.values())
+    stretched = clouds * torch.tensor([1.0, 1.0, 3.0])
+    shifted = _domain_discrepancy(model, SimpleNamespace(source_test_dataloader=loader(clouds),
+                                                         test_dataloader=loader(stretched)))
+    # an untrained network's features are small, so CORAL's fourth-order scale is too: both are well above 0
+    assert all(shifted[f"mmd_{layer}"] > 0.1 and shifted[f"coral_{layer}"] > 1e-9
+               for layer in DISCREPANCY_LAYERS)
+    with torch.no_grad():
+        src = model.extract_features(clouds, torch.full((18,), 20))
+        tgt = model.extract_features(stretched, torch.full((18,), 20))
+    for layer in DISCREPANCY_LAYERS:
+        s, t = src[layer].double(), tgt[layer].double()
+        assert shifted[f"mmd_{layer}"] == pytest.approx(float(mk_mmd(s, t)), rel=1e-4)
+        assert shifted[f"coral_{layer}"] == pytest.approx(float(coral(s, t)), rel=1e-4)

@@ -364,7 +364,7 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
 
 def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_epochs: int, threads: int,
                     features: bool, accelerator: str = "cpu", adabn: bool = False, balanced: bool = False,
-                    centroid: bool = False, probe: bool = False):
+                    centroid: bool = False, probe: bool = False, discrepancy: bool = False):
     """Train one (variant, seed) of the Table 7.2/7.4 analogue and score it on tactile and visual test clouds.
 
     ``adabn``: afterwards, re-estimate the target batch-norm statistics on the unlabelled target stream
@@ -425,6 +425,8 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     prior = dm.source_class_prior() if balanced else None
     # the network as scored for tactile_acc, before AdaBN
     row.update(_readout_scores(model, dm, prior, probe, centroid))
+    if discrepancy:
+        row["discrepancy"] = _domain_discrepancy(model, dm)
     # the teacher is scored on a copy, as trained: AdaBN below converts the model to domain_bn
     twin = copy.deepcopy(model) if model.teacher is not None else None
     if adabn:
@@ -495,6 +497,58 @@ def _score_checks(rows: list[dict], what: str, checks: dict) -> None:
                 checks[f"{name}_minus_noda"] = r[k] - noda_row["tactile_mean"]
             if noda_score is not None and (r["variant"] != "noda" or who):
                 checks[f"{name}_minus_noda_{what}"] = r[k] - noda_score
+
+
+#: The layers whose domain discrepancy --discrepancy measures: the pooled feature and the two that VTLoss
+#: aligns (eq. 7.8).
+DISCREPANCY_LAYERS = ("global", "fc1", "fc2")
+
+
+def _domain_discrepancy(model, dm, layers: tuple[str, ...] = DISCREPANCY_LAYERS) -> dict:
+    """How far apart a trained model leaves the two domains: the squared MK-MMD (eq. 7.5-7.6, the training
+    loss's biased estimate and kernel family, :func:`~vtlearn.losses.mmd.mk_mmd`) and the Deep CORAL
+    distance (eq. 7.7, :func:`~vtlearn.losses.coral.coral`) of each of ``layers``, between the eval-mode
+    features of the visual test clouds (the source statistics) and of the tactile test clouds, each set
+    whole. It tells whether a row's alignment terms, or another row's, left the covariances apart: for
+    instance whether MMD alone already closes CORAL's distance. Torch's random state is restored, as by
+    :func:`_readout_scores`.
+
+    Shapes:
+        ``layer`` features (n_visual, d) and (n_tactile, d) -> {"mmd_<layer>": float, "coral_<layer>": float}
+    """
+    import torch
+
+    from vtlearn.losses.coral import coral
+    from vtlearn.losses.mmd import mk_mmd
+
+    with torch.no_grad(), torch.random.fork_rng():
+        with model.bn_domain("source"):
+            source, _ = _collect_features(model, dm.source_test_dataloader(), layers)
+        target, _ = _collect_features(model, dm.test_dataloader(), layers)
+    out = {}
+    for layer in layers:
+        s_feat = torch.from_numpy(source[layer]).double()
+        t_feat = torch.from_numpy(target[layer]).double()
+        out[f"mmd_{layer}"] = float(mk_mmd(s_feat, t_feat))
+        out[f"coral_{layer}"] = float(coral(s_feat, t_feat))
+    return out
+
+
+def _discrepancy_rows(variants: list[str], per_run: list[dict]) -> list[dict]:
+    """Each row's mean ± std over seeds of every ``discrepancy`` key of its runs (the rows that have them),
+    as text for the table and ``<key>_mean`` floats for the JSON."""
+    out = []
+    for variant in variants:
+        runs = [r["discrepancy"] for r in per_run if r["variant"] == variant and "discrepancy" in r]
+        if not runs:
+            continue
+        row = {"variant": variant, "seeds": len(runs)}
+        for key in runs[0]:
+            a = np.array([d[key] for d in runs])
+            row[key] = f"{a.mean():.3g} ± {a.std(ddof=1) if len(a) > 1 else 0.0:.2g}"
+            row[f"{key}_mean"] = float(a.mean())
+        out.append(row)
+    return out
 
 
 def _readout_scores(model, dm, prior=None, probe: bool = False, centroid: bool = False,
@@ -632,8 +686,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     adabn = bool(getattr(args, "adabn", False))
     balanced = bool(getattr(args, "balanced", False))
     centroid, probe = bool(getattr(args, "centroid", False)), bool(getattr(args, "probe", False))
+    discrepancy = bool(getattr(args, "discrepancy", False))
     job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs,
-                 args.accelerator, adabn, balanced, centroid, probe) for variant, seed in jobs]
+                 args.accelerator, adabn, balanced, centroid, probe, discrepancy) for variant, seed in jobs]
     results = _map_jobs(_crossmodal_job, job_args, args.workers)
     per_run: list[dict] = []
     keep: dict = {}
@@ -710,11 +765,18 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         _score_checks(rows, what, checks)
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
+    discrepancy_rows = _discrepancy_rows(variants, per_run) if discrepancy else []
+    if discrepancy_rows:
+        keys = [k for k in discrepancy_rows[0] if k not in ("variant", "seeds") and not k.endswith("_mean")]
+        print_table(discrepancy_rows, ["variant", *keys, "seeds"],
+                    "Domain discrepancy left by each row: squared MK-MMD and Deep CORAL distance of "
+                    "eval-mode features, visual test clouds vs tactile test clouds (mean ± std over seeds)")
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
         "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
         "rows": rows, "runs": per_run, "checks": checks,
+        **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
         "class_names": class_names, "figures": {}, "machine": machine_info(),
         "accelerator": args.accelerator, "workers": args.workers,
         "note": "trainings run side by side (--workers); fit_s timings are noisy",
@@ -1432,6 +1494,10 @@ def register_bench(sub) -> None:
                    help="diagnostic: also score a linear probe of every row's global features, fitted on the "
                         "labelled tactile training clouds (labels no row trains with): tactile_acc_probe, "
                         "and tactile_acc_teacher_probe on teacher rows")
+    p.add_argument("--discrepancy", action="store_true",
+                   help="also measure the squared MK-MMD and the Deep CORAL distance (eq. 7.5-7.7) that "
+                        "every row leaves between the visual and the tactile test clouds' eval-mode global, "
+                        "fc1 and fc2 features (per run: discrepancy; a table of means ± std)")
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
