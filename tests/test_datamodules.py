@@ -376,3 +376,31 @@ def test_a_large_split_loads_under_a_progress_bar(recon_dir, monkeypatch, capsys
     monkeypatch.setattr(shards, "PROGRESS_BYTES", 1)
     a = load_split(recon_dir, "train")
     assert "loading train" in capsys.readouterr().err and len(a["label"]) > 0
+
+
+def test_dataset_fingerprint_follows_the_shards_not_the_folder(cross_dir, tmp_path):
+    """The fingerprint is the same for a copy of a dataset, changes when a shard's recorded checksum does,
+    and is refused (by name) for a manifest whose shards carry no checksum."""
+    import json
+    import shutil
+
+    from vtlearn.datamodules.shards import dataset_fingerprint
+
+    fp = dataset_fingerprint(cross_dir)
+    assert len(fp) == 16 and int(fp, 16) >= 0
+    copy = tmp_path / "copy"
+    shutil.copytree(cross_dir, copy)
+    assert dataset_fingerprint(copy) == fp
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["shards"].reverse()  # the order the manifest lists them in does not matter
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    assert dataset_fingerprint(copy) == fp
+    manifest["shards"][0]["sha256"] = "0" * 64
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    assert dataset_fingerprint(copy) != fp
+    del manifest["shards"][0]["sha256"]
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="data_dir: .*no sha256 for shard"):
+        dataset_fingerprint(copy)
+    with pytest.raises(FileNotFoundError, match="target_data_dir"):
+        dataset_fingerprint(tmp_path / "none", "target_data_dir")

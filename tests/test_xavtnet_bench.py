@@ -107,6 +107,10 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
     assert len(res["runs"]) == 4 and all(0 <= r["tactile_acc"] <= 100 for r in res["runs"])
     assert "vtloss_minus_noda" in res["checks"]
+    # which data made the numbers: the dataset's fingerprint, as a regenerated folder would show it
+    from vtlearn.datamodules.shards import dataset_fingerprint
+
+    assert res["data_fingerprint"] == {"data_dir": dataset_fingerprint(tiny_crossmodal)}
     # what each row sets over model_base is recorded with its numbers
     assert res["variant_settings"]["noda"] == {"da_method": "none"}
     assert res["variant_settings"]["vtloss"]["da_layers"] == ["fc1", "fc2"]
@@ -414,6 +418,17 @@ def test_merge_active_learning_runs_protocol_rules(tmp_path):
     Path(g).write_text(json.dumps(doc))
     with pytest.raises(ValueError, match="other full-pool references"):
         merge_active_learning_runs([a, g])
+    # runs on other data under the same folder name are refused; a file without a fingerprint (written
+    # before it was recorded) merges with one that has it, and the merged result keeps the one known
+    fa, fb, fc = (_al_result(tmp_path / f"fp{i}.json", [i], min_steps=250) for i in range(3))
+    for path, fp in ((fa, "aaaa"), (fb, "bbbb")):
+        doc = json.loads(Path(path).read_text())
+        doc["data_fingerprint"] = {"data_dir": fp}
+        Path(path).write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="other data"):
+        merge_active_learning_runs([fa, fb])
+    meta, _ = merge_active_learning_runs([fc, fa])
+    assert meta["data_fingerprint"] == {"data_dir": "aaaa"}
 
 
 def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_crossmodal, capsys):

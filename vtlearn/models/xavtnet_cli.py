@@ -773,7 +773,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
                     "eval-mode features, visual test clouds vs tactile test clouds (mean ± std over seeds)")
 
     result = {
-        "bench": "crossmodal", "config": args.config, "data": data_kwargs, "max_epochs": max_epochs,
+        "bench": "crossmodal", "config": args.config, "data": data_kwargs,
+        "data_fingerprint": _data_fingerprints(data_kwargs), "max_epochs": max_epochs,
         "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
         "rows": rows, "runs": per_run, "checks": checks,
         **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
@@ -803,6 +804,16 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
+
+
+def _data_fingerprints(data_kwargs: dict) -> dict[str, str]:
+    """The :func:`~vtlearn.datamodules.shards.dataset_fingerprint` of every dataset folder a bench reads
+    (``data_dir``, and ``target_data_dir`` where given), so that its JSON says which data made its numbers
+    and a rerun on a regenerated folder can be told apart from one on other data."""
+    from vtlearn.datamodules.shards import dataset_fingerprint
+
+    return {key: dataset_fingerprint(data_kwargs[key], key) for key in ("data_dir", "target_data_dir")
+            if data_kwargs.get(key)}
 
 
 def _variant_settings(variants: list[str]) -> dict[str, dict]:
@@ -974,7 +985,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     bar.close()
     full = [results["full", seed] for seed in seeds]
     runs = {strategy: [results[strategy, seed] for seed in seeds] for strategy in strategies}
-    meta = {"config": args.config, "model": base, "data": data_kwargs, "pool_size": pool, "active": al,
+    meta = {"config": args.config, "model": base, "data": data_kwargs,
+            "data_fingerprint": _data_fingerprints(data_kwargs), "pool_size": pool, "active": al,
             "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds, "full_acc": full,
             "accelerator": args.accelerator}
     return _summarize_active_learning(args, meta, runs)
@@ -1016,6 +1028,12 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
             if doc.get(key) != first.get(key):
                 raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, "
                                  f"{paths[0]} has {first.get(key)!r}")
+        # the same folder name may hold other data (regenerated with another seed or sampler); JSONs from
+        # before the fingerprint was recorded cannot be checked
+        fp, fp0 = doc.get("data_fingerprint"), first.get("data_fingerprint")
+        if fp and fp0 and fp != fp0:
+            raise ValueError(f"--merge: {path} was run on other data than {paths[0]} (data_fingerprint "
+                             f"{fp} against {fp0}), though both name the same folder")
         if "model" in doc and "model" in first and doc["model"] != first["model"]:
             raise ValueError(f"--merge: {path} and {paths[0]} trained different models")
         for key in _MERGE_ACTIVE_KEYS:
@@ -1052,6 +1070,8 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     seeds = [s for key in groups for s in key]
     meta = {key: first.get(key) for key in _MERGE_KEYS}
     meta["model"] = next((doc["model"] for doc in docs if "model" in doc), None)
+    meta["data_fingerprint"] = next((doc["data_fingerprint"] for doc in docs if doc.get("data_fingerprint")),
+                                    None)
     meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
                  "strategies": ",".join(strategies)}, "seeds": seeds,
                  "full_acc": [a for g in groups.values() for a in g["full_acc"]],
