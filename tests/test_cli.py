@@ -97,6 +97,30 @@ def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(mo
     info = bu.machine_info()
     assert info["packages"] == {"numpy": np.__version__, "no-such-package-vtlearn": None}
     assert info["torch"] and info["cpu_count"] >= 1
+    # the CPU that decides whether a seeded training reproduces bit for bit
+    import torch
+
+    assert info["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert isinstance(info["cpu_model"], str) and info["cpu_model"]
+
+
+def test_cpu_model_reads_proc_cpuinfo_and_falls_back(monkeypatch, tmp_path):
+    import builtins
+
+    import vtlearn.bench_utils as bu
+
+    fake = tmp_path / "cpuinfo"
+    fake.write_text("processor\t: 0\nvendor_id\t: X\nmodel name\t: Test CPU 9000 @ 3 GHz\n")
+    real_open = builtins.open
+
+    def fake_open(path, *a, **k):
+        return real_open(fake if path == "/proc/cpuinfo" else path, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", fake_open)
+    assert bu.cpu_model() == "Test CPU 9000 @ 3 GHz"
+    fake.write_text("processor\t: 0\n")  # no model name: platform.processor(), or "unknown"
+    monkeypatch.setattr(bu.platform, "processor", lambda: "")
+    assert bu.cpu_model() == "unknown"
 
 
 def _parser_actions(parser, path=("vtlearn",)):

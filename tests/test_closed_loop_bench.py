@@ -58,6 +58,7 @@ def test_active_reconstruction_bench(ckpts, tmp_path):
     assert r["actions"] == [1, 2, 3] and r["thesis"]["cd_mm_at_20"]["active"] == 20.0
     assert len(r["per_object"]) == 1 and len(r["per_object"][0]["random"]["cd_mm"]) == 3
     assert set(r["paired_at_max_actions"]) == {"active vs random", "active vs uniform"}
+    assert r["machine"]["cpu_count"] >= 1 and r["machine"]["torch"]  # what it ran on, as every bench JSON
     # the box-fit criterion (beyond the thesis) on other held-out objects
     rc = main(["bench", "active-reconstruction", "--ckpt", ckpts["actor"], "--categories", "wineglass",
                "--actions", "3", "--gain-mode", "box_fit", "--strategies", "active,random,random_pinch",

@@ -166,10 +166,23 @@ RECORDED_PACKAGES = ("numpy", "scipy", "lightning", "torch_geometric", "trimesh"
                      "scikit-learn")
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``, else :func:`platform.processor`; ``"unknown"`` when
+    neither says)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip() or "unknown"
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
-    """What a benchmark ran on: CPU count, Python, torch, threads, and the versions of
-    :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names; ``None`` for one that is not
-    installed)."""
+    """What a benchmark ran on: CPU count, model and vector capability, Python, torch, threads, and the
+    versions of :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names; ``None`` for one that
+    is not installed)."""
     from importlib import metadata
 
     import torch
@@ -184,6 +197,10 @@ def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
         "python": platform.python_version(),
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
+        "cpu_model": cpu_model(),
+        # the vector kernels torch dispatches to (e.g. AVX512, AVX2): float sums round differently on each,
+        # so a training reproduces bit for bit only on the same capability
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
         "packages": {name: version(name) for name in (*RECORDED_PACKAGES, *extra_packages)},

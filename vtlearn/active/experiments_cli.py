@@ -84,8 +84,9 @@ def _setup(args):
 
 
 def _write(args, name: str, result: dict, plot) -> None:
-    from vtlearn.bench_utils import write_json
+    from vtlearn.bench_utils import machine_info, write_json
 
+    result.setdefault("machine", machine_info())  # as every bench JSON records it
     # atomic, and before the plot: a plot that fails loses no results
     out = write_json(args.json or f"runs/bench/{name.replace('-', '_')}.json", result)
     png = out.with_suffix(".png")
