@@ -35,7 +35,8 @@ def test_ablation_configs_match_bench_variants():
                                   "cpu/xavtnet_episodes.yaml", "cpu/xavtnet_tactile.yaml",
                                   "cpu/xavtnet_touchsim.yaml", "cpu/xavtnet_ramp.yaml",
                                   "cpu/xavtnet_balance.yaml", "cpu/xavtnet_objects.yaml",
-                                  "cpu/xavtnet_memory.yaml", "cpu/xavtnet_object_frame.yaml"])
+                                  "cpu/xavtnet_memory.yaml", "cpu/xavtnet_object_frame.yaml",
+                                  "cpu/xavtnet_object_frame_k1.yaml"])
 def test_configs_build_the_model(path):
     import inspect
 
