@@ -430,6 +430,8 @@ def test_merge_active_learning_runs_protocol_rules(tmp_path):
         merge_active_learning_runs([fa, fb])
     meta, _ = merge_active_learning_runs([fc, fa])
     assert meta["data_fingerprint"] == {"data_dir": "aaaa"}
+    with pytest.raises(ValueError, match="other data"):  # also when the first file has no fingerprint
+        merge_active_learning_runs([fc, fa, fb])
 
 
 def test_adapt_bn_command_writes_a_loadable_adapted_checkpoint(tmp_path, tiny_crossmodal, capsys):

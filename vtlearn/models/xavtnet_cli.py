@@ -1007,8 +1007,9 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     [per-seed round histories]}`` for the strategies every group has. Raises ValueError if a file is
     missing, is not an active-learning result, differs in the protocol (model, data, pool, training
     length, n₀, κ, rounds, ...), repeats a (seed, strategy) pair, shares some seeds but not all with
-    another file, or has the seeds of another with different references. Results written before the model
-    was recorded are compared on everything else.
+    another file, has the seeds of another with different references, or was run on other data under the
+    same folder name (``data_fingerprint``). Results written before the model or the fingerprint was
+    recorded are compared on everything else.
     """
     docs = []
     for path in paths:
@@ -1023,17 +1024,20 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
             raise ValueError(f"--merge: {path} is not a `bench active-learning` result")
         docs.append(doc)
     first = docs[0]
+    # the same folder name may hold other data (regenerated with another seed or sampler); JSONs from before
+    # the fingerprint was recorded cannot be checked, so each file that has one is checked against the first
+    # that has one
+    known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
+             if doc.get("data_fingerprint")]
+    for path, fp in known[1:]:
+        if fp != known[0][1]:
+            raise ValueError(f"--merge: {path} was run on other data than {known[0][0]} (data_fingerprint "
+                             f"{fp} against {known[0][1]}), though both name the same folder")
     for path, doc in zip(paths[1:], docs[1:], strict=True):
         for key in _MERGE_KEYS:
             if doc.get(key) != first.get(key):
                 raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, "
                                  f"{paths[0]} has {first.get(key)!r}")
-        # the same folder name may hold other data (regenerated with another seed or sampler); JSONs from
-        # before the fingerprint was recorded cannot be checked
-        fp, fp0 = doc.get("data_fingerprint"), first.get("data_fingerprint")
-        if fp and fp0 and fp != fp0:
-            raise ValueError(f"--merge: {path} was run on other data than {paths[0]} (data_fingerprint "
-                             f"{fp} against {fp0}), though both name the same folder")
         if "model" in doc and "model" in first and doc["model"] != first["model"]:
             raise ValueError(f"--merge: {path} and {paths[0]} trained different models")
         for key in _MERGE_ACTIVE_KEYS:
@@ -1070,8 +1074,7 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     seeds = [s for key in groups for s in key]
     meta = {key: first.get(key) for key in _MERGE_KEYS}
     meta["model"] = next((doc["model"] for doc in docs if "model" in doc), None)
-    meta["data_fingerprint"] = next((doc["data_fingerprint"] for doc in docs if doc.get("data_fingerprint")),
-                                    None)
+    meta["data_fingerprint"] = known[0][1] if known else None
     meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
                  "strategies": ",".join(strategies)}, "seeds": seeds,
                  "full_acc": [a for g in groups.values() for a in g["full_acc"]],
