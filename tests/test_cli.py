@@ -88,6 +88,17 @@ def test_format_table_prints_none_as_a_dash():
     assert [r.split("|")[2].strip() for r in text[3:]] == ["-", "0.012", "", "-", "-"]
 
 
+def test_sample_std_is_the_ddof1_spread_and_zero_for_one_value():
+    from vtlearn.bench_utils import sample_std
+
+    assert sample_std([1.0, 2.0, 3.0]) == pytest.approx(1.0)
+    assert sample_std(np.array([4.0, 8.0])) == pytest.approx(np.std([4.0, 8.0], ddof=1))
+    assert sample_std([7.5]) == 0.0
+    for bad in ([], [[1.0, 2.0]]):
+        with pytest.raises(ValueError, match="values: need a non-empty 1-D sample"):
+            sample_std(bad)
+
+
 def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(monkeypatch):
     """A bench JSON records the versions that seeded runs depend on, so figures that drift across
     sessions can be traced to the packages that changed."""

@@ -25,6 +25,19 @@ def csv_list(text: str) -> list[str]:
     return [x.strip() for x in text.split(",") if x.strip()]
 
 
+def sample_std(values) -> float:
+    """The sample standard deviation (ddof 1) of a bench's per-seed or per-trial values, 0.0 for a single
+    value, as the tables print it beside the mean.
+
+    Shapes:
+        values (n,), n >= 1 -> float
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 1 or len(v) == 0:
+        raise ValueError(f"values: need a non-empty 1-D sample, got shape {v.shape}")
+    return float(v.std(ddof=1)) if len(v) > 1 else 0.0
+
+
 def welch_p(a, b) -> float | None:
     """Two-sided p-value of Welch's t-test (unequal variances) between two independent samples, or None
     when it is undefined: fewer than two values on a side, or both sides constant.

@@ -29,7 +29,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from vtlearn.bench_utils import ratio, save_figure, welch_p
+from vtlearn.bench_utils import ratio, sample_std, save_figure, welch_p
 from vtlearn.classical.registration import METHODS, _run_icp, available_methods, register
 from vtlearn.classical.sparse_icp import sparse_icp
 from vtlearn.classical.stiqf import STIQF, annealing_field, simulated_annealing
@@ -135,7 +135,7 @@ def _summary(vals) -> dict:
     v = np.asarray(vals, dtype=float)
     return {
         "mean": float(v.mean()),
-        "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+        "std": sample_std(v),
         "median": float(np.median(v)),
         "n": int(len(v)),
     }

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from vtlearn.bench_utils import ratio, welch_p
+from vtlearn.bench_utils import ratio, sample_std, welch_p
 from vtlearn.cli_args import count
 
 __all__ = ["register", "register_bench", "run_tracker", "TRACKERS"]
@@ -315,7 +315,7 @@ def _summary(vals: np.ndarray) -> dict:
     return {
         "mean_cm": float(vals.mean()),
         "median_cm": float(np.median(vals)),
-        "std_cm": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
+        "std_cm": sample_std(vals),
         "n": int(len(vals)),
     }
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import csv_list, save_figure
+from vtlearn.bench_utils import csv_list, sample_std, save_figure
 from vtlearn.cli_args import count, real, with_flag
 from vtlearn.validation import as_int, as_real
 
@@ -545,7 +545,7 @@ def _discrepancy_rows(variants: list[str], per_run: list[dict]) -> list[dict]:
         row = {"variant": variant, "seeds": len(runs)}
         for key in runs[0]:
             a = np.array([d[key] for d in runs])
-            row[key] = f"{a.mean():.3g} ± {a.std(ddof=1) if len(a) > 1 else 0.0:.2g}"
+            row[key] = f"{a.mean():.3g} ± {sample_std(a):.2g}"
             row[f"{key}_mean"] = float(a.mean())
         out.append(row)
     return out
@@ -726,18 +726,17 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         v = np.array([r["visual_acc"] for r in per_run if r["variant"] == variant])
         rows.append({
             "variant": variant,
-            "tactile_acc": f"{t.mean():.2f} ± {t.std(ddof=1) if len(t) > 1 else 0.0:.2f}",
-            "visual_acc": f"{v.mean():.2f} ± {v.std(ddof=1) if len(v) > 1 else 0.0:.2f}",
+            "tactile_acc": f"{t.mean():.2f} ± {sample_std(t):.2f}",
+            "visual_acc": f"{v.mean():.2f} ± {sample_std(v):.2f}",
             "thesis_V→T": THESIS_TABLE_7_2.get(variant, "-"),
-            "tactile_mean": float(t.mean()), "tactile_std": float(t.std(ddof=1)) if len(t) > 1 else 0.0,
+            "tactile_mean": float(t.mean()), "tactile_std": sample_std(t),
             "visual_mean": float(v.mean()), "seeds": len(t),
         })
         for key in EXTRA_SCORES:  # "tactile_acc_adabn" -> its text and "tactile_adabn_mean", ...
             a = np.array([r[key] for r in per_run if r["variant"] == variant and key in r])
             if len(a):
-                spread = a.std(ddof=1) if len(a) > 1 else 0.0
-                rows[-1].update({key: f"{a.mean():.2f} ± {spread:.2f}", key.replace("_acc", "") + "_mean":
-                                 float(a.mean())})
+                rows[-1].update({key: f"{a.mean():.2f} ± {sample_std(a):.2f}",
+                                 key.replace("_acc", "") + "_mean": float(a.mean())})
     extra_cols = [c for c in EXTRA_SCORES if any(c in r for r in rows)]
     source = "+".join(data_kwargs.get("source_splits", ["train"]))
     held = float(data_kwargs.get("target_holdout", 0.0))
