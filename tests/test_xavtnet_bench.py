@@ -118,7 +118,14 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert (res["accelerator"], res["workers"]) == ("cpu", 1)
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
     assert Path(res["figures"]["tsne"]).parent == tmp_path / "cm"
-    assert "Table 7.2/7.4 analogue" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "Table 7.2/7.4 analogue" in printed and "Seed-paired differences" in printed
+    # with two seeds every row is paired against no-DA, seed by seed, in the table, the JSON and a figure
+    (pair,) = res["paired"]
+    acc = {(r["variant"], r["seed"]): r["tactile_acc"] for r in res["runs"]}
+    assert (pair["a"], pair["b"], pair["seeds"]) == ("vtloss", "noda", [0, 1])
+    assert pair["diffs"] == pytest.approx([acc["vtloss", s] - acc["noda", s] for s in (0, 1)])
+    assert pair["cross_machine"] == 0 and Path(res["figures"]["paired"]).exists()
     # the same jobs in two spawned worker processes give the same runs, in the same order
     out2 = tmp_path / "cm2.json"
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
@@ -149,6 +156,25 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
         assert row["coral_fc1_mean"] == pytest.approx(np.mean([d["coral_fc1"] for d in runs]))
         assert all(d["mmd_fc2"] >= -1e-6 and d["coral_fc2"] >= 0 for d in runs)
     assert "Domain discrepancy left by each row" in capsys.readouterr().out
+    # --merge pools the two results (no-DA of seeds 0-1 ran in both, alike, and is kept once) and pairs
+    # every row with no-DA and the rows asked for, training nothing
+    merged = tmp_path / "merged.json"
+    assert main(["bench", "crossmodal", "--merge", str(out), str(out2), "--pairs", "vtloss-mmd",
+                 "--margin", "5", "--json", str(merged)]) == 0
+    res_m = json.loads(merged.read_text())
+    assert [r["variant"] for r in res_m["rows"]] == ["noda", "vtloss", "mmd"]
+    assert len(res_m["runs"]) == 6 and res_m["merged_from"] == [str(out), str(out2)]
+    by = {(r["variant"], r["seed"]): r["tactile_acc"] for r in res_m["runs"]}
+    pairs = {r["comparison"]: r for r in res_m["paired"]}
+    assert set(pairs) == {"vtloss − noda", "mmd − noda", "vtloss − mmd"}
+    assert pairs["vtloss − mmd"]["diffs"] == pytest.approx([by["vtloss", s] - by["mmd", s] for s in (0, 1)])
+    assert "p(≤ 5)" in pairs["vtloss − mmd"] and Path(res_m["figures"]["paired"]).exists()
+    assert res_m["data_fingerprint"] == res["data_fingerprint"] and len(res_m["machines"]) == 1
+    assert main(["bench", "crossmodal", "--merge", str(out), "--json", str(out)]) == 2  # would overwrite it
+    assert "--json:" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--pairs", "noda-mmd",
+                 "--json", str(merged)]) == 2  # mmd is not trained: refused before any training
+    assert "--pairs: mmd names a row that --variants does not train" in capsys.readouterr().err
     # each information-maximisation row (beyond the thesis) is compared with no-DA
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_im", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0

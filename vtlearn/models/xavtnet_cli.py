@@ -635,7 +635,15 @@ def _map_in_processes(fn, job_args: list[tuple], workers: int):
 def run_crossmodal_bench(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from vtlearn.bench_utils import check_output_path, machine_info, print_table, write_json
+    from vtlearn.bench_utils import check_output_path, machine_info, write_json
+    from vtlearn.models.crossmodal_compare import paired_figure, parse_pairs, score_field
+
+    margin = getattr(args, "margin", None)
+    if margin is not None and not np.isfinite(margin):
+        raise ValueError(f"--margin: need a finite number of accuracy points, got {margin}")
+    asked = parse_pairs(getattr(args, "pairs", None))  # a malformed --pairs is refused before any work
+    if getattr(args, "merge", None):
+        return _merge_crossmodal(args)
 
     cfg = load_config(args.config, "crossmodal")
     data_kwargs = _data_kwargs(cfg, args.data)
@@ -661,6 +669,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if unknown or not variants:
         raise ValueError(f"--variants: {f'unknown {unknown}' if unknown else 'no variant given'}; choose "
                          f"from {[*VARIANTS, ORACLE]}")
+    for spec in (side for pair in asked for side in pair):
+        if score_field(spec)[0] not in variants:
+            raise ValueError(f"--pairs: {spec} names a row that --variants does not train ({variants})")
     seeds = list(range(args.seed, args.seed + args.seeds))
     out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
     if not args.no_figures:  # the default folder beside --json, checked before the trainings too
@@ -720,6 +731,92 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     order = {job: i for i, job in enumerate(jobs)}
     per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
 
+    rows, checks, discrepancy_rows = _report_rows(variants, per_run, data_kwargs, max_epochs, len(seeds))
+    paired = _report_paired(args, variants, per_run)
+
+    result = {
+        "bench": "crossmodal", "config": args.config, "data": data_kwargs,
+        "data_fingerprint": _data_fingerprints(data_kwargs), "max_epochs": max_epochs,
+        "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
+        "rows": rows, "runs": per_run, "checks": checks,
+        **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
+        **({"paired": paired} if paired else {}),
+        "class_names": class_names, "figures": {}, "machine": machine_info(),
+        "accelerator": args.accelerator, "workers": args.workers,
+        "note": "trainings run side by side (--workers); fit_s timings are noisy",
+    }
+    write_json(args.json, result)  # before the figures: a figure that fails loses no trained results
+    figures = result["figures"]
+    if not args.no_figures:
+        conf_runs = [r for r in per_run if r["variant"] == "vtloss"] or per_run
+        conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
+        figures["confusion"] = str(out_dir / "confusion_vtloss.png")
+        _confusion_figure(conf, class_names, Path(figures["confusion"]),
+                          f"Tactile confusion ({conf_runs[0]['variant']}, summed over seeds)")
+        panels = {}
+        if "noda" in keep:
+            panels["before adaptation (no-DA)"] = keep["noda"]
+        if "vtloss" in keep:
+            panels["after adaptation (VTLoss)"] = keep["vtloss"]
+        if panels:
+            figures["tsne"] = str(out_dir / "tsne_before_after.png")
+            _tsne_figure(panels, class_names, Path(figures["tsne"]), seeds[0])
+        if paired:
+            figures["paired"] = str(out_dir / "paired.png")
+            paired_figure(paired, figures["paired"], getattr(args, "margin", None))
+        for name, path in figures.items():
+            print(f"{name}: {path}")
+    if figures:
+        write_json(args.json, result)
+    print(f"wrote {args.json}")
+    return 0
+
+
+def _merge_crossmodal(args: argparse.Namespace) -> int:
+    """``bench crossmodal --merge``: pool the runs of earlier results of one protocol
+    (:func:`~vtlearn.models.crossmodal_compare.load_crossmodal_results`), print their table and the
+    seed-paired comparisons, and write both as a JSON (and the paired differences as a figure). Trains
+    nothing."""
+    from vtlearn.bench_utils import check_output_path, write_json
+    from vtlearn.models.crossmodal_compare import load_crossmodal_results, paired_figure
+
+    out = check_output_path(args.json, "--json", "JSON")
+    if any(Path(m).resolve() == out.resolve() for m in args.merge):
+        raise ValueError(f"--json: {args.json} is one of the --merge inputs; write the merged result "
+                         "elsewhere")
+    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
+    if not args.no_figures:
+        check_output_path(out_dir, "--out-dir", "figures", folder=True)
+    meta, runs = load_crossmodal_results(args.merge)
+    variants = list(dict.fromkeys(r["variant"] for r in runs))
+    seeds = sorted({r["seed"] for r in runs})
+    print(f"merged {len(args.merge)} results: rows {variants}, seeds {seeds}")
+    rows, checks, discrepancy_rows = _report_rows(variants, runs, meta["data"], meta["max_epochs"],
+                                                  len(seeds))
+    paired = _report_paired(args, variants, runs)
+    machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
+                    .values())
+    result = {"bench": "crossmodal", **meta, "seeds": seeds, "rows": rows, "runs": runs, "checks": checks,
+              **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
+              **({"paired": paired} if paired else {}), "machines": machines, "figures": {}}
+    write_json(args.json, result)
+    if paired and not args.no_figures:
+        result["figures"]["paired"] = str(out_dir / "paired.png")
+        paired_figure(paired, result["figures"]["paired"], getattr(args, "margin", None),
+                      f"Seed-paired differences, {len(args.merge)} merged results")
+        print(f"paired: {result['figures']['paired']}")
+        write_json(args.json, result)
+    print(f"wrote {args.json}")
+    return 0
+
+
+def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, max_epochs: int,
+                 n_seeds: int) -> tuple[list[dict], dict, list[dict]]:
+    """The Table 7.2/7.4 rows of ``per_run`` (mean ± std over seeds of every score they hold), the checks
+    on their means (margins over no-DA, the thesis's orderings, the readings'), and the domain-discrepancy
+    rows of the runs that measured it, each table printed. Returns (rows, checks, discrepancy rows)."""
+    from vtlearn.bench_utils import print_table
+
     rows = []
     for variant in variants:
         t = np.array([r["tactile_acc"] for r in per_run if r["variant"] == variant])
@@ -742,7 +839,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     held = float(data_kwargs.get("target_holdout", 0.0))
     holdout = f" less the {held:g} of their tactile clouds held out for the test" if held > 0 else ""
     print_table(rows, ["variant", "tactile_acc", *extra_cols, "visual_acc", "thesis_V→T", "seeds"],
-                f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {len(seeds)} seeds, "
+                f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {n_seeds} seeds, "
                 f"{max_epochs} epoch{'s' if max_epochs != 1 else ''}, unlabelled target: "
                 f"{data_kwargs.get('target_split', 'train')} instances{holdout}, "
                 f"labelled visual source: {source}")
@@ -764,45 +861,44 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         _score_checks(rows, what, checks)
     for k, v in checks.items():
         print(f"{k}: {v:.2f}" if isinstance(v, float) else f"{k}: {v}")
-    discrepancy_rows = _discrepancy_rows(variants, per_run) if discrepancy else []
+    discrepancy_rows = _discrepancy_rows(variants, per_run)
     if discrepancy_rows:
         keys = [k for k in discrepancy_rows[0] if k not in ("variant", "seeds") and not k.endswith("_mean")]
         print_table(discrepancy_rows, ["variant", *keys, "seeds"],
                     "Domain discrepancy left by each row: squared MK-MMD and Deep CORAL distance of "
                     "eval-mode features, visual test clouds vs tactile test clouds (mean ± std over seeds)")
+    return rows, checks, discrepancy_rows
 
-    result = {
-        "bench": "crossmodal", "config": args.config, "data": data_kwargs,
-        "data_fingerprint": _data_fingerprints(data_kwargs), "max_epochs": max_epochs,
-        "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
-        "rows": rows, "runs": per_run, "checks": checks,
-        **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
-        "class_names": class_names, "figures": {}, "machine": machine_info(),
-        "accelerator": args.accelerator, "workers": args.workers,
-        "note": "trainings run side by side (--workers); fit_s timings are noisy",
-    }
-    write_json(args.json, result)  # before the figures: a figure that fails loses no trained results
-    figures = result["figures"]
-    if not args.no_figures:
-        conf_runs = [r for r in per_run if r["variant"] == "vtloss"] or per_run
-        conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
-        figures["confusion"] = str(out_dir / "confusion_vtloss.png")
-        _confusion_figure(conf, class_names, Path(figures["confusion"]),
-                          f"Tactile confusion ({conf_runs[0]['variant']}, summed over seeds)")
-        panels = {}
-        if "noda" in keep:
-            panels["before adaptation (no-DA)"] = keep["noda"]
-        if "vtloss" in keep:
-            panels["after adaptation (VTLoss)"] = keep["vtloss"]
-        if panels:
-            figures["tsne"] = str(out_dir / "tsne_before_after.png")
-            _tsne_figure(panels, class_names, Path(figures["tsne"]), seeds[0])
-        for name, path in figures.items():
-            print(f"{name}: {path}")
-    if figures:
-        write_json(args.json, result)
-    print(f"wrote {args.json}")
-    return 0
+
+def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[dict]) -> list[dict]:
+    """The seed-paired comparisons (:mod:`vtlearn.models.crossmodal_compare`) of every row against
+    ``--baseline`` where the runs have it with two seeds or more, and of ``--pairs``, printed as a table.
+    Returns the rows (empty when there is nothing to pair)."""
+    from vtlearn.bench_utils import print_table
+    from vtlearn.models.crossmodal_compare import (
+        default_pairs,
+        paired_rows,
+        paired_table_columns,
+        parse_pairs,
+    )
+
+    margin = getattr(args, "margin", None)
+    baseline = getattr(args, "baseline", "noda") or "noda"
+    pairs = parse_pairs(getattr(args, "pairs", None))
+    if len({r["seed"] for r in per_run}) >= 2:  # one seed: only the pairs asked for
+        pairs = list(dict.fromkeys(default_pairs(variants, per_run, baseline) + pairs))
+    if not pairs:
+        return []
+    rows = paired_rows(per_run, pairs, margin)
+    print_table(rows, paired_table_columns(rows, margin),
+                "Seed-paired differences of tactile accuracy (points): mean ± std over the seeds both rows "
+                "have, 95 % interval, two-sided p of the paired t and Wilcoxon tests, seeds ahead"
+                + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
+                   if margin is not None else ""))
+    if any(r["cross_machine"] for r in rows):
+        print("cross_machine: pairs whose runs ran on different machines; a training repeats bit for bit on "
+              "one machine only, so those pairs keep the seed but not its shared noise")
+    return rows
 
 
 def _data_fingerprints(data_kwargs: dict) -> dict[str, str]:
@@ -1523,7 +1619,23 @@ def register_bench(sub) -> None:
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
-    p.add_argument("--no-figures", action="store_true", help="skip the confusion matrix and t-SNE figures")
+    p.add_argument("--baseline", default="noda",
+                   help="the row every other row is paired against, seed by seed, after the table (default "
+                        "noda; with two seeds or more)")
+    p.add_argument("--pairs", default=None, metavar="A-B,...",
+                   help="further seed-paired comparisons, each the row expected ahead, a minus sign and the "
+                        "other row; ROW.SCORE reads another score of the row, e.g. "
+                        "'vtloss-mmd,vtloss_g12_mt_vote.teacher-noda_vote' (.teacher: tactile_acc_teacher)")
+    p.add_argument("--margin", type=float, default=None, metavar="POINTS",
+                   help="also give, for every comparison, the one-sided p-value that the row is no more "
+                        "than POINTS ahead (the issue's target: 20)")
+    p.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                   help="train nothing: pool the runs of earlier results of one protocol (more seeds, or "
+                        "rows run apart; the same data, epochs and model) into one table, the paired "
+                        "comparisons, a figure and --json; pairs whose runs ran on different machines are "
+                        "counted (cross_machine). --variants and the training flags are not used")
+    p.add_argument("--no-figures", action="store_true",
+                   help="skip the confusion matrix, t-SNE and paired-difference figures")
     p.add_argument("--out-dir", default=None,
                    help="figure folder (default: beside --json, named after it without .json)")
     p.add_argument("--json", default="runs/bench/crossmodal.json")

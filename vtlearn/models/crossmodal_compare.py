@@ -1,0 +1,250 @@
+"""Seed-paired comparisons of ``vtlearn bench crossmodal`` rows, within one run or pooled over several.
+
+A row's margin over another (VTLoss over no-DA, thesis Table 7.2/7.4) is read best seed by seed: every seed
+draws the same data order and initial weights for every row, so the paired differences are far less spread
+than the rows themselves. ``bench crossmodal`` prints them against ``--baseline`` after its table, and
+``bench crossmodal --merge A.json B.json ...`` pools the runs of earlier results of the same protocol (more
+seeds, or rows run apart) before it does, instead of a script of one's own.
+
+Pooling is refused when the files differ in data (``data_fingerprint`` or the datamodule settings), in
+training length or in the model, or repeat a (row, seed) with other numbers. A pair whose two runs ran on
+different machines is counted (``cross_machine``): a training repeats bit for bit on one machine, not on
+another CPU (docs/xavtnet.md), so such a pair keeps its seed but loses the shared noise that pairing removes.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from vtlearn.bench_utils import paired_difference
+
+__all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
+           "paired_figure"]
+
+# The keys two results must share for their runs to be pooled.
+_MERGE_KEYS = ("data", "max_epochs", "model_base")
+
+
+def score_field(spec: str) -> tuple[str, str]:
+    """A comparison side ``variant[.score]`` as ``(variant, run field)``: ``vtloss`` reads the network's
+    ``tactile_acc``, ``vtloss_g12_mt_vote.teacher`` its teacher's ``tactile_acc_teacher``, ``noda.adabn``
+    ``tactile_acc_adabn`` (any ``tactile_acc_<score>`` that the runs hold)."""
+    variant, _, score = spec.strip().partition(".")
+    if not variant or (score == "" and spec.strip().endswith(".")):
+        raise ValueError(f"--pairs: {spec!r} is not a row name, optionally with .<score> "
+                         "(e.g. vtloss.teacher)")
+    return variant, "tactile_acc" + (f"_{score}" if score else "")
+
+
+def parse_pairs(text: str | None) -> list[tuple[str, str]]:
+    """``--pairs "a-b,c.teacher-d"`` as ``[("a", "b"), ("c.teacher", "d")]``: each item is the row that
+    should be ahead, a minus sign, and the row it is compared with (row names hold no minus sign)."""
+    out = []
+    for item in (x.strip() for x in (text or "").split(",")):
+        if not item:
+            continue
+        a, sep, b = item.partition("-")
+        if not sep or not a.strip() or not b.strip() or "-" in b:
+            raise ValueError(f"--pairs: {item!r} is not of the form A-B (e.g. vtloss-mmd, "
+                             "vtloss_g12_mt_vote.teacher-noda)")
+        score_field(a)
+        score_field(b)
+        out.append((a.strip(), b.strip()))
+    return out
+
+
+def default_pairs(variants: list[str], runs: list[dict], baseline: str) -> list[tuple[str, str]]:
+    """Every row against ``baseline`` (nothing when no run is of it), and a teacher row's teacher too."""
+    if not any(r["variant"] == baseline for r in runs):
+        return []
+    out = []
+    for v in variants:
+        if v != baseline:
+            out.append((v, baseline))
+        if any(r["variant"] == v and "tactile_acc_teacher" in r for r in runs):
+            out.append((f"{v}.teacher", baseline))
+    return out
+
+
+def _same_machine(m1: dict | None, m2: dict | None) -> bool:
+    """Whether two runs' ``machine`` records name the same host (platform string, with the kernel build, and
+    the CPU model where both have one); an unrecorded machine is taken as the same."""
+    if not m1 or not m2:
+        return True
+    if m1.get("platform") != m2.get("platform"):
+        return False
+    return not (m1.get("cpu_model") and m2.get("cpu_model") and m1["cpu_model"] != m2["cpu_model"])
+
+
+def _machine_of(doc: dict) -> dict | None:
+    m = doc.get("machine")
+    if not isinstance(m, dict):
+        return None
+    return {k: m.get(k) for k in ("platform", "cpu_model", "cpu_capability") if m.get(k) is not None}
+
+
+def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
+    """The runs of several ``bench crossmodal`` JSONs of one protocol, pooled.
+
+    Every run keeps its numbers and gains ``machine`` (its file's platform and CPU, unless it has one
+    already) and ``file``. A (row, seed) found in two files is kept once if both give the same tactile and
+    visual accuracy, else refused. Raises ``ValueError`` naming the file when one is missing, is not a
+    ``bench crossmodal`` result, was run on other data (``data_fingerprint``, or other datamodule settings),
+    for another number of epochs or with another model, gives a row other settings (``variant_settings``),
+    or repeats a (row, seed) with other numbers. Results written before the fingerprint or the settings
+    were recorded are compared on the rest.
+
+    Returns:
+        meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the
+        ``variant_settings`` known, ``config`` and ``merged_from`` lists), runs (one dict per (row, seed))
+    """
+    if not paths:
+        raise ValueError("--merge: give at least one bench crossmodal JSON")
+    docs = []
+    for path in paths:
+        f = Path(path)
+        if not f.is_file():
+            raise ValueError(f"--merge: no such file {path}")
+        try:
+            doc = json.loads(f.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"--merge: {path} is not a JSON file ({exc})") from None
+        is_result = isinstance(doc, dict) and doc.get("bench") == "crossmodal"
+        if not (is_result and isinstance(doc.get("runs"), list)):
+            raise ValueError(f"--merge: {path} is not a `bench crossmodal` result")
+        docs.append(doc)
+    first = docs[0]
+    known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
+             if doc.get("data_fingerprint")]
+    for path, fp in known[1:]:
+        if fp != known[0][1]:
+            raise ValueError(f"--merge: {path} was run on other data than {known[0][0]} (data_fingerprint "
+                             f"{fp} against {known[0][1]}), though both may name the same folder")
+    for path, doc in zip(paths[1:], docs[1:], strict=True):
+        for key in _MERGE_KEYS:
+            if doc.get(key) != first.get(key):
+                raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, {paths[0]} has "
+                                 f"{first.get(key)!r}: not the same protocol")
+    settings: dict[str, tuple[str, dict]] = {}
+    for path, doc in zip(paths, docs, strict=True):
+        for variant, s in (doc.get("variant_settings") or {}).items():
+            if variant in settings and settings[variant][1] != s:
+                raise ValueError(f"--merge: {path} trains {variant} with {s}, {settings[variant][0]} with "
+                                 f"{settings[variant][1]}")
+            settings.setdefault(variant, (path, s))
+    runs: list[dict] = []
+    where: dict[tuple[str, int], int] = {}
+    for path, doc in zip(paths, docs, strict=True):
+        machine = _machine_of(doc)
+        for r in doc["runs"]:
+            if not isinstance(r, dict) or not {"variant", "seed", "tactile_acc"} <= r.keys():
+                raise ValueError(f"--merge: {path} holds a run without variant, seed and tactile_acc")
+            key = (r["variant"], r["seed"])
+            if key in where:
+                old = runs[where[key]]
+                if (old["tactile_acc"], old.get("visual_acc")) != (r["tactile_acc"], r.get("visual_acc")):
+                    raise ValueError(f"--merge: {path} and {old['file']} both hold {key[0]} seed {key[1]}, "
+                                     f"with tactile accuracy {r['tactile_acc']:.2f} against "
+                                     f"{old['tactile_acc']:.2f}; leave one of them out")
+                continue
+            where[key] = len(runs)
+            runs.append({**r, "machine": r.get("machine") or machine, "file": str(path)})
+    meta = {key: first.get(key) for key in _MERGE_KEYS}
+    meta.update({"data_fingerprint": known[0][1] if known else None,
+                 "variant_settings": {v: s for v, (_, s) in settings.items()},
+                 "config": [doc.get("config") for doc in docs], "merged_from": [str(p) for p in paths]})
+    return meta, runs
+
+
+def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | None = None) -> list[dict]:
+    """One row per ``(a, b)`` of ``pairs`` (sides as :func:`score_field` reads them): the seeds both have,
+    :func:`~vtlearn.bench_utils.paired_difference` of ``a`` over ``b`` on them, the pairs whose runs ran on
+    different machines (``cross_machine``), and table text. A side with no run, or two sides without a seed
+    in common, is refused naming it.
+
+    Shapes:
+        runs: one dict per (variant, seed) -> one dict per pair
+    """
+    out = []
+    for a, b in pairs:
+        sides = []
+        for spec in (a, b):
+            variant, field = score_field(spec)
+            got = {r["seed"]: r for r in runs if r["variant"] == variant and r.get(field) is not None}
+            if not got:
+                have = sorted({r["variant"] for r in runs})
+                raise ValueError(f"--pairs: no run of {variant} with {field} (rows: {have})")
+            sides.append((field, got))
+        (fa, ra), (fb, rb) = sides
+        seeds = sorted(set(ra) & set(rb))
+        if not seeds:
+            raise ValueError(f"--pairs: {a} (seeds {sorted(ra)}) and {b} (seeds {sorted(rb)}) share no seed")
+        x = np.array([ra[s][fa] for s in seeds], dtype=np.float64)
+        y = np.array([rb[s][fb] for s in seeds], dtype=np.float64)
+        stats = paired_difference(x, y, margin)
+        cross = sum(not _same_machine(ra[s].get("machine"), rb[s].get("machine")) for s in seeds)
+        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "seeds": seeds, **stats, "cross_machine": cross,
+               "a_mean": float(x.mean()), "b_mean": float(y.mean()), "diffs": (x - y).tolist()}
+        ci = stats["ci95"]
+        row.update({
+            "means": f"{x.mean():.2f} vs {y.mean():.2f}",
+            "difference": f"{stats['mean_diff']:+.2f} ± {stats['sd']:.2f}",
+            "95% CI": f"{ci[0]:+.1f} to {ci[1]:+.1f}" if ci else None,
+            "p (t)": _p_text(stats["t_p"]), "p (Wilcoxon)": _p_text(stats["wilcoxon_p"]),
+            "seeds ahead": f"{stats['ahead']}/{len(seeds)}",
+        })
+        if margin is not None:
+            row[f"p(≤ {margin:g})"] = _p_text(stats["p_at_most_margin"])
+        out.append(row)
+    return out
+
+
+def _p_text(p: float | None) -> str | None:
+    if p is None:
+        return None
+    return f"{p:.2g}" if p < 0.001 else f"{p:.3f}"
+
+
+def paired_table_columns(rows: list[dict], margin: float | None) -> list[str]:
+    """The columns :func:`paired_rows`' table prints."""
+    cols = ["comparison", "means", "difference", "95% CI", "p (t)", "p (Wilcoxon)", "seeds ahead"]
+    if margin is not None:
+        cols.append(f"p(≤ {margin:g})")
+    if any(r["cross_machine"] for r in rows):
+        cols.append("cross_machine")
+    return cols
+
+
+def paired_figure(rows: list[dict], path, margin: float | None = None, title: str = "") -> Path:
+    """A forest plot of :func:`paired_rows`: each comparison's seed differences (dots), their mean and 95 %
+    interval (bar), a line at 0 and one at ``margin``. Returns the path written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vtlearn.bench_utils import save_figure
+
+    fig, ax = plt.subplots(figsize=(7.5, 0.55 * len(rows) + 1.6))
+    rng = np.random.default_rng(0)  # vertical jitter of the seed dots only
+    for i, r in enumerate(rows):
+        y = len(rows) - 1 - i
+        d = np.asarray(r["diffs"])
+        ax.scatter(d, y + rng.uniform(-0.15, 0.15, len(d)), s=12, color="0.55", zorder=2)
+        if r["ci95"]:
+            ax.plot(r["ci95"], [y, y], color="C0", lw=2.5, zorder=3)
+        ax.plot([r["mean_diff"]], [y], "o", color="C0", ms=7, zorder=4)
+    ax.axvline(0.0, color="k", lw=0.8)
+    if margin is not None:
+        ax.axvline(margin, color="C3", lw=1, ls="--", label=f"margin {margin:g}")
+        ax.legend(loc="lower right", fontsize=8)
+    ax.set_yticks(range(len(rows)))
+    ax.set_yticklabels([f"{r['comparison']} (n={r['pairs']})" for r in reversed(rows)], fontsize=8)
+    ax.set_xlabel("difference in tactile accuracy (points)")
+    ax.set_title(f"{title or 'Seed-paired differences'}\nseeds (dots), mean and 95 % interval (bar)",
+                 fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
