@@ -145,6 +145,14 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert [r["variant"] for r in res_oracle["runs"]] == ["tactile_oracle"]
     assert res_oracle["variant_settings"] == {"tactile_oracle": {"da_method": "none"}}
     assert "discrepancy" not in res_oracle and "discrepancy" not in res_oracle["runs"][0]
+    # a pair that the trained runs cannot give (no teacher) is left out with a note, the results kept
+    capsys.readouterr()
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "tactile_oracle", "--seeds", "1",
+                 "--pairs", "tactile_oracle.teacher-tactile_oracle", "--no-figures",
+                 "--json", str(out2)]) == 0
+    assert "paired" not in json.loads(out2.read_text())
+    assert "left out of the paired table: --pairs: no run of tactile_oracle with tactile_acc_teacher" in (
+        capsys.readouterr().out)
     # --discrepancy measures what each run leaves between the domains, and summarises it per row
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,mmd", "--seeds", "2",
                  "--max-epochs", "1", "--discrepancy", "--no-figures", "--json", str(out2)]) == 0

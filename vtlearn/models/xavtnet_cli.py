@@ -732,7 +732,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
 
     rows, checks, discrepancy_rows = _report_rows(variants, per_run, data_kwargs, max_epochs, len(seeds))
-    paired = _report_paired(args, variants, per_run)
+    paired = _report_paired(args, variants, per_run, strict=False)  # the trained results are kept whatever
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs,
@@ -870,10 +870,13 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
     return rows, checks, discrepancy_rows
 
 
-def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[dict]) -> list[dict]:
+def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[dict],
+                   strict: bool = True) -> list[dict]:
     """The seed-paired comparisons (:mod:`vtlearn.models.crossmodal_compare`) of every row against
     ``--baseline`` where the runs have it with two seeds or more, and of ``--pairs``, printed as a table.
-    Returns the rows (empty when there is nothing to pair)."""
+    Returns the rows (empty when there is nothing to pair). A pair that cannot be read (a ``--pairs`` score
+    that the runs do not hold, such as ``.teacher`` of a row without a teacher) raises ``ValueError``, or,
+    without ``strict`` (after trainings, whose results must not be lost), is left out with a note."""
     from vtlearn.bench_utils import print_table
     from vtlearn.models.crossmodal_compare import (
         default_pairs,
@@ -889,7 +892,17 @@ def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[
         pairs = list(dict.fromkeys(default_pairs(variants, per_run, baseline) + pairs))
     if not pairs:
         return []
-    rows = paired_rows(per_run, pairs, margin)
+    if strict:
+        rows = paired_rows(per_run, pairs, margin)
+    else:
+        rows = []
+        for pair in pairs:
+            try:
+                rows += paired_rows(per_run, [pair], margin)
+            except ValueError as exc:
+                print(f"left out of the paired table: {exc}")
+        if not rows:
+            return []
     print_table(rows, paired_table_columns(rows, margin),
                 "Seed-paired differences of tactile accuracy (points): mean ± std over the seeds both rows "
                 "have, 95 % interval, two-sided p of the paired t and Wilcoxon tests, seeds ahead"
