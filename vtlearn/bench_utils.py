@@ -16,7 +16,8 @@ import numpy as np
 
 __all__ = [
     "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
-    "welch_p", "wilcoxon_p", "paired_difference", "ratio", "cloud_extent", "check_metres", "check_same_units",
+    "welch_p", "wilcoxon_p", "paired_difference", "read_results", "check_same_protocol", "ratio",
+    "cloud_extent", "check_metres", "check_same_units",
 ]
 
 
@@ -103,6 +104,47 @@ def paired_difference(a, b, margin: float | None = None) -> dict:
         if margin is not None:
             out["p_at_most_margin"] = float(stats.t.sf((out["mean_diff"] - margin) / se, n - 1))
     return out
+
+
+def read_results(paths: list[str], bench: str, key: str, flag: str = "--merge") -> list[dict]:
+    """The JSONs of earlier ``vtlearn bench <bench>`` runs, read to be pooled; a ``ValueError`` naming
+    ``flag`` and the file for one that is missing, not JSON, or not a ``bench`` result holding ``key``."""
+    if not paths:
+        raise ValueError(f"{flag}: give at least one bench {bench} JSON")
+    docs = []
+    for path in paths:
+        f = Path(path)
+        if not f.is_file():
+            raise ValueError(f"{flag}: no such file {path}")
+        try:
+            doc = json.loads(f.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{flag}: {path} is not a JSON file ({exc})") from None
+        if not (isinstance(doc, dict) and doc.get("bench") == bench and key in doc):
+            raise ValueError(f"{flag}: {path} is not a `bench {bench}` result")
+        docs.append(doc)
+    return docs
+
+
+def check_same_protocol(paths: list[str], docs: list[dict], keys: tuple[str, ...],
+                        flag: str = "--merge") -> str | None:
+    """A ``ValueError`` naming ``flag`` and the file when results to be pooled were run on other data (their
+    ``data_fingerprint``: the same folder name may hold data regenerated with another seed or sampler) or
+    differ from the first in any of ``keys``. Results from before the fingerprint was recorded cannot be
+    checked on it, so each file that has one is checked against the first that has one. Returns that
+    fingerprint (None when no file has one)."""
+    known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
+             if doc.get("data_fingerprint")]
+    for path, fp in known[1:]:
+        if fp != known[0][1]:
+            raise ValueError(f"{flag}: {path} was run on other data than {known[0][0]} (data_fingerprint "
+                             f"{fp} against {known[0][1]}), though both may name the same folder")
+    for path, doc in zip(paths[1:], docs[1:], strict=True):
+        for key in keys:
+            if doc.get(key) != docs[0].get(key):
+                raise ValueError(f"{flag}: {path} has {key}={doc.get(key)!r}, {paths[0]} has "
+                                 f"{docs[0].get(key)!r}: not the same protocol")
+    return known[0][1] if known else None
 
 
 def ratio(a, b) -> float | None:

@@ -14,12 +14,11 @@ another CPU (docs/xavtnet.md), so such a pair keeps its seed but loses the share
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import paired_difference
+from vtlearn.bench_utils import check_same_protocol, paired_difference, read_results
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
            "paired_figure"]
@@ -101,33 +100,8 @@ def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
         meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the
         ``variant_settings`` known, ``config`` and ``merged_from`` lists), runs (one dict per (row, seed))
     """
-    if not paths:
-        raise ValueError("--merge: give at least one bench crossmodal JSON")
-    docs = []
-    for path in paths:
-        f = Path(path)
-        if not f.is_file():
-            raise ValueError(f"--merge: no such file {path}")
-        try:
-            doc = json.loads(f.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"--merge: {path} is not a JSON file ({exc})") from None
-        is_result = isinstance(doc, dict) and doc.get("bench") == "crossmodal"
-        if not (is_result and isinstance(doc.get("runs"), list)):
-            raise ValueError(f"--merge: {path} is not a `bench crossmodal` result")
-        docs.append(doc)
-    first = docs[0]
-    known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
-             if doc.get("data_fingerprint")]
-    for path, fp in known[1:]:
-        if fp != known[0][1]:
-            raise ValueError(f"--merge: {path} was run on other data than {known[0][0]} (data_fingerprint "
-                             f"{fp} against {known[0][1]}), though both may name the same folder")
-    for path, doc in zip(paths[1:], docs[1:], strict=True):
-        for key in _MERGE_KEYS:
-            if doc.get(key) != first.get(key):
-                raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, {paths[0]} has "
-                                 f"{first.get(key)!r}: not the same protocol")
+    docs = read_results(paths, "crossmodal", "runs")
+    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS)
     settings: dict[str, tuple[str, dict]] = {}
     for path, doc in zip(paths, docs, strict=True):
         for variant, s in (doc.get("variant_settings") or {}).items():
@@ -152,8 +126,8 @@ def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
                 continue
             where[key] = len(runs)
             runs.append({**r, "machine": r.get("machine") or machine, "file": str(path)})
-    meta = {key: first.get(key) for key in _MERGE_KEYS}
-    meta.update({"data_fingerprint": known[0][1] if known else None,
+    meta = {key: docs[0].get(key) for key in _MERGE_KEYS}
+    meta.update({"data_fingerprint": fingerprint,
                  "variant_settings": {v: s for v, (_, s) in settings.items()},
                  "config": [doc.get("config") for doc in docs], "merged_from": [str(p) for p in paths]})
     return meta, runs

@@ -1119,33 +1119,12 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     same folder name (``data_fingerprint``). Results written before the model or the fingerprint was
     recorded are compared on everything else.
     """
-    docs = []
-    for path in paths:
-        f = Path(path)
-        if not f.is_file():
-            raise ValueError(f"--merge: no such file {path}")
-        try:
-            doc = json.loads(f.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"--merge: {path} is not a JSON file ({exc})") from None
-        if not isinstance(doc, dict) or doc.get("bench") != "active-learning" or "curves" not in doc:
-            raise ValueError(f"--merge: {path} is not a `bench active-learning` result")
-        docs.append(doc)
+    from vtlearn.bench_utils import check_same_protocol, read_results
+
+    docs = read_results(paths, "active-learning", "curves")
     first = docs[0]
-    # the same folder name may hold other data (regenerated with another seed or sampler); JSONs from before
-    # the fingerprint was recorded cannot be checked, so each file that has one is checked against the first
-    # that has one
-    known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
-             if doc.get("data_fingerprint")]
-    for path, fp in known[1:]:
-        if fp != known[0][1]:
-            raise ValueError(f"--merge: {path} was run on other data than {known[0][0]} (data_fingerprint "
-                             f"{fp} against {known[0][1]}), though both name the same folder")
+    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS)
     for path, doc in zip(paths[1:], docs[1:], strict=True):
-        for key in _MERGE_KEYS:
-            if doc.get(key) != first.get(key):
-                raise ValueError(f"--merge: {path} has {key}={doc.get(key)!r}, "
-                                 f"{paths[0]} has {first.get(key)!r}")
         if "model" in doc and "model" in first and doc["model"] != first["model"]:
             raise ValueError(f"--merge: {path} and {paths[0]} trained different models")
         for key in _MERGE_ACTIVE_KEYS:
@@ -1182,7 +1161,7 @@ def merge_active_learning_runs(paths: list[str]) -> tuple[dict, dict[str, list]]
     seeds = [s for key in groups for s in key]
     meta = {key: first.get(key) for key in _MERGE_KEYS}
     meta["model"] = next((doc["model"] for doc in docs if "model" in doc), None)
-    meta["data_fingerprint"] = known[0][1] if known else None
+    meta["data_fingerprint"] = fingerprint
     meta.update({"config": [doc.get("config") for doc in docs], "active": {**first["active"],
                  "strategies": ",".join(strategies)}, "seeds": seeds,
                  "full_acc": [a for g in groups.values() for a in g["full_acc"]],
