@@ -21,7 +21,7 @@ import numpy as np
 from vtlearn.bench_utils import check_same_protocol, paired_difference, read_results
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
-           "paired_figure"]
+           "paired_table_columns", "paired_figure"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
