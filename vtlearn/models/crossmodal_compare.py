@@ -202,7 +202,9 @@ def paired_figure(rows: list[dict], path, margin: float | None = None, title: st
 
     from vtlearn.bench_utils import save_figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 0.55 * len(rows) + 1.6))
+    labels = [f"{r['comparison']} (n={r['pairs']})" for r in reversed(rows)]
+    # the plot keeps about 5 inches however long the comparison names beside it are
+    fig, ax = plt.subplots(figsize=(5.0 + 0.065 * max(len(t) for t in labels), 0.55 * len(rows) + 1.6))
     rng = np.random.default_rng(0)  # vertical jitter of the seed dots only
     for i, r in enumerate(rows):
         y = len(rows) - 1 - i
@@ -216,7 +218,7 @@ def paired_figure(rows: list[dict], path, margin: float | None = None, title: st
         ax.axvline(margin, color="C3", lw=1, ls="--", label=f"margin {margin:g}")
         ax.legend(loc="lower right", fontsize=8)
     ax.set_yticks(range(len(rows)))
-    ax.set_yticklabels([f"{r['comparison']} (n={r['pairs']})" for r in reversed(rows)], fontsize=8)
+    ax.set_yticklabels(labels, fontsize=8)
     ax.set_xlabel("difference in tactile accuracy (points)")
     ax.set_title(f"{title or 'Seed-paired differences'}\nseeds (dots), mean and 95 % interval (bar)",
                  fontsize=9)
