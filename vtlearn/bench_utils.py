@@ -127,12 +127,13 @@ def read_results(paths: list[str], bench: str, key: str, flag: str = "--merge") 
 
 
 def check_same_protocol(paths: list[str], docs: list[dict], keys: tuple[str, ...],
-                        flag: str = "--merge") -> str | None:
+                        flag: str = "--merge") -> Any:
     """A ``ValueError`` naming ``flag`` and the file when results to be pooled were run on other data (their
     ``data_fingerprint``: the same folder name may hold data regenerated with another seed or sampler) or
     differ from the first in any of ``keys``. Results from before the fingerprint was recorded cannot be
     checked on it, so each file that has one is checked against the first that has one. Returns that
-    fingerprint (None when no file has one)."""
+    fingerprint as the files hold it (``{"data_dir": ...}`` for the xAVTNet benches; None when no file has
+    one)."""
     known = [(path, doc["data_fingerprint"]) for path, doc in zip(paths, docs, strict=True)
              if doc.get("data_fingerprint")]
     for path, fp in known[1:]:
