@@ -183,6 +183,12 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--pairs", "noda-mmd",
                  "--json", str(merged)]) == 2  # mmd is not trained: refused before any training
     assert "--pairs: mmd names a row that --variants does not train" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--merge", str(out), "--baseline", "mmd", "--json", str(merged)]) == 2
+    assert "--baseline: 'mmd' is not one of the rows" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--merge", str(out), str(out2), "--baseline", "mmd", "--no-figures",
+                 "--json", str(merged)]) == 0
+    compared = {r["comparison"] for r in json.loads(merged.read_text())["paired"]}
+    assert compared == {"noda − mmd", "vtloss − mmd"}
     # each information-maximisation row (beyond the thesis) is compared with no-DA
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss_im", "--seeds", "1",
                  "--no-figures", "--json", str(out2)]) == 0

@@ -672,6 +672,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     for spec in (side for pair in asked for side in pair):
         if score_field(spec)[0] not in variants:
             raise ValueError(f"--pairs: {spec} names a row that --variants does not train ({variants})")
+    _check_baseline(args, variants)
     seeds = list(range(args.seed, args.seed + args.seeds))
     out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
     if not args.no_figures:  # the default folder beside --json, checked before the trainings too
@@ -789,6 +790,7 @@ def _merge_crossmodal(args: argparse.Namespace) -> int:
         check_output_path(out_dir, "--out-dir", "figures", folder=True)
     meta, runs = load_crossmodal_results(args.merge)
     variants = list(dict.fromkeys(r["variant"] for r in runs))
+    _check_baseline(args, variants)
     seeds = sorted({r["seed"] for r in runs})
     print(f"merged {len(args.merge)} results: rows {variants}, seeds {seeds}")
     rows, checks, discrepancy_rows = _report_rows(variants, runs, meta["data"], meta["max_epochs"],
@@ -808,6 +810,14 @@ def _merge_crossmodal(args: argparse.Namespace) -> int:
         write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
+
+
+def _check_baseline(args: argparse.Namespace, variants: list[str]) -> None:
+    """A ``--baseline`` given on the command line must be one of the rows (no-DA, the default, may be
+    absent: then no row is paired with it)."""
+    baseline = getattr(args, "baseline", "noda")
+    if baseline != "noda" and baseline not in variants:
+        raise ValueError(f"--baseline: {baseline!r} is not one of the rows ({variants})")
 
 
 def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, max_epochs: int,
