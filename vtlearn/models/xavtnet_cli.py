@@ -643,7 +643,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         raise ValueError(f"--margin: need a finite number of accuracy points, got {margin}")
     asked = parse_pairs(getattr(args, "pairs", None))  # a malformed --pairs is refused before any work
     if getattr(args, "merge", None):
-        return _merge_crossmodal(args)
+        return _merge_crossmodal(args, asked)
 
     cfg = load_config(args.config, "crossmodal")
     data_kwargs = _data_kwargs(cfg, args.data)
@@ -733,7 +733,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
 
     rows, checks, discrepancy_rows = _report_rows(variants, per_run, data_kwargs, max_epochs, len(seeds))
-    paired = _report_paired(args, variants, per_run, strict=False)  # the trained results are kept whatever
+    paired = _report_paired(args, variants, per_run, asked, strict=False)  # trained results are kept whatever
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs,
@@ -773,11 +773,11 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _merge_crossmodal(args: argparse.Namespace) -> int:
+def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) -> int:
     """``bench crossmodal --merge``: pool the runs of earlier results of one protocol
     (:func:`~vtlearn.models.crossmodal_compare.load_crossmodal_results`), print their table and the
-    seed-paired comparisons, and write both as a JSON (and the paired differences as a figure). Trains
-    nothing."""
+    seed-paired comparisons (``asked``: the parsed ``--pairs``, beside those against ``--baseline``), and
+    write both as a JSON (and the paired differences as a figure). Trains nothing."""
     from vtlearn.bench_utils import check_output_path, write_json
     from vtlearn.models.crossmodal_compare import load_crossmodal_results, paired_figure
 
@@ -795,7 +795,7 @@ def _merge_crossmodal(args: argparse.Namespace) -> int:
     print(f"merged {len(args.merge)} results: rows {variants}, seeds {seeds}")
     rows, checks, discrepancy_rows = _report_rows(variants, runs, meta["data"], meta["max_epochs"],
                                                   len(seeds))
-    paired = _report_paired(args, variants, runs)
+    paired = _report_paired(args, variants, runs, asked)
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
     result = {"bench": "crossmodal", **meta, "seeds": seeds, "rows": rows, "runs": runs, "checks": checks,
@@ -881,25 +881,21 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
 
 
 def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[dict],
-                   strict: bool = True) -> list[dict]:
+                   asked: list[tuple[str, str]], strict: bool = True) -> list[dict]:
     """The seed-paired comparisons (:mod:`vtlearn.models.crossmodal_compare`) of every row against
-    ``--baseline`` where the runs have it with two seeds or more, and of ``--pairs``, printed as a table.
+    ``--baseline`` where the runs have it with two seeds or more, and of ``asked`` (the parsed ``--pairs``),
+    printed as a table.
     Returns the rows (empty when there is nothing to pair). A pair that cannot be read (a ``--pairs`` score
     that the runs do not hold, such as ``.teacher`` of a row without a teacher) raises ``ValueError``, or,
     without ``strict`` (after trainings, whose results must not be lost), is left out with a note."""
     from vtlearn.bench_utils import print_table
-    from vtlearn.models.crossmodal_compare import (
-        default_pairs,
-        paired_rows,
-        paired_table_columns,
-        parse_pairs,
-    )
+    from vtlearn.models.crossmodal_compare import default_pairs, paired_rows, paired_table_columns
 
     margin = getattr(args, "margin", None)
-    baseline = getattr(args, "baseline", "noda") or "noda"
-    pairs = parse_pairs(getattr(args, "pairs", None))
+    pairs = asked
     if len({r["seed"] for r in per_run}) >= 2:  # one seed: only the pairs asked for
-        pairs = list(dict.fromkeys(default_pairs(variants, per_run, baseline) + pairs))
+        baseline = getattr(args, "baseline", "noda")
+        pairs = list(dict.fromkeys(default_pairs(variants, per_run, baseline) + asked))
     if not pairs:
         return []
     if strict:
