@@ -961,6 +961,9 @@ def test_mean_teacher_rejects_bad_settings():
     (dict(mmd_num_kernels=0), "mmd_num_kernels"),
     (dict(mmd_kernel_mul=0.0), "mmd_kernel_mul"),
     (dict(weight_decay=-1e-4), "weight_decay"),
+    (dict(mmd_kernel_weights="best"), "mmd_kernel_weights"),
+    (dict(da_method="none", mmd_kernel_weights="Optimal"), "mmd_kernel_weights"),
+    (dict(mmd_kernel_weights="optimal", mmd_conditional=True), "mmd_kernel_weights"),
 ])
 def test_bad_loss_and_network_settings_are_refused_by_name(kwargs, match):
     # before: each was accepted, then failed inside the first training step or the optimiser (a kernel
@@ -968,6 +971,14 @@ def test_bad_loss_and_network_settings_are_refused_by_name(kwargs, match):
     # weight or ramp is no-DA too), or counted a layer's alignment twice
     with pytest.raises(ValueError, match=match):
         XAVTNet(**{**TINY, **kwargs})
+
+
+def test_optimal_kernel_weights_are_ignored_by_the_rows_without_mk_mmd():
+    # one config may set them for every row of the bench, as it sets the MMD kernel family
+    for kwargs in (dict(da_method="none"), dict(use_mmd=False), dict(da_method="dann")):
+        model = XAVTNet(**TINY, **kwargs, mmd_kernel_weights="optimal")
+        assert not model.vtloss.optimal_kernels and "kernel_eta" not in model.vtloss.state_dict()
+    assert XAVTNet(**TINY, mmd_kernel_weights="optimal").vtloss.optimal_kernels
 
 
 def test_da_layers_as_one_name_is_that_layer():
@@ -988,6 +999,8 @@ def test_da_layers_as_one_name_is_that_layer():
     ("mmd_g12_mt_vote", True, False, ("global", "fc1", "fc2"), False),
     ("vtloss_bal", True, True, ("fc1", "fc2"), False),
     ("coral_bal", False, True, ("fc1", "fc2"), False),
+    ("vtloss_kopt", True, True, ("fc1", "fc2"), False),
+    ("mmd_kopt", True, False, ("fc1", "fc2"), False),
 ])
 def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
     """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
@@ -1013,3 +1026,9 @@ def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd
     assert ("domain" in logged) == dann
     # the balance-rule rows set λ each step (Deep CORAL's rule, online) and log it
     assert (model.vtloss.lam_balance is not None) == row.endswith("_bal") == ("lam" in logged)
+    # Gretton's optimal kernel weights: logged per layer and kernel, and the running means were updated
+    betas = {k for k in logged if k.startswith("kernel_beta_")}
+    assert model.vtloss.optimal_kernels == row.endswith("_kopt") == bool(betas)
+    if betas:
+        assert betas == {f"kernel_beta_{layer}_{u}" for layer in layers for u in range(5)}
+        assert model.vtloss.kernel_updates.tolist() == [1.0] * len(layers)

@@ -1,10 +1,11 @@
-"""Losses: MK-MMD, Deep CORAL, VTLoss (thesis ch.7); beyond it DANN gradient reversal, information
-maximisation, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
+"""Losses: MK-MMD (with Gretton et al.'s optimal kernel weights), Deep CORAL, VTLoss (thesis ch.7); beyond it
+DANN gradient reversal, information maximisation, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
 
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.coral import coral, covariance
 from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
+from vtlearn.losses.kernel_choice import linear_time_statistics, optimal_kernel_weights
 from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import gaussian_bandwidths, mk_mmd, multi_kernel_matrix
 from vtlearn.losses.vtloss import VTLoss
@@ -16,6 +17,8 @@ __all__ = [
     "local_mmd",
     "gaussian_bandwidths",
     "multi_kernel_matrix",
+    "linear_time_statistics",
+    "optimal_kernel_weights",
     "VTLoss",
     "GradientReversal",
     "grad_reverse",

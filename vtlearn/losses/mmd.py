@@ -2,7 +2,8 @@
 
 MMD between two distributions is the RKHS distance between their mean embeddings (eq. 7.5),
 ``MMD²(p_s, p_t) = ‖E_s[φ(x_s)] − E_t[φ(x_t)]‖²_H``. MK-MMD (Gretton et al., 2012) uses a convex
-combination of ``b`` kernels (eq. 7.6), ``k = Σ_u β_u k_u`` with ``Σ β_u = 1``; here ``β_u = 1/b``.
+combination of ``b`` kernels (eq. 7.6), ``k = Σ_u β_u k_u`` with ``Σ β_u = 1``; here ``β_u = 1/b`` unless
+``kernel_weights`` are given (Gretton et al.'s optimal weights: :mod:`vtlearn.losses.kernel_choice`).
 
 Kernel family (documented bandwidths). Gaussian kernels
 
@@ -105,15 +106,18 @@ def gaussian_bandwidths(
         return h0 * kernel_mul**exps
 
 
-def multi_kernel_matrix(x: torch.Tensor, y: torch.Tensor, bandwidths: torch.Tensor) -> torch.Tensor:
-    """``K_ij = (1/b) Σ_u exp(−‖x_i − y_j‖² / h_u)`` (eq. 7.6 with β_u = 1/b).
+def multi_kernel_matrix(
+    x: torch.Tensor, y: torch.Tensor, bandwidths: torch.Tensor, weights: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``K_ij = Σ_u β_u exp(−‖x_i − y_j‖² / h_u)`` (eq. 7.6), with ``β_u = 1/b`` unless ``weights`` are given.
 
     Args:
         x, y: 2-D feature matrices with the same feature dimension ``d``.
         bandwidths: non-empty 1-D tensor (shapes only are checked: this runs every training step).
+        weights: the ``β_u`` (checked by :func:`mk_mmd`), or ``None`` for equal weights.
 
     Shapes:
-        x (n, d), y (m, d), bandwidths (b,) -> (n, m)
+        x (n, d), y (m, d), bandwidths (b,), weights (b,) -> (n, m)
     """
     if x.dim() != 2 or y.dim() != 2:
         raise ValueError(
@@ -126,7 +130,13 @@ def multi_kernel_matrix(x: torch.Tensor, y: torch.Tensor, bandwidths: torch.Tens
     # Squared distances written out (not cdist) so the float64 gradcheck sees a smooth function at 0.
     sq = (x * x).sum(-1, keepdim=True) + (y * y).sum(-1)[None, :] - 2.0 * x @ y.T
     sq = sq.clamp_min(0.0)
-    return torch.exp(-sq[None] / bandwidths[:, None, None]).mean(0)  # b x n x m -> n x m
+    k = torch.exp(-sq[None] / bandwidths[:, None, None])  # b x n x m
+    if weights is None:
+        return k.mean(0)
+    if weights.shape != bandwidths.shape:
+        raise ValueError(f"weights: expected shape {tuple(bandwidths.shape)} (one per bandwidth), "
+                         f"got {tuple(weights.shape)}")
+    return torch.tensordot(weights.to(k), k, dims=1)
 
 
 def mk_mmd(
@@ -137,6 +147,7 @@ def mk_mmd(
     kernel_mul: float = 2.0,
     bandwidths: Sequence[float] | torch.Tensor | None = None,
     unbiased: bool = False,
+    kernel_weights: Sequence[float] | torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Squared MK-MMD between two feature samples (thesis eq. 7.5-7.6).
 
@@ -147,15 +158,24 @@ def mk_mmd(
             ``bandwidths`` is given).
         bandwidths: optional fixed ``h_u`` values (each > 0).
         unbiased: U-statistic instead of the default biased V-statistic.
+        kernel_weights: the ``β_u`` of eq. 7.6, one per kernel, each ≥ 0 and summing to 1 (e.g.
+            :func:`~vtlearn.losses.kernel_choice.optimal_kernel_weights`); ``None``: equal weights.
 
     Shapes:
-        source (n_s, d), target (n_t, d) -> scalar. ``n_s`` and ``n_t`` may differ.
+        source (n_s, d), target (n_t, d), kernel_weights (b,) -> scalar. ``n_s`` and ``n_t`` may differ.
     """
     check_feature_pair(source, target, 2 if unbiased else 1)
     h = kernel_bandwidths(source, target, num_kernels, kernel_mul, bandwidths)
-    k_ss = multi_kernel_matrix(source, source, h)
-    k_tt = multi_kernel_matrix(target, target, h)
-    k_st = multi_kernel_matrix(source, target, h)
+    w = None
+    if kernel_weights is not None:
+        w = torch.as_tensor(kernel_weights, dtype=source.dtype, device=source.device).reshape(-1)
+        if w.numel() != h.numel() or not bool(torch.isfinite(w).all()) or bool((w < 0).any()) \
+                or abs(float(w.sum()) - 1.0) > 1e-5:
+            raise ValueError(f"kernel_weights: expected {h.numel()} finite weights >= 0 summing to 1 "
+                             f"(eq. 7.6), got {w.tolist()}")
+    k_ss = multi_kernel_matrix(source, source, h, w)
+    k_tt = multi_kernel_matrix(target, target, h, w)
+    k_st = multi_kernel_matrix(source, target, h, w)
     if not unbiased:
         return k_ss.mean() + k_tt.mean() - 2.0 * k_st.mean()
     n_s, n_t = source.shape[0], target.shape[0]

@@ -27,6 +27,11 @@ read off the end of a λ = 10 training in the centred frame, gives λ ≈ 500-65
 Applied online, the ratio feeds back (λ ∝ 1/CORAL, and a larger λ shrinks CORAL) and, on xAVTNet's
 clouds, runs away to the cap and stalls the classifier (stop 51).
 
+``mmd_kernel_weights="optimal"`` gives eq. 7.6's β_u the values of Gretton et al. (2012), whom the thesis
+cites for MK-MMD: the weights of the most powerful two-sample test, from running means of each kernel's
+linear-time MMD² and their covariance (:mod:`vtlearn.losses.kernel_choice`; DAN re-estimates them while it
+trains in the same way). The default, ``"uniform"``, keeps β_u = 1/b.
+
 Also beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional
 LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class
 probabilities.
@@ -41,11 +46,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from vtlearn.losses.coral import coral
+from vtlearn.losses.kernel_choice import MAX_KERNELS, linear_time_statistics, optimal_kernel_weights
 from vtlearn.losses.lmmd import local_mmd
-from vtlearn.losses.mmd import mk_mmd
+from vtlearn.losses.mmd import kernel_bandwidths, mk_mmd
 from vtlearn.validation import as_int, as_real
 
-__all__ = ["VTLoss"]
+__all__ = ["VTLoss", "KERNEL_WEIGHTS"]
+
+#: the choices of ``VTLoss(mmd_kernel_weights=...)``
+KERNEL_WEIGHTS = ("uniform", "optimal")
 
 
 class VTLoss(nn.Module):
@@ -59,6 +68,16 @@ class VTLoss(nn.Module):
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD options (see :func:`mk_mmd`).
         mmd_conditional: the class-conditional LMMD (:func:`~vtlearn.losses.lmmd.local_mmd`, biased
             estimator) in place of MK-MMD; ``forward`` then needs ``target_probs``.
+        mmd_kernel_weights: ``"uniform"`` (default): eq. 7.6's β_u = 1/b. ``"optimal"``: for each layer,
+            the weights of :func:`~vtlearn.losses.kernel_choice.optimal_kernel_weights` from exponential
+            means (momentum ``mmd_kernel_momentum``, bias-corrected) of the batch's per-kernel linear-time
+            MMD² ``η`` and its covariance ``Q`` (:func:`~vtlearn.losses.kernel_choice.linear_time_statistics`,
+            on detached features, from batches of 4 or more clouds per domain). The means update in
+            training mode only and are saved with the module; before the first update the weights are
+            equal. The weights are logged as the parts ``"kernel_beta_<layer>_<u>"``. Needs ``use_mmd``
+            without ``mmd_conditional``, and at most :data:`~vtlearn.losses.kernel_choice.MAX_KERNELS`
+            kernels.
+        mmd_kernel_momentum: the momentum of those means, in [0, 1) (0: this batch's statistics alone).
         lam_balance: ``None`` (default): λ is ``lam``, as in eq. 7.8. A momentum ``m`` in [0, 1): λ is
             set each training step by Deep CORAL's balance rule (module docstring),
             ``λ_t = α·mean(CE)_t / mean(CORAL)_t``, over exponential means of the detached source
@@ -97,6 +116,8 @@ class VTLoss(nn.Module):
         mmd_unbiased: bool = False,
         mmd_conditional: bool = False,
         lam_balance: float | None = None,
+        mmd_kernel_weights: str = "uniform",
+        mmd_kernel_momentum: float = 0.9,
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
@@ -126,6 +147,26 @@ class VTLoss(nn.Module):
             # with the rule on, so that the state dicts of eq. 7.8's rows stay as they were
             self.register_buffer("balance_state", torch.zeros(3, dtype=torch.float64))
         self.lam_balance = lam_balance
+        if mmd_kernel_weights not in KERNEL_WEIGHTS:
+            raise ValueError(
+                f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {mmd_kernel_weights!r}"
+            )
+        self.mmd_kernel_momentum = as_real(mmd_kernel_momentum, "mmd_kernel_momentum", low=0.0, high=1.0,
+                                           open_high=True)
+        self.optimal_kernels = mmd_kernel_weights == "optimal"
+        if self.optimal_kernels:
+            if not self.use_mmd or self.mmd_conditional:
+                raise ValueError("mmd_kernel_weights: 'optimal' weighs MK-MMD's kernels, so it needs use_mmd "
+                                 "without mmd_conditional")
+            if mmd_num_kernels > MAX_KERNELS:
+                raise ValueError(f"mmd_num_kernels: 'optimal' kernel weights take at most {MAX_KERNELS} "
+                                 f"kernels, got {mmd_num_kernels}")
+            b, n_layers = int(mmd_num_kernels), len(self.layers)
+            # per layer: running η (b), Q (b x b) and the number of updates; registered only with the option
+            # on, so that the state dicts of the other rows stay as they were
+            self.register_buffer("kernel_eta", torch.zeros(n_layers, b, dtype=torch.float64))
+            self.register_buffer("kernel_q", torch.zeros(n_layers, b, b, dtype=torch.float64))
+            self.register_buffer("kernel_updates", torch.zeros(n_layers, dtype=torch.float64))
 
     @property
     def adapts(self) -> bool:
@@ -170,13 +211,18 @@ class VTLoss(nn.Module):
                              "class probabilities")
         zero = logits_source.new_zeros(())
         mmd_sum, coral_sum = zero, zero
-        for layer in self.layers:
+        for i, layer in enumerate(self.layers):
             if layer not in features_source or layer not in features_target:
                 raise ValueError(f"layer {layer!r} missing from features_source/features_target")
             fs, ft = features_source[layer], features_target[layer]
             if self.use_mmd:
                 if self.mmd_conditional:
                     m = local_mmd(fs, ft, labels_source, target_probs, **self.kernel_kwargs)
+                elif self.optimal_kernels:
+                    h = kernel_bandwidths(fs, ft, **self.kernel_kwargs)
+                    w = self._kernel_weights(i, fs, ft, h)
+                    m = mk_mmd(fs, ft, bandwidths=h, kernel_weights=w, unbiased=self.mmd_kwargs["unbiased"])
+                    parts.update({f"kernel_beta_{layer}_{u}": w[u].detach() for u in range(w.numel())})
                 else:
                     m = mk_mmd(fs, ft, **self.mmd_kwargs)
                 mmd_sum = mmd_sum + m
@@ -196,6 +242,27 @@ class VTLoss(nn.Module):
             if balanced:
                 parts["lam"] = ce.new_tensor(lam)
         return total, parts
+
+    def _kernel_weights(self, i: int, fs: torch.Tensor, ft: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """β of ``mmd_kernel_weights="optimal"`` for layer ``i``: the running η and Q take this batch's
+        linear-time statistics in training mode (batches of 4 or more clouds per domain); the weights solve
+        Gretton et al.'s programme on the bias-corrected means, or are equal before the first update.
+
+        Shapes:
+            fs (n_s, d), ft (n_t, d), h (b,) -> (b,) in fs's dtype
+        """
+        if self.training and min(fs.shape[0], ft.shape[0]) >= 4:
+            stats = linear_time_statistics(fs.detach(), ft.detach(), h).to(torch.float64)
+            m = self.mmd_kernel_momentum
+            self.kernel_eta[i] = m * self.kernel_eta[i] + (1 - m) * stats.mean(0)
+            self.kernel_q[i] = m * self.kernel_q[i] + (1 - m) * torch.cov(stats.T).reshape(h.numel(), -1)
+            self.kernel_updates[i] += 1
+        t = float(self.kernel_updates[i])
+        if t == 0:
+            return torch.full_like(h, 1.0 / h.numel())
+        correction = 1.0 - self.mmd_kernel_momentum ** t
+        w = optimal_kernel_weights(self.kernel_eta[i] / correction, self.kernel_q[i] / correction)
+        return w.to(h)
 
     def _balanced_lam(self, ce: torch.Tensor, coral_sum: torch.Tensor) -> float:
         """λ_t of ``lam_balance`` (Deep CORAL's balance rule, online): the running means take this step's
@@ -217,5 +284,5 @@ class VTLoss(nn.Module):
         return (
             f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
             f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}, "
-            f"lam_balance={self.lam_balance}"
+            f"lam_balance={self.lam_balance}, optimal_kernels={self.optimal_kernels}"
         )

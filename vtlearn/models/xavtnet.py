@@ -111,7 +111,7 @@ from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_rever
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
-from vtlearn.losses.vtloss import VTLoss
+from vtlearn.losses.vtloss import KERNEL_WEIGHTS, VTLoss
 from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
@@ -272,6 +272,12 @@ class XAVTNet(L.LightningModule):
             ``da_method="vtloss"`` with ``use_coral``. It runs away on these clouds and the training
             collapses (stop 51); a fixed ``lam`` is the working setting.
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD family and estimator.
+        mmd_kernel_weights, mmd_kernel_momentum: eq. 7.6's kernel weights β_u, ``"uniform"`` (1/b, default)
+            or ``"optimal"`` (Gretton et al. 2012's weights of the most powerful test, re-estimated while
+            training from running means with that momentum, as DAN does;
+            :class:`~vtlearn.losses.vtloss.VTLoss`, :mod:`vtlearn.losses.kernel_choice`). Rows without
+            MK-MMD (no-DA, CORAL only, DANN) ignore them, so one config can set them for every row; not with
+            ``mmd_conditional``.
         mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
             batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
@@ -415,6 +421,8 @@ class XAVTNet(L.LightningModule):
         mmd_unbiased: bool = False,
         mmd_conditional: bool = False,
         lam_balance: float | None = None,
+        mmd_kernel_weights: str = "uniform",
+        mmd_kernel_momentum: float = 0.9,
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
@@ -527,6 +535,10 @@ class XAVTNet(L.LightningModule):
         if rotation_weight > 0 and domain_bn:
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
+        if mmd_kernel_weights not in KERNEL_WEIGHTS:
+            raise ValueError(
+                f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {mmd_kernel_weights!r}"
+            )
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
@@ -578,6 +590,8 @@ class XAVTNet(L.LightningModule):
             alpha, beta, lam, da_layers, use_mmd=vt and use_mmd, use_coral=vt and use_coral,
             mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
             mmd_conditional=mmd_conditional, lam_balance=lam_balance if vt else None,
+            mmd_kernel_weights=mmd_kernel_weights if vt and use_mmd else "uniform",
+            mmd_kernel_momentum=mmd_kernel_momentum,
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
         self._memory = (

@@ -134,9 +134,15 @@ VARIANTS["coral_bal"] = {**VARIANTS["coral"], "lam_balance": 0.9}
 # consistency, so that the teacher row's margin over no-DA splits into the teacher's share and VTLoss's.
 VARIANTS["noda_mt"] = {"da_method": "none", **{k: VARIANTS["vtloss_g12_mt"][k] for k in ("consistency_weight",
                                                                           "consistency_threshold")}}
+# Eq. 7.6's kernel weights β_u as Gretton et al. (2012) choose them, the weights of the most powerful
+# two-sample test, re-estimated during training from running means (momentum 0.9) of each kernel's
+# linear-time MMD² and their covariance, as DAN does (losses/kernel_choice.py), instead of 1/b: eq. 7.8 and
+# Table 7.2's "MMD only" row.
+VARIANTS["vtloss_kopt"] = {**_VTLOSS, "mmd_kernel_weights": "optimal"}
+VARIANTS["mmd_kopt"] = {**VARIANTS["mmd"], "mmd_kernel_weights": "optimal"}
 # Rows beyond the thesis that the bench runs only when --variants names them.
 OPT_IN_SUFFIXES = ("_dbn", "_im", "_fc123", "_g12", "_lmmd", "_pl", "_mt", "_rot", "_align", "_aad", "_aadt",
-                   "_fm", "_mix", "_con", "_vote", "_bal")
+                   "_fm", "_mix", "_con", "_vote", "_bal", "_kopt")
 # Not a thesis row: the same network trained with cross-entropy on the *labelled* tactile training clouds,
 # the "train on target" upper bound that UDA papers report beside their methods.
 ORACLE = "tactile_oracle"
