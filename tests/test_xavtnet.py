@@ -426,6 +426,22 @@ def test_checkpoint_round_trip_weights_only(tmp_path):
     assert torch.equal(again(x).logits, model(x).logits)
 
 
+def test_checkpoint_keeps_the_optimal_kernel_weights_running_means(tmp_path):
+    # a resumed or reloaded run must weigh MK-MMD's kernels as the saved one did
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, mmd_kernel_weights="optimal", max_points=30)
+    trainer = L.Trainer(fast_dev_run=2, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, default_root_dir=tmp_path)
+    trainer.fit(model, datamodule=TinyCrossModalDM())
+    assert model.vtloss.kernel_updates.tolist() == [2.0, 2.0] and model.vtloss.kernel_eta.abs().sum() > 0
+    path = tmp_path / "xavtnet.ckpt"
+    trainer.save_checkpoint(path)
+    again = XAVTNet.load_from_checkpoint(path, map_location="cpu", weights_only=True)
+    for name in ("kernel_eta", "kernel_q", "kernel_updates"):
+        assert torch.equal(getattr(again.vtloss, name), getattr(model.vtloss, name)), name
+    assert again.vtloss.kernel_eta.dtype == torch.float64
+
+
 class _Indexed(Dataset):
     """Unlabelled clouds that carry their position, as CrossModalDataModule's target stream does."""
 
