@@ -51,10 +51,17 @@ from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mmd import kernel_bandwidths, mk_mmd
 from vtlearn.validation import as_int, as_real
 
-__all__ = ["VTLoss", "KERNEL_WEIGHTS"]
+__all__ = ["VTLoss", "KERNEL_WEIGHTS", "check_kernel_weights"]
 
 #: the choices of ``VTLoss(mmd_kernel_weights=...)``
 KERNEL_WEIGHTS = ("uniform", "optimal")
+
+
+def check_kernel_weights(choice: str) -> str:
+    """``choice`` if it is one of :data:`KERNEL_WEIGHTS`, else a ValueError naming ``mmd_kernel_weights``."""
+    if choice not in KERNEL_WEIGHTS:
+        raise ValueError(f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {choice!r}")
+    return choice
 
 
 class VTLoss(nn.Module):
@@ -147,10 +154,7 @@ class VTLoss(nn.Module):
             # with the rule on, so that the state dicts of eq. 7.8's rows stay as they were
             self.register_buffer("balance_state", torch.zeros(3, dtype=torch.float64))
         self.lam_balance = lam_balance
-        if mmd_kernel_weights not in KERNEL_WEIGHTS:
-            raise ValueError(
-                f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {mmd_kernel_weights!r}"
-            )
+        check_kernel_weights(mmd_kernel_weights)
         self.mmd_kernel_momentum = as_real(mmd_kernel_momentum, "mmd_kernel_momentum", low=0.0, high=1.0,
                                            open_high=True)
         self.optimal_kernels = mmd_kernel_weights == "optimal"

@@ -111,7 +111,7 @@ from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_rever
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
-from vtlearn.losses.vtloss import KERNEL_WEIGHTS, VTLoss
+from vtlearn.losses.vtloss import VTLoss, check_kernel_weights
 from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
@@ -535,10 +535,7 @@ class XAVTNet(L.LightningModule):
         if rotation_weight > 0 and domain_bn:
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
-        if mmd_kernel_weights not in KERNEL_WEIGHTS:
-            raise ValueError(
-                f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {mmd_kernel_weights!r}"
-            )
+        check_kernel_weights(mmd_kernel_weights)  # before the rows without MK-MMD pass VTLoss "uniform"
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
