@@ -127,6 +127,66 @@ def test_mk_mmd_rejects_bad_input():
         mk_mmd(x, x, bandwidths=[0.0])
 
 
+def naive_linear_time_mmd(xs, xt, h):
+    """Gretton et al. (2012) eq. 5 written out: the mean over disjoint quadruples of consecutive rows."""
+
+    def k(a, b):
+        d2 = sum((float(a[i]) - float(b[i])) ** 2 for i in range(len(a)))
+        return sum(math.exp(-d2 / float(hu)) for hu in h) / len(h)
+
+    n = min(len(xs), len(xt)) // 2
+    return sum(k(xs[2 * i], xs[2 * i + 1]) + k(xt[2 * i], xt[2 * i + 1]) - k(xs[2 * i], xt[2 * i + 1])
+               - k(xs[2 * i + 1], xt[2 * i]) for i in range(n)) / n
+
+
+def test_mk_mmd_linear_time_matches_the_quadruple_formula_and_vanishes_for_identical_samples():
+    g = torch.Generator().manual_seed(5)
+    xs = torch.randn(9, 4, generator=g, dtype=torch.float64)  # 3 quadruples: rows 6-8 of xs, 6 of xt left out
+    xt = torch.randn(7, 4, generator=g, dtype=torch.float64) + 0.5
+    h = gaussian_bandwidths(torch.cat([xs, xt]))  # the bandwidths still come from the whole pooled sample
+    got = mk_mmd(xs, xt, linear_time=True)
+    assert got.item() == pytest.approx(naive_linear_time_mmd(xs, xt, h.tolist()), rel=1e-10, abs=1e-12)
+    # rows past the last quadruple do not enter the terms, only the bandwidths
+    first = mk_mmd(xs[:6], xt[:6], bandwidths=h, linear_time=True)
+    assert first.item() == pytest.approx(got.item(), rel=1e-12)
+    # with kernel weights: the weighted sum of the one-kernel estimates
+    single = [mk_mmd(xs, xt, bandwidths=[hu], linear_time=True).item() for hu in h.tolist()]
+    w = [0.1, 0.2, 0.3, 0.4, 0.0]
+    assert mk_mmd(xs, xt, bandwidths=h, kernel_weights=w, linear_time=True).item() == pytest.approx(
+        sum(a * b for a, b in zip(w, single, strict=True)), rel=1e-12)
+    assert mk_mmd(xs, xs.clone(), linear_time=True).item() == 0.0
+
+
+def test_mk_mmd_linear_time_averaged_over_every_row_order_is_the_unbiased_estimate():
+    """Its expectation over the rows' order is the U-statistic: each quadruple's terms are uniform over the
+    distinct pairs within a domain and over all pairs across the two, which is what makes it unbiased."""
+    import itertools
+
+    g = torch.Generator().manual_seed(6)
+    xs = torch.randn(4, 2, generator=g, dtype=torch.float64)
+    xt = torch.randn(4, 2, generator=g, dtype=torch.float64) + 0.7
+    h = [0.5, 2.0]
+    orders = [list(p) for p in itertools.permutations(range(4))]
+    mean = sum(mk_mmd(xs[a], xt[b], bandwidths=h, linear_time=True).item() for a in orders for b in orders)
+    mean /= len(orders) ** 2
+    assert mean == pytest.approx(mk_mmd(xs, xt, bandwidths=h, unbiased=True).item(), rel=1e-10)
+    # and one order is not it: the estimate is noisier than the quadratic ones
+    assert mk_mmd(xs, xt, bandwidths=h, linear_time=True).item() != pytest.approx(mean, rel=1e-3)
+
+
+def test_mk_mmd_linear_time_gradcheck_and_errors():
+    g = torch.Generator().manual_seed(7)
+    xs = torch.randn(5, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    xt = torch.randn(4, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(
+        lambda a, b: mk_mmd(a, b, bandwidths=[0.5, 1.0, 4.0], linear_time=True), (xs, xt))
+    x = torch.randn(4, 3)
+    with pytest.raises(ValueError, match="unbiased, linear_time"):
+        mk_mmd(x, x, linear_time=True, unbiased=True)
+    with pytest.raises(ValueError, match="target needs at least 2 rows"):
+        mk_mmd(x, torch.randn(1, 3), linear_time=True)
+
+
 def test_coral_hand_computed():
     xs = torch.tensor([[0.0, 0.0], [2.0, 0.0]])
     xt = torch.tensor([[0.0, 0.0], [0.0, 2.0]])
@@ -174,6 +234,28 @@ def test_vtloss_is_weighted_sum_of_eq_7_8():
     cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
     assert total.item() == pytest.approx((10 * ce + 10 * mmd + 10 * cor).item())
     assert set(parts) >= {"ce", "mmd", "coral", "mmd_fc1", "mmd_fc2", "coral_fc1", "coral_fc2"}
+
+
+def test_vtloss_with_the_linear_time_estimator_sums_the_linear_time_terms():
+    logits, labels, fs, ft = _feats(5)
+    loss = VTLoss(mmd_linear_time=True)
+    total, parts = loss(logits, labels, fs, ft)
+    ce = torch.nn.functional.cross_entropy(logits, labels)
+    lin = {name: mk_mmd(fs[name], ft[name], linear_time=True) for name in ("fc1", "fc2")}
+    cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
+    assert total.item() == pytest.approx((10 * ce + 10 * (lin["fc1"] + lin["fc2"]) + 10 * cor).item())
+    assert parts["mmd_fc1"].item() == pytest.approx(lin["fc1"].item())
+    assert parts["mmd_fc1"].item() != pytest.approx(mk_mmd(fs["fc1"], ft["fc1"]).item(), rel=1e-3)
+    assert "linear_time=True" in repr(loss)
+    # with Gretton et al.'s optimal kernel weights, the weighted linear-time estimate
+    opt = VTLoss(mmd_linear_time=True, mmd_kernel_weights="optimal", use_coral=False, layers=("fc1",))
+    _, parts = opt(logits, labels, fs, ft)
+    w = torch.stack([parts[f"kernel_beta_fc1_{u}"] for u in range(5)])
+    assert parts["mmd_fc1"].item() == pytest.approx(
+        mk_mmd(fs["fc1"], ft["fc1"], kernel_weights=w, linear_time=True).item(), rel=1e-9)
+    for kwargs in (dict(mmd_unbiased=True), dict(mmd_conditional=True)):
+        with pytest.raises(ValueError, match="mmd_linear_time"):
+            VTLoss(mmd_linear_time=True, **kwargs)
 
 
 @pytest.mark.parametrize(

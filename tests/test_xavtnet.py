@@ -997,6 +997,14 @@ def test_optimal_kernel_weights_are_ignored_by_the_rows_without_mk_mmd():
     assert XAVTNet(**TINY, mmd_kernel_weights="optimal").vtloss.optimal_kernels
 
 
+def test_the_linear_time_estimator_is_ignored_by_the_rows_without_mk_mmd_and_refused_with_another():
+    for kwargs in (dict(da_method="none"), dict(use_mmd=False), dict(da_method="dann")):
+        assert not XAVTNet(**TINY, **kwargs, mmd_linear_time=True).vtloss.mmd_kwargs["linear_time"]
+    assert XAVTNet(**TINY, mmd_linear_time=True).vtloss.mmd_kwargs["linear_time"]
+    with pytest.raises(ValueError, match="mmd_linear_time"):
+        XAVTNet(**TINY, mmd_linear_time=True, mmd_unbiased=True)
+
+
 def test_da_layers_as_one_name_is_that_layer():
     # before: the string was read letter by letter ("got ['1', 'c', 'f']")
     model = XAVTNet(**TINY, da_layers="fc1")
@@ -1017,6 +1025,8 @@ def test_da_layers_as_one_name_is_that_layer():
     ("coral_bal", False, True, ("fc1", "fc2"), False),
     ("vtloss_kopt", True, True, ("fc1", "fc2"), False),
     ("mmd_kopt", True, False, ("fc1", "fc2"), False),
+    ("vtloss_lin", True, True, ("fc1", "fc2"), False),
+    ("mmd_lin", True, False, ("fc1", "fc2"), False),
 ])
 def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
     """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
@@ -1048,3 +1058,5 @@ def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd
     if betas:
         assert betas == {f"kernel_beta_{layer}_{u}" for layer in layers for u in range(5)}
         assert model.vtloss.kernel_updates.tolist() == [1.0] * len(layers)
+    # DAN's linear-time MK-MMD estimator: on in exactly the rows that name it
+    assert model.vtloss.mmd_kwargs["linear_time"] == row.endswith("_lin")

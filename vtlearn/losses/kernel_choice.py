@@ -30,7 +30,7 @@ import itertools
 
 import torch
 
-from vtlearn.losses.mmd import check_feature_pair
+from vtlearn.losses.mmd import check_feature_pair, linear_time_terms
 from vtlearn.validation import as_real
 
 __all__ = ["linear_time_statistics", "optimal_kernel_weights", "MAX_KERNELS"]
@@ -57,14 +57,7 @@ def linear_time_statistics(
     if bandwidths.dim() != 1 or bandwidths.numel() == 0 or not bool((bandwidths > 0).all()):
         raise ValueError(f"bandwidths: expected a non-empty 1-D tensor of values > 0, got {bandwidths}")
     with torch.no_grad():
-        n = min(source.shape[0], target.shape[0]) // 2
-        x0, x1 = source[0:2 * n:2], source[1:2 * n:2]
-        y0, y1 = target[0:2 * n:2], target[1:2 * n:2]
-
-        def k(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:  # (n, d), (n, d) -> (n, b)
-            return torch.exp(-(a - b).pow(2).sum(-1, keepdim=True) / bandwidths[None, :])
-
-        return k(x0, x1) + k(y0, y1) - k(x0, y1) - k(x1, y0)
+        return linear_time_terms(source, target, bandwidths)
 
 
 def optimal_kernel_weights(eta: torch.Tensor, q: torch.Tensor, ridge: float = 1e-3) -> torch.Tensor:

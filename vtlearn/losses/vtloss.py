@@ -32,6 +32,11 @@ cites for MK-MMD: the weights of the most powerful two-sample test, from running
 linear-time MMD² and their covariance (:mod:`vtlearn.losses.kernel_choice`; DAN re-estimates them while it
 trains in the same way). The default, ``"uniform"``, keeps β_u = 1/b.
 
+``mmd_linear_time=True`` estimates each MK-MMD² term with the linear-time estimator that DAN trains with
+(Gretton et al. 2012 eq. 5; Long et al. 2015 eq. 6; :func:`~vtlearn.losses.mmd.linear_time_terms`) instead
+of the biased V-statistic: the mean over disjoint quadruples of two source and two target rows, unbiased,
+and noisier than the quadratic estimators.
+
 Also beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional
 LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class
 probabilities.
@@ -73,6 +78,9 @@ class VTLoss(nn.Module):
             (xAVTNet exposes ``"fc1"`` and ``"fc2"``).
         use_mmd, use_coral: switch the MK-MMD and CORAL terms on or off.
         mmd_num_kernels, mmd_kernel_mul, mmd_unbiased: MK-MMD options (see :func:`mk_mmd`).
+        mmd_linear_time: MK-MMD's linear-time estimator (DAN's; :func:`mk_mmd` ``linear_time``) instead of
+            the biased or unbiased quadratic one; needs batches of 2 or more clouds per domain (one
+            quadruple), and not with ``mmd_unbiased`` or ``mmd_conditional``.
         mmd_conditional: the class-conditional LMMD (:func:`~vtlearn.losses.lmmd.local_mmd`, biased
             estimator) in place of MK-MMD; ``forward`` then needs ``target_probs``.
         mmd_kernel_weights: ``"uniform"`` (default): eq. 7.6's β_u = 1/b. ``"optimal"``: for each layer,
@@ -125,6 +133,7 @@ class VTLoss(nn.Module):
         lam_balance: float | None = None,
         mmd_kernel_weights: str = "uniform",
         mmd_kernel_momentum: float = 0.9,
+        mmd_linear_time: bool = False,
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
@@ -140,11 +149,15 @@ class VTLoss(nn.Module):
         mmd_kernel_mul = as_real(mmd_kernel_mul, "mmd_kernel_mul", low=0.0, open_low=True)
         if mmd_conditional and mmd_unbiased:
             raise ValueError("mmd_unbiased: the conditional LMMD has the biased estimator only")
+        if mmd_linear_time and (mmd_unbiased or mmd_conditional):
+            raise ValueError("mmd_linear_time: not with mmd_unbiased (choose one estimator) or "
+                             "mmd_conditional (the LMMD has the biased estimator only)")
         self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
         self.layers = tuple(layers)
         self.use_mmd, self.use_coral = bool(use_mmd), bool(use_coral)
         self.kernel_kwargs = dict(num_kernels=int(mmd_num_kernels), kernel_mul=float(mmd_kernel_mul))
-        self.mmd_kwargs = {**self.kernel_kwargs, "unbiased": bool(mmd_unbiased)}
+        self.mmd_kwargs = {**self.kernel_kwargs, "unbiased": bool(mmd_unbiased),
+                           "linear_time": bool(mmd_linear_time)}
         self.mmd_conditional = bool(mmd_conditional)
         if lam_balance is not None:
             lam_balance = as_real(lam_balance, "lam_balance", low=0.0, high=1.0, open_high=True)
@@ -225,7 +238,8 @@ class VTLoss(nn.Module):
                 elif self.optimal_kernels:
                     h = kernel_bandwidths(fs, ft, **self.kernel_kwargs)
                     w = self._kernel_weights(i, fs, ft, h)
-                    m = mk_mmd(fs, ft, bandwidths=h, kernel_weights=w, unbiased=self.mmd_kwargs["unbiased"])
+                    m = mk_mmd(fs, ft, bandwidths=h, kernel_weights=w, unbiased=self.mmd_kwargs["unbiased"],
+                               linear_time=self.mmd_kwargs["linear_time"])
                     parts.update({f"kernel_beta_{layer}_{u}": w[u].detach() for u in range(w.numel())})
                 else:
                     m = mk_mmd(fs, ft, **self.mmd_kwargs)
@@ -288,5 +302,6 @@ class VTLoss(nn.Module):
         return (
             f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
             f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}, "
-            f"lam_balance={self.lam_balance}, optimal_kernels={self.optimal_kernels}"
+            f"lam_balance={self.lam_balance}, optimal_kernels={self.optimal_kernels}, "
+            f"linear_time={self.mmd_kwargs['linear_time']}"
         )

@@ -278,6 +278,10 @@ class XAVTNet(L.LightningModule):
             :class:`~vtlearn.losses.vtloss.VTLoss`, :mod:`vtlearn.losses.kernel_choice`). Rows without
             MK-MMD (no-DA, CORAL only, DANN) ignore them, so one config can set them for every row; not with
             ``mmd_conditional``.
+        mmd_linear_time: MK-MMD's linear-time estimator, the one DAN trains with (Gretton et al. 2012 eq. 5,
+            :func:`~vtlearn.losses.mmd.linear_time_terms`), instead of the biased V-statistic: each of a
+            batch's clouds meets one other cloud of its domain and one of the other, so the term is unbiased
+            and noisier. Rows without MK-MMD ignore it; not with ``mmd_unbiased`` or ``mmd_conditional``.
         mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
             batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
@@ -423,6 +427,7 @@ class XAVTNet(L.LightningModule):
         lam_balance: float | None = None,
         mmd_kernel_weights: str = "uniform",
         mmd_kernel_momentum: float = 0.9,
+        mmd_linear_time: bool = False,
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
@@ -588,7 +593,7 @@ class XAVTNet(L.LightningModule):
             mmd_num_kernels=mmd_num_kernels, mmd_kernel_mul=mmd_kernel_mul, mmd_unbiased=mmd_unbiased,
             mmd_conditional=mmd_conditional, lam_balance=lam_balance if vt else None,
             mmd_kernel_weights=mmd_kernel_weights if vt and use_mmd else "uniform",
-            mmd_kernel_momentum=mmd_kernel_momentum,
+            mmd_kernel_momentum=mmd_kernel_momentum, mmd_linear_time=bool(mmd_linear_time) and vt and use_mmd,
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
         self._memory = (
