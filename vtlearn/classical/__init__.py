@@ -1,4 +1,5 @@
-"""Classical (non-learned) estimators: TIQF/S-TIQF registration and active touch (ch.4-5), ArtReg (ch.6).
+"""Classical (non-learned) estimators: TIQF/S-TIQF registration and active touch (ch.4-5), ArtReg (ch.6), and
+the Geodesic Flow Kernel baseline of cross-modal recognition (ch.7, Table 7.4).
 
 The public names below are imported on first use (PEP 562), so that importing a submodule such as
 ``vtlearn.classical.tracking_cli`` (which ``vtlearn --help`` does) does not load torch and Open3D.
@@ -30,6 +31,10 @@ _EXPORTS = {
     "ParticleFilterTracker": "tracking_baselines",
     "FrameToFrameICPTracker": "tracking_baselines",
     "FilterRegTracker": "tracking_baselines",
+    # the classical cross-modal baseline of Table 7.4 (issue 5; thesis ch.7): GFK on ESF descriptors
+    "GeodesicFlowKernel": "gfk",
+    "gfk_kernel": "gfk",
+    "classical_runs": "crossmodal_baseline",
 }
 
 __all__ = list(_EXPORTS)

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import csv_list, sample_std, save_figure
+from vtlearn.classical import crossmodal_baseline
+from vtlearn.classical.crossmodal_baseline import CLASSICAL_ROWS, THESIS_TABLE_7_4
 from vtlearn.cli_args import count, real, with_flag
 from vtlearn.validation import as_int, as_real
 
@@ -464,6 +466,20 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     return row, feats, dm.class_names
 
 
+def _call(fn, *args):
+    """``fn(*args)``: lets one pool of ``--workers`` processes run trainings and classical rows alike."""
+    return fn(*args)
+
+
+def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int):
+    """The classical rows ``variants`` of one seed (:func:`~vtlearn.classical.crossmodal_baseline.
+    classical_runs`), as (their rows, no features, class names)."""
+    from vtlearn.classical.crossmodal_baseline import classical_runs
+
+    rows, names = classical_runs(variants, seed, data_kwargs, threads)
+    return rows, None, names
+
+
 def _test_acc(trainer, model, loader) -> float:
     return float(trainer.test(model, dataloaders=loader, verbose=False)[0]["test/acc"])
 
@@ -676,10 +692,10 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         data_kwargs["target_holdout"] = args.target_holdout
     max_epochs = _config_max_epochs(args, cfg, 15)
     variants = csv_list(args.variants)
-    unknown = [v for v in variants if v not in VARIANTS and v != ORACLE]
+    unknown = [v for v in variants if v not in VARIANTS and v != ORACLE and v not in CLASSICAL_ROWS]
     if unknown or not variants:
         raise ValueError(f"--variants: {f'unknown {unknown}' if unknown else 'no variant given'}; choose "
-                         f"from {[*VARIANTS, ORACLE]}")
+                         f"from {[*VARIANTS, ORACLE, *CLASSICAL_ROWS]}")
     for spec in (side for pair in asked for side in pair):
         if score_field(spec)[0] not in variants:
             raise ValueError(f"--pairs: {spec} names a row that --variants does not train ({variants})")
@@ -700,26 +716,38 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if base.get("input_normalize") not in (None, dm.normalize):
         raise ValueError(f"--config: model.input_normalize is {base['input_normalize']!r}, but the data's "
                          f"normalize is {dm.normalize!r}; leave it unset (the bench records that)")
-    for variant in variants:
+    for variant in (v for v in variants if v not in CLASSICAL_ROWS):
         _check_up_front(lambda v=variant: XAVTNet(num_classes=dm.num_classes, **{
             **base, **VARIANTS["noda" if v == ORACLE else v], "input_normalize": dm.normalize}), {}, "model")
 
     jobs = [(v, s) for v in variants for s in seeds]
+    classical = [v for v in variants if v in CLASSICAL_ROWS]
     figure_jobs = {(v, seeds[0]) for v in ("noda", "vtloss")} if not args.no_figures else set()
     adabn = bool(getattr(args, "adabn", False))
     balanced = bool(getattr(args, "balanced", False))
     centroid, probe = bool(getattr(args, "centroid", False)), bool(getattr(args, "probe", False))
     discrepancy = bool(getattr(args, "discrepancy", False))
-    job_args = [(variant, seed, data_kwargs, base, max_epochs, args.threads, (variant, seed) in figure_jobs,
-                 args.accelerator, adabn, balanced, centroid, probe, discrepancy) for variant, seed in jobs]
-    results = _map_jobs(_crossmodal_job, job_args, args.workers)
+    # the classical rows of a seed share its descriptors: one job per seed computes them all
+    job_args = [(_classical_job, classical, seed, data_kwargs, args.threads) for seed in seeds if classical]
+    job_args += [(_crossmodal_job, variant, seed, data_kwargs, base, max_epochs, args.threads,
+                  (variant, seed) in figure_jobs, args.accelerator, adabn, balanced, centroid, probe,
+                  discrepancy) for variant, seed in jobs if variant not in CLASSICAL_ROWS]
+    results = _map_jobs(_call, job_args, args.workers)
     per_run: list[dict] = []
     keep: dict = {}
     bar = tqdm(total=len(jobs), desc="bench crossmodal")
     class_names: list[str] = []
-    for row, feats, names in results:
-        per_run.append(row)
+    for out, feats, names in results:
         class_names = names
+        for row in out if isinstance(out, list) else []:  # a seed's classical rows
+            per_run.append(row)
+            bar.update()
+            tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
+                       f"visual {row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, shared)")
+        if isinstance(out, list):
+            continue
+        row = out
+        per_run.append(row)
         if feats is not None:
             keep[row["variant"]] = feats
         bar.update()
@@ -760,9 +788,11 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     write_json(args.json, result)  # before the figures: a figure that fails loses no trained results
     figures = result["figures"]
     if not args.no_figures:
-        conf_runs = [r for r in per_run if r["variant"] == "vtloss"] or per_run
+        # VTLoss's, else the first row's: the matrices of different rows are not summed into one
+        shown = "vtloss" if "vtloss" in variants else variants[0]
+        conf_runs = [r for r in per_run if r["variant"] == shown]
         conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
-        figures["confusion"] = str(out_dir / "confusion_vtloss.png")
+        figures["confusion"] = str(out_dir / f"confusion_{shown}.png")
         _confusion_figure(conf, class_names, Path(figures["confusion"]),
                           f"Tactile confusion ({conf_runs[0]['variant']}, summed over seeds)")
         panels = {}
@@ -846,7 +876,7 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
             "variant": variant,
             "tactile_acc": f"{t.mean():.2f} ± {sample_std(t):.2f}",
             "visual_acc": f"{v.mean():.2f} ± {sample_std(v):.2f}",
-            "thesis_V→T": THESIS_TABLE_7_2.get(variant, "-"),
+            "thesis_V→T": {**THESIS_TABLE_7_2, **THESIS_TABLE_7_4}.get(variant, "-"),
             "tactile_mean": float(t.mean()), "tactile_std": sample_std(t),
             "visual_mean": float(v.mean()), "seeds": len(t),
         })
@@ -950,6 +980,9 @@ def _variant_settings(variants: list[str]) -> dict[str, dict]:
 
     out = {}
     for v in variants:
+        if v in CLASSICAL_ROWS:
+            out[v] = {**CLASSICAL_ROWS[v], "esf_samples": crossmodal_baseline.ESF_SAMPLES}
+            continue
         kw = dict(VARIANTS["noda" if v == ORACLE else v])
         if kw.get("lam_balance") is not None:
             kw["lam_balance_max"] = VTLoss.LAM_BALANCE_MAX
@@ -1569,7 +1602,9 @@ def register_bench(sub) -> None:
     p.add_argument("--data", default=None, help="crossmodal dataset dir (overrides the config's data_dir)")
     p.add_argument("--variants", default=",".join(v for v in VARIANTS if not v.endswith(OPT_IN_SUFFIXES)),
                    help=f"comma list of {list(VARIANTS)}, or {ORACLE} (trained on labelled tactile clouds, "
-                        "the upper bound); default: the thesis rows and dann")
+                        f"the upper bound), or the classical rows of Table 7.4 {list(CLASSICAL_ROWS)} (ESF "
+                        "descriptors, with or without the Geodesic Flow Kernel, 1-NN or linear SVM); "
+                        "default: the thesis rows and dann")
     p.add_argument("--seeds", type=count(1), default=3, help="number of seeds (default 3)")
     p.add_argument("--seed", type=count(0), default=0, help="first seed")
     p.add_argument("--max-epochs", type=count(1), default=None)
