@@ -98,4 +98,9 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     assert run["gfk_dim"] == min(20, len(desc["source"]) - 1, len(desc["target"]) - 1)
     conf = np.array(run["confusion"])
     assert conf.sum() == len(labels["test"]) and np.trace(conf) == (pred_t == labels["test"]).sum()
-    assert "esf_gfk_svm seed 0" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "esf_gfk_svm seed 0" in printed and "2 seeds, 1 epoch," in printed
+    # classical rows alone train nothing, and the table says so instead of the config's epochs
+    assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "esf_1nn", "--seeds", "1",
+                 "--no-figures", "--json", str(tmp_path / "c.json")]) == 0
+    assert "1 seeds, no training (classical rows)," in capsys.readouterr().out

@@ -886,12 +886,14 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
                 rows[-1].update({key: f"{a.mean():.2f} ± {sample_std(a):.2f}",
                                  key.replace("_acc", "") + "_mean": float(a.mean())})
     extra_cols = [c for c in EXTRA_SCORES if any(c in r for r in rows)]
+    epochs = (f"{max_epochs} epoch{'s' if max_epochs != 1 else ''}"
+              if any(v not in CLASSICAL_ROWS for v in variants) else "no training (classical rows)")
     source = "+".join(data_kwargs.get("source_splits", ["train"]))
     held = float(data_kwargs.get("target_holdout", 0.0))
     holdout = f" less the {held:g} of their tactile clouds held out for the test" if held > 0 else ""
     print_table(rows, ["variant", "tactile_acc", *extra_cols, "visual_acc", "thesis_V→T", "seeds"],
                 f"Table 7.2/7.4 analogue: V→T accuracy (%) on tactile test clouds, {n_seeds} seeds, "
-                f"{max_epochs} epoch{'s' if max_epochs != 1 else ''}, unlabelled target: "
+                f"{epochs}, unlabelled target: "
                 f"{data_kwargs.get('target_split', 'train')} instances{holdout}, "
                 f"labelled visual source: {source}")
     means = {r["variant"]: r["tactile_mean"] for r in rows}
