@@ -48,6 +48,21 @@ def test_gfk_rows_undo_a_per_feature_shift_of_the_target_that_the_plain_rows_can
     assert acc["esf_1nn"] <= 0.5 and acc["esf_svm"] <= 0.5
 
 
+def test_classify_refuses_bad_descriptors_by_name():
+    _, (xs, ys, xt, xtest, _, xv, _) = _problem()
+    settings = CLASSICAL_ROWS["esf_gfk_1nn"]
+    with pytest.raises(ValueError, match="x_test: need a non-empty"):
+        classify(settings, xs, ys, xt, xtest[:, :5], xv)
+    with pytest.raises(ValueError, match="x_target: need a non-empty"):
+        classify(settings, xs, ys, xt[:0], xtest, xv)
+    bad = xv.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="x_source_test: contains NaN"):
+        classify(settings, xs, ys, xt, xtest, bad)
+    with pytest.raises(ValueError, match="y_source: need one label per row"):
+        classify(settings, xs, ys[:-1], xt, xtest, xv)
+
+
 def test_classical_runs_refuses_unknown_rows_by_name():
     with pytest.raises(ValueError, match=r"variants: unknown \['esf_knn'\]"):
         classical_runs(["esf_knn"], 0, {"data_dir": "unused"})

@@ -75,6 +75,20 @@ def classify(settings: dict, x_source: np.ndarray, y_source: np.ndarray, x_targe
         x_source (n_s, D), y_source (n_s,), x_target (n_t, D), x_test (m, D), x_source_test (m_v, D)
         -> (tactile predictions (m,), visual predictions (m_v,))
     """
+    named = {"x_source": x_source, "x_target": x_target, "x_test": x_test, "x_source_test": x_source_test}
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in named.items()}
+    dim = arrays["x_source"].shape[-1] if arrays["x_source"].ndim == 2 else None
+    for name, x in arrays.items():
+        if x.ndim != 2 or len(x) == 0 or x.shape[1] != dim:
+            raise ValueError(f"{name}: need a non-empty (n, D) array of descriptors with x_source's D, got "
+                             f"shape {x.shape}")
+        if not np.isfinite(x).all():
+            raise ValueError(f"{name}: contains NaN or inf")
+    y_source = np.asarray(y_source)
+    if y_source.shape != (len(arrays["x_source"]),):
+        raise ValueError(f"y_source: need one label per row of x_source ({len(arrays['x_source'])}), got "
+                         f"shape {y_source.shape}")
+    x_source, x_target, x_test, x_source_test = arrays.values()
     if settings["gfk"]:
         from vtlearn.classical.gfk import GeodesicFlowKernel
 
