@@ -89,12 +89,12 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
                   "init_args": {"global_dim": 32, "fc_dims": [16, 8], "max_points": 64}},
         "data": {"init_args": {"data_dir": str(cross_dir), "batch_size": 4}}, "trainer": {"max_epochs": 1}}))
     out = tmp_path / "cm.json"
-    rows = "noda,esf_1nn,esf_gfk_1nn,esf_gfk_svm"
+    rows = "noda,esf_1nn,esf_gfk_1nn,esf_gfk_svm,esf_1nn_oracle"
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", rows, "--seeds", "2",
                  "--no-figures", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert [r["variant"] for r in res["rows"]] == rows.split(",")
-    assert len(res["runs"]) == 8
+    assert len(res["runs"]) == 10
     assert res["variant_settings"]["esf_gfk_svm"] == {**CLASSICAL_ROWS["esf_gfk_svm"], "esf_samples": 300}
     thesis = {r["variant"]: r["thesis_V→T"] for r in res["rows"]}
     assert thesis["esf_gfk_1nn"] == 26.72 and thesis["esf_gfk_svm"] == 15.05 and thesis["esf_1nn"] == "-"
@@ -111,6 +111,14 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     assert run["tactile_acc"] == pytest.approx(100 * (pred_t == labels["test"]).mean())
     assert run["visual_acc"] == pytest.approx(100 * (pred_v == labels["source_test"]).mean())
     assert run["gfk_dim"] == min(20, len(desc["source"]) - 1, len(desc["target"]) - 1)
+    # the oracle row: the same descriptors of the test clouds, a classifier fitted on the labelled touches
+    oracle = next(r for r in res["runs"] if (r["variant"], r["seed"]) == ("esf_1nn_oracle", 1))
+    desc, labels = crossmodal_descriptors(dm, 1, tactile_train=True)
+    assert len(desc["tactile_train"]) == len(dm.labelled_target_train_dataloader().dataset)
+    assert (labels["tactile_train"] >= 0).all() and "gfk_dim" not in oracle
+    pred_o, _ = classify(CLASSICAL_ROWS["esf_1nn_oracle"], desc["tactile_train"], labels["tactile_train"],
+                         desc["target"], desc["test"], desc["source_test"], 1)
+    assert oracle["tactile_acc"] == pytest.approx(100 * (pred_o == labels["test"]).mean())
     conf = np.array(run["confusion"])
     assert conf.sum() == len(labels["test"]) and np.trace(conf) == (pred_t == labels["test"]).sum()
     printed = capsys.readouterr().out

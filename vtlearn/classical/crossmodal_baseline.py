@@ -8,7 +8,8 @@ Wohlkinger and Vincze's ESF (:mod:`vtlearn.geometry.esf`), stands in its place. 
 :class:`~vtlearn.classical.gfk.GeodesicFlowKernel` (Gong et al. 2012), with each domain standardised on its
 own statistics, as in Gong et al.'s code. The rows without ``gfk`` are the same descriptors and classifiers
 with no transfer (each descriptor standardised with the visual clouds' statistics): the classical
-pipeline's no-DA.
+pipeline's no-DA. The ``_oracle`` rows train the classifier on the labelled tactile training clouds
+instead, the ceiling of the descriptor on touch (the network's ``tactile_oracle``).
 
 ``vtlearn bench crossmodal --variants esf_1nn,esf_gfk_1nn,esf_svm,esf_gfk_svm`` runs these rows beside the
 network's, on the same data, splits and seeds (:func:`classical_runs`). The seed moves the clouds' yaw
@@ -27,6 +28,10 @@ CLASSICAL_ROWS: dict[str, dict] = {
     "esf_svm": {"descriptor": "esf", "gfk": False, "classifier": "svm"},
     "esf_gfk_1nn": {"descriptor": "esf", "gfk": True, "gfk_dim": 20, "classifier": "1nn"},
     "esf_gfk_svm": {"descriptor": "esf", "gfk": True, "gfk_dim": 20, "classifier": "svm"},
+    # not Table 7.4 rows: the descriptors' own ceiling on touch, the classifier trained on the *labelled*
+    # tactile training clouds (as the network's tactile_oracle row)
+    "esf_1nn_oracle": {"descriptor": "esf", "gfk": False, "classifier": "1nn", "train_on": "tactile"},
+    "esf_svm_oracle": {"descriptor": "esf", "gfk": False, "classifier": "svm", "train_on": "tactile"},
 }
 #: thesis Table 7.4's figures for the rows that reproduce its CLUE+GFK rows
 THESIS_TABLE_7_4 = {"esf_gfk_1nn": 26.72, "esf_gfk_svm": 15.05}
@@ -106,11 +111,14 @@ def classify(settings: dict, x_source: np.ndarray, y_source: np.ndarray, x_targe
     return clf.predict(zt), clf.predict(zv)
 
 
-def crossmodal_descriptors(dm, seed: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | None]]:
+def crossmodal_descriptors(dm, seed: int, tactile_train: bool = False
+                           ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | None]]:
     """ESF descriptors (:data:`ESF_SAMPLES` triplets) of the clouds a seed's rows read from ``dm`` (a
     :class:`~vtlearn.datamodules.CrossModalDataModule`): ``"source"``, its labelled visual training clouds;
     ``"target"``, its unlabelled target stream; ``"test"`` and ``"source_test"``, its tactile and visual test
-    clouds. The training sets' yaw augmentation draws from torch's generator, seeded here with ``seed`` (as
+    clouds; with ``tactile_train``, also ``"tactile_train"``, the labelled tactile training clouds of the
+    ``_oracle`` rows (:meth:`~vtlearn.datamodules.CrossModalDataModule.labelled_target_train_dataloader`).
+    The training sets' yaw augmentation draws from torch's generator, seeded here with ``seed`` (as
     ``seed_everything`` seeds a network row) and restored afterwards, so the descriptors repeat for a seed.
     Returns (descriptors, labels) by set; the target stream has no labels (None).
 
@@ -123,23 +131,30 @@ def crossmodal_descriptors(dm, seed: int) -> tuple[dict[str, np.ndarray], dict[s
 
     sets = {"source": dm.source_train_dataset(), "target": dm.target_dataset(),
             "test": dm.test_dataloader().dataset, "source_test": dm.source_test_dataloader().dataset}
+    # each set its own stream of triplets (ESF seeds cloud i of a call with (seed, i)); the oracle's set
+    # draws from a base no other set of any seed uses
+    streams = {name: 4 * seed + k for k, name in enumerate(sets)}
+    if tactile_train:
+        sets["tactile_train"] = dm.labelled_target_train_dataloader().dataset
+        streams["tactile_train"] = 1_000_003 + seed
     desc, labels = {}, {}
     with torch.random.fork_rng():
         torch.manual_seed(seed)
-        for k, (name, ds) in enumerate(sets.items()):
+        for name, ds in sets.items():
             clouds, labels[name] = _dataset_clouds(ds)
-            # each set its own stream of triplets: ESF seeds cloud i of a call with (seed, i)
-            desc[name] = esf_descriptors(clouds, n_samples=ESF_SAMPLES, seed=4 * seed + k)
+            desc[name] = esf_descriptors(clouds, n_samples=ESF_SAMPLES, seed=streams[name])
     return desc, labels
 
 
 def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: int = 1):
     """The rows ``variants`` (names of :data:`CLASSICAL_ROWS`) for one seed, on the data of
-    ``CrossModalDataModule(**data_kwargs, seed=seed)``: the descriptors of its visual training clouds, its
-    unlabelled target stream, its tactile test clouds and its visual test clouds are computed once and
-    shared by the rows. Returns (one bench row per variant, the class names); a row holds ``tactile_acc``
-    and ``visual_acc`` (%), ``fit_s`` (its transfer and classifier), ``descriptor_s`` (the shared
-    descriptors) and the tactile ``confusion`` (rows: true class)."""
+    ``CrossModalDataModule(**data_kwargs, seed=seed)``.
+
+    The descriptors of its visual training clouds, its unlabelled target stream, its tactile test clouds
+    and its visual test clouds (and, for ``_oracle`` rows, its labelled tactile training clouds) are
+    computed once and shared by the rows. Returns (one bench row per variant, the class names); a row holds
+    ``tactile_acc`` and ``visual_acc`` (%), ``fit_s`` (its transfer and classifier), ``descriptor_s`` (the
+    shared descriptors) and the tactile ``confusion`` (rows: true class)."""
     from sklearn.metrics import confusion_matrix
     from threadpoolctl import threadpool_limits
 
@@ -152,12 +167,14 @@ def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: i
     dm = CrossModalDataModule(**{**data_kwargs, "seed": seed})
     with threadpool_limits(threads):
         t0 = time.perf_counter()
-        desc, labels = crossmodal_descriptors(dm, seed)
+        oracle = any(CLASSICAL_ROWS[v].get("train_on") == "tactile" for v in variants)
+        desc, labels = crossmodal_descriptors(dm, seed, tactile_train=oracle)
         descriptor_s = time.perf_counter() - t0
         rows = []
         for variant in variants:
             t1 = time.perf_counter()
-            pred_t, pred_v = classify(CLASSICAL_ROWS[variant], desc["source"], labels["source"],
+            train = "tactile_train" if CLASSICAL_ROWS[variant].get("train_on") == "tactile" else "source"
+            pred_t, pred_v = classify(CLASSICAL_ROWS[variant], desc[train], labels[train],
                                       desc["target"], desc["test"], desc["source_test"], seed)
             conf = confusion_matrix(labels["test"], pred_t, labels=np.arange(dm.num_classes))
             rows.append({"variant": variant, "seed": seed,
