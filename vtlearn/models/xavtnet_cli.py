@@ -474,9 +474,7 @@ def _call(fn, *args):
 def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int):
     """The classical rows ``variants`` of one seed (:func:`~vtlearn.classical.crossmodal_baseline.
     classical_runs`), as (their rows, no features, class names)."""
-    from vtlearn.classical.crossmodal_baseline import classical_runs
-
-    rows, names = classical_runs(variants, seed, data_kwargs, threads)
+    rows, names = crossmodal_baseline.classical_runs(variants, seed, data_kwargs, threads)
     return rows, None, names
 
 
@@ -739,12 +737,12 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     class_names: list[str] = []
     for out, feats, names in results:
         class_names = names
-        for row in out if isinstance(out, list) else []:  # a seed's classical rows
-            per_run.append(row)
-            bar.update()
-            tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
-                       f"visual {row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, shared)")
-        if isinstance(out, list):
+        if isinstance(out, list):  # a seed's classical rows
+            for row in out:
+                per_run.append(row)
+                bar.update()
+                tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  visual "
+                           f"{row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, shared)")
             continue
         row = out
         per_run.append(row)
@@ -1604,9 +1602,9 @@ def register_bench(sub) -> None:
     p.add_argument("--data", default=None, help="crossmodal dataset dir (overrides the config's data_dir)")
     p.add_argument("--variants", default=",".join(v for v in VARIANTS if not v.endswith(OPT_IN_SUFFIXES)),
                    help=f"comma list of {list(VARIANTS)}, or {ORACLE} (trained on labelled tactile clouds, "
-                        f"the upper bound), or the classical rows of Table 7.4 {list(CLASSICAL_ROWS)} (ESF "
-                        "descriptors, with or without the Geodesic Flow Kernel, 1-NN or linear SVM); "
-                        "default: the thesis rows and dann")
+                        f"the upper bound), or the classical rows {list(CLASSICAL_ROWS)} (Table 7.4's ESF "
+                        "descriptors, with or without the Geodesic Flow Kernel, 1-NN or linear SVM, and "
+                        "their _oracle rows fitted on labelled touches); default: the thesis rows and dann")
     p.add_argument("--seeds", type=count(1), default=3, help="number of seeds (default 3)")
     p.add_argument("--seed", type=count(0), default=0, help="first seed")
     p.add_argument("--max-epochs", type=count(1), default=None)
