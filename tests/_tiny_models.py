@@ -1,4 +1,5 @@
-"""Tiny ACTOR architectures shared by the ACTOR tests (not a test module: pytest collects only test_*.py).
+"""Tiny ACTOR architectures shared by the ACTOR tests, and the tiny xAVTNet bench config of the bench tests
+(not a test module: pytest collects only test_*.py).
 
 The thesis model (encoder 64-64-128-1024, FC 1024, 2048 output points) takes seconds per step on a CPU;
 these keep the same layer structure at a size that trains in milliseconds.
@@ -26,3 +27,22 @@ def cli_args(init_args: dict) -> list[str]:
         return "[" + ",".join(str(x) for x in v) + "]" if isinstance(v, (tuple, list)) else str(v)
 
     return [f"--model.init_args.{k}={text(v)}" for k, v in init_args.items()]
+
+
+def tiny_xavtnet_config(tmp_path, data_dir, active=False):
+    """A LightningCLI-style config of a tiny xAVTNet on ``data_dir`` for `vtlearn bench crossmodal` (and,
+    with ``active``, `bench active-learning`), written to ``tmp_path/cfg.yaml``; returns its path."""
+    import yaml
+
+    cfg = {
+        "model": {"class_path": "vtlearn.models.xavtnet.XAVTNet",
+                  "init_args": {"global_dim": 32, "fc_dims": [16, 8], "max_points": 64}},
+        "data": {"init_args": {"data_dir": str(data_dir), "batch_size": 4}},
+        "trainer": {"max_epochs": 1},
+    }
+    if active:
+        cfg["data"]["init_args"]["modality"] = "visual"
+        cfg["active"] = {"strategies": "entropy,random", "n0": 3, "kappa": 2, "rounds": 1, "mc_passes": 2}
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path

@@ -76,18 +76,14 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     are recorded, paired with no-DA and shown against the thesis's Table 7.4 like any other row."""
     import json
 
-    import yaml
+    from _tiny_models import tiny_xavtnet_config
 
     from vtlearn.classical import crossmodal_baseline
     from vtlearn.cli import main
     from vtlearn.datamodules import CrossModalDataModule
 
     monkeypatch.setattr(crossmodal_baseline, "ESF_SAMPLES", 300)  # tiny clouds, smoke sizes
-    cfg = tmp_path / "cfg.yaml"
-    cfg.write_text(yaml.safe_dump({
-        "model": {"class_path": "vtlearn.models.xavtnet.XAVTNet",
-                  "init_args": {"global_dim": 32, "fc_dims": [16, 8], "max_points": 64}},
-        "data": {"init_args": {"data_dir": str(cross_dir), "batch_size": 4}}, "trainer": {"max_epochs": 1}}))
+    cfg = tiny_xavtnet_config(tmp_path, cross_dir)
     out = tmp_path / "cm.json"
     rows = "noda,esf_1nn,esf_gfk_1nn,esf_gfk_svm,esf_1nn_oracle"
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", rows, "--seeds", "2",

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from _tiny_models import tiny_xavtnet_config
 
 from vtlearn.models.xavtnet import XAVTNet
 from vtlearn.models.xavtnet_cli import VARIANTS, _data_kwargs, load_config
@@ -61,21 +62,6 @@ def tiny_crossmodal(tmp_path_factory):
     return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
 
 
-def _tiny_config(tmp_path, data_dir, active=False):
-    cfg = {
-        "model": {"class_path": "vtlearn.models.xavtnet.XAVTNet",
-                  "init_args": {"global_dim": 32, "fc_dims": [16, 8], "max_points": 64}},
-        "data": {"init_args": {"data_dir": str(data_dir), "batch_size": 4}},
-        "trainer": {"max_epochs": 1},
-    }
-    if active:
-        cfg["data"]["init_args"]["modality"] = "visual"
-        cfg["active"] = {"strategies": "entropy,random", "n0": 3, "kappa": 2, "rounds": 1, "mc_passes": 2}
-    path = tmp_path / "cfg.yaml"
-    path.write_text(yaml.safe_dump(cfg))
-    return path
-
-
 def test_data_kwargs_override_and_missing_dataset():
     cfg = {"data": {"data_dir": "cfg_dir", "batch_size": 8}}
     assert _data_kwargs(cfg, None) == {"data_dir": "cfg_dir", "batch_size": 8}
@@ -99,7 +85,7 @@ def test_load_config_names_the_flag_for_a_missing_or_broken_file(tmp_path):
 def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 
-    cfg = _tiny_config(tmp_path, tiny_crossmodal)
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal)
     out = tmp_path / "cm.json"
     rc = main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda,vtloss", "--seeds", "2",
                "--json", str(out)])  # the figures go beside the JSON, in cm/
@@ -302,7 +288,7 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
 def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 
-    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
     assert main(["bench", "active-learning", "--config", str(cfg), "--strategies", "entropy,margin"]) == 2
     assert "strategies" in capsys.readouterr().err
 
@@ -311,7 +297,7 @@ def test_bench_active_learning_rejects_unknown_strategies(tmp_path, tiny_crossmo
 def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.cli import main
 
-    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
     out = tmp_path / "al.json"
     rc = main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out),
                "--plot", str(tmp_path / "al.png")])
@@ -736,7 +722,7 @@ def test_benches_write_their_json_before_a_figure_that_fails(tmp_path, tiny_cros
         raise RuntimeError("figure failed")
 
     monkeypatch.setattr(xcli, "_confusion_figure", boom)
-    cfg = _tiny_config(tmp_path, tiny_crossmodal)
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal)
     out = tmp_path / "cm.json"
     with pytest.raises(RuntimeError, match="figure failed"):
         main(["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "1",
@@ -745,7 +731,7 @@ def test_benches_write_their_json_before_a_figure_that_fails(tmp_path, tiny_cros
     assert [r["variant"] for r in res["runs"]] == ["noda"] and res["figures"] == {}
 
     monkeypatch.setattr(xcli, "save_figure", boom)
-    cfg = _tiny_config(tmp_path, tiny_crossmodal, active=True)
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
     out = tmp_path / "al.json"
     with pytest.raises(RuntimeError, match="figure failed"):
         main(["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)])
