@@ -43,7 +43,8 @@ def test_gfk_rows_undo_a_per_feature_shift_of_the_target_that_the_plain_rows_can
     xt, xtest = xt * scale + offset, xtest * scale + offset
     acc = {row: float((classify(CLASSICAL_ROWS[row], xs, ys, xt, xtest, xv)[0] == ytest).mean())
            for row in CLASSICAL_ROWS}
-    assert acc["esf_gfk_1nn"] >= 0.95 and acc["esf_gfk_svm"] >= 0.95
+    gfk_rows = ("esf_gfk_1nn", "esf_gfk_svm", "esf_gfk_sdm_1nn", "esf_gfk_sdm_svm")
+    assert all(acc[row] >= 0.95 for row in gfk_rows)
     # the shifted test clouds all fall nearest to one class: chance level (1/3) or close to it
     assert acc["esf_1nn"] <= 0.5 and acc["esf_svm"] <= 0.5
 
@@ -79,18 +80,19 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     from _tiny_models import tiny_xavtnet_config
 
     from vtlearn.classical import crossmodal_baseline
+    from vtlearn.classical.gfk import GeodesicFlowKernel
     from vtlearn.cli import main
     from vtlearn.datamodules import CrossModalDataModule
 
     monkeypatch.setattr(crossmodal_baseline, "ESF_SAMPLES", 300)  # tiny clouds, smoke sizes
     cfg = tiny_xavtnet_config(tmp_path, cross_dir)
     out = tmp_path / "cm.json"
-    rows = "noda,esf_1nn,esf_gfk_1nn,esf_gfk_svm,esf_1nn_oracle"
+    rows = "noda,esf_1nn,esf_gfk_1nn,esf_gfk_svm,esf_gfk_sdm_1nn,esf_1nn_oracle"
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", rows, "--seeds", "2",
                  "--no-figures", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert [r["variant"] for r in res["rows"]] == rows.split(",")
-    assert len(res["runs"]) == 10
+    assert len(res["runs"]) == 12
     assert res["variant_settings"]["esf_gfk_svm"] == {**CLASSICAL_ROWS["esf_gfk_svm"], "esf_samples": 300}
     thesis = {r["variant"]: r["thesis_V→T"] for r in res["rows"]}
     assert thesis["esf_gfk_1nn"] == 26.72 and thesis["esf_gfk_svm"] == 15.05 and thesis["esf_1nn"] == "-"
@@ -107,6 +109,13 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     assert run["tactile_acc"] == pytest.approx(100 * (pred_t == labels["test"]).mean())
     assert run["visual_acc"] == pytest.approx(100 * (pred_v == labels["source_test"]).mean())
     assert run["gfk_dim"] == min(20, len(desc["source"]) - 1, len(desc["target"]) - 1)
+    # the SDM row records the dimension that Gong et al.'s measure chose on the seed's descriptors
+    sdm = next(r for r in res["runs"] if (r["variant"], r["seed"]) == ("esf_gfk_sdm_1nn", 1))
+    chosen = GeodesicFlowKernel(dim="sdm", zscore=True).fit(desc["source"], desc["target"]).dim_
+    assert sdm["gfk_dim"] == chosen
+    pred_s, _ = classify(CLASSICAL_ROWS["esf_gfk_sdm_1nn"], desc["source"], labels["source"], desc["target"],
+                         desc["test"], desc["source_test"], 1)
+    assert sdm["tactile_acc"] == pytest.approx(100 * (pred_s == labels["test"]).mean())
     # the oracle row: the same descriptors of the test clouds, a classifier fitted on the labelled touches
     oracle = next(r for r in res["runs"] if (r["variant"], r["seed"]) == ("esf_1nn_oracle", 1))
     desc, labels = crossmodal_descriptors(dm, 1, tactile_train=True)

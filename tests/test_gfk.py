@@ -6,7 +6,15 @@ import pytest
 from scipy.linalg import null_space, subspace_angles
 from sklearn.neighbors import KNeighborsClassifier
 
-from vtlearn.classical.gfk import GeodesicFlowKernel, gfk_embed, gfk_kernel, pca_basis
+from vtlearn.classical.gfk import (
+    SDM_LEVEL,
+    GeodesicFlowKernel,
+    gfk_embed,
+    gfk_kernel,
+    pca_basis,
+    sdm_dimension,
+    subspace_disagreement,
+)
 
 
 def _orth(rng, D, d):
@@ -182,6 +190,68 @@ def test_one_nn_gains_on_geodesic_shift():
     assert acc >= 0.97 and acc >= base + 0.1
 
 
+def _axis_data(rng, n, D, variances):
+    """n samples whose covariance is exactly diag(variances) on the axes named by the dict's keys (0 on
+    every other axis): centred orthonormal columns, scaled."""
+    A = rng.normal(size=(n, len(variances)))
+    Q = np.linalg.qr(A - A.mean(0))[0]  # combinations of centred columns stay centred
+    X = np.zeros((n, D))
+    for j, (axis, var) in enumerate(variances.items()):
+        X[:, axis] = Q[:, j] * np.sqrt(var * n)
+    return X
+
+
+def test_subspace_disagreement_on_known_axes():
+    # Both domains vary along e0-e2 alike; the source's 4th and 5th directions are e3, e5, the target's
+    # e4, e6. The pooled data rank e0-e2, e3, e4, ... (equal n, so pooled variances are the means). So
+    # D(1..3) = 0, D(4) = ½ (the target's 4th direction e4 is orthogonal to the pooled e0-e3, the source's
+    # e3 is in it) and D(5) = 1 (e5 and e6 are both orthogonal to the pooled e0-e4): Gong et al.'s d* = 5.
+    rng = np.random.default_rng(3)
+    D, n = 16, 200
+    Xs = _axis_data(rng, n, D, {0: 9.0, 1: 5.0, 2: 3.0, 3: 2.0, 5: 0.2})
+    Xt = _axis_data(rng, n, D, {0: 9.0, 1: 5.0, 2: 3.0, 4: 1.0, 6: 0.1})
+    curve = subspace_disagreement(Xs, Xt, max_dim=6)
+    np.testing.assert_allclose(curve[:5], [0.0, 0.0, 0.0, 0.5, 1.0], atol=1e-6)
+    assert sdm_dimension(Xs, Xt) == 5
+    # the data are read as given: an unequal scaling of the domains moves the pooled ranking, not D(1..3)
+    assert np.all(subspace_disagreement(Xs, 3.0 * Xt)[:3] < 1e-6)
+    # where no d up to max_dim reaches the level, the largest d tried; by default min(D // 2, n - 1)
+    assert sdm_dimension(Xs, Xt, max_dim=4) == 4
+    assert len(subspace_disagreement(Xs, Xt)) == D // 2
+    assert len(subspace_disagreement(Xs[:6], Xt)) == 5
+
+
+def test_subspace_disagreement_of_one_domain_is_zero():
+    # identical domains agree along every direction: D(d) = 0 and no d reaches the level
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(50, 12)) * np.linspace(3.0, 0.5, 12)
+    curve = subspace_disagreement(X, X.copy())
+    assert curve.shape == (6,) and np.all(curve < 1e-6)
+    assert sdm_dimension(X, X.copy()) == 6
+
+
+def test_gfk_dim_sdm():
+    rng = np.random.default_rng(5)
+    Xs = _axis_data(rng, 200, 16, {0: 9.0, 1: 5.0, 2: 3.0, 3: 2.0, 5: 0.2})
+    Xt = _axis_data(rng, 200, 16, {0: 9.0, 1: 5.0, 2: 3.0, 4: 1.0, 6: 0.1})
+    Xt += rng.normal(size=(200, 16)) * 1e-9  # a trace of every axis, so each has a z-score
+    Xs += rng.normal(size=(200, 16)) * 1e-9
+    plain = GeodesicFlowKernel(dim="sdm").fit(Xs, Xt)
+    assert plain.dim_ == 5 and plain.G_.shape == (16, 16) and plain.principal_angles_.shape == (5,)
+    np.testing.assert_allclose(plain.sdm_, subspace_disagreement(Xs, Xt))
+    np.testing.assert_allclose(plain.G_, GeodesicFlowKernel(dim=5).fit(Xs, Xt).G_, atol=1e-10)
+    # with zscore the SDM is read on each domain's standardised data
+    z = GeodesicFlowKernel(dim="sdm", zscore=True).fit(Xs, Xt)
+
+    def std(X):
+        return (X - X.mean(0)) / X.std(0)
+
+    np.testing.assert_allclose(z.sdm_, subspace_disagreement(std(Xs), std(Xt)), atol=1e-10)
+    assert z.dim_ == sdm_dimension(std(Xs), std(Xt))
+    assert GeodesicFlowKernel(dim=3).fit(Xs, Xt).dim_ == 3
+    assert 0.99 < SDM_LEVEL < 1.0
+
+
 def test_bad_input():
     rng = np.random.default_rng(8)
     P = _orth(rng, 10, 3)
@@ -207,3 +277,15 @@ def test_bad_input():
         GeodesicFlowKernel(dim=2).fit(rng.normal(size=(30, 10)), rng.normal(size=(30, 9)))
     with pytest.raises(ValueError, match="^G:"):
         gfk_embed(rng.normal(size=(4, 10)), np.eye(9))
+    with pytest.raises(ValueError, match="^dim:.*'sdm'"):
+        GeodesicFlowKernel(dim="pca").fit(rng.normal(size=(30, 10)), rng.normal(size=(30, 10)))
+    with pytest.raises(ValueError, match="^max_dim:.*= 5\\]"):
+        subspace_disagreement(rng.normal(size=(30, 10)), rng.normal(size=(30, 10)), max_dim=6)
+    with pytest.raises(ValueError, match="^max_dim:"):
+        subspace_disagreement(rng.normal(size=(30, 10)), rng.normal(size=(30, 10)), max_dim=0)
+    with pytest.raises(ValueError, match="^X_source, X_target:.*2 samples"):
+        subspace_disagreement(rng.normal(size=(1, 10)), rng.normal(size=(30, 10)))
+    with pytest.raises(ValueError, match="^X_target:.*features"):
+        subspace_disagreement(rng.normal(size=(30, 10)), rng.normal(size=(30, 9)))
+    with pytest.raises(ValueError, match="^level:"):
+        sdm_dimension(rng.normal(size=(30, 10)), rng.normal(size=(30, 10)), level=1.5)

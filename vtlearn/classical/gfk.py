@@ -40,9 +40,13 @@ from typing import Literal
 
 import numpy as np
 
-__all__ = ["pca_basis", "gfk_kernel", "gfk_embed", "GeodesicFlowKernel"]
+__all__ = ["pca_basis", "gfk_kernel", "gfk_embed", "subspace_disagreement", "sdm_dimension",
+           "GeodesicFlowKernel"]
 
 _ORTHO_TOL = 1e-6
+#: the SDM level read as Gong et al.'s "D(d) = 1": Fernando et al.'s getGFKDim.m (which the GFK code that
+#: is passed around ships) takes the first d whose D rounds to 1.00, i.e. D >= 0.995
+SDM_LEVEL = 0.995
 
 
 def _as_matrix(name: str, X) -> np.ndarray:
@@ -75,6 +79,78 @@ def pca_basis(X, d: int) -> np.ndarray:
         raise ValueError(f"d: need an integer in [1, min(n, D) = {min(n, D)}], got {d!r}")
     _, _, Vt = np.linalg.svd(X - X.mean(axis=0), full_matrices=False)
     return Vt[:d].T.copy()
+
+
+def _check_pair(X_source, X_target) -> tuple[np.ndarray, np.ndarray]:
+    Xs = _as_matrix("X_source", X_source)
+    Xt = _as_matrix("X_target", X_target)
+    if Xs.shape[1] != Xt.shape[1]:
+        raise ValueError(f"X_target: has {Xt.shape[1]} features, X_source has {Xs.shape[1]}")
+    return Xs, Xt
+
+
+def subspace_disagreement(X_source, X_target, max_dim: int | None = None) -> np.ndarray:
+    """Gong et al.'s subspace disagreement measure (SDM), for every d up to
+    ``max_dim``:
+
+        D(d) = ½ (sin α_d + sin β_d),
+
+    with α_d the d-th (largest) principal angle between the top-d PCA subspaces of the source and of the
+    source and target pooled, and β_d the same for the target. D(d) is near 0 while the d-th directions of
+    the two domains agree, and reaches 1 when the pooled subspace has a direction orthogonal to both
+    domains' own (Gong et al. choose ``d* = min{d : D(d) = 1}``, :func:`sdm_dimension`). The data are
+    used as given: standardise each domain first where the GFK does (``GeodesicFlowKernel(zscore=True)``
+    fits the SDM on its standardised data).
+
+    Args:
+        X_source, X_target: samples in rows, same features.
+        max_dim: the largest d (default and upper bound: ``min(D // 2, n_s - 1, n_t - 1)``, the
+            GFK's ``2d <= D`` and the ranks of the centred PCAs).
+
+    Returns:
+        ``D(1) … D(max_dim)``, each in [0, 1].
+
+    Shapes:
+        X_source (n_s, D), X_target (n_t, D) -> (max_dim,)
+    """
+    Xs, Xt = _check_pair(X_source, X_target)
+    limit = min(Xs.shape[1] // 2, Xs.shape[0] - 1, Xt.shape[0] - 1)
+    if limit < 1:
+        raise ValueError(f"X_source, X_target: need at least 2 features and 2 samples per domain, got "
+                         f"{Xs.shape} and {Xt.shape}")
+    if max_dim is None:
+        max_dim = limit
+    if isinstance(max_dim, bool) or not isinstance(max_dim, (int, np.integer)) or not 1 <= max_dim <= limit:
+        raise ValueError(f"max_dim: need an integer in [1, min(D // 2, n_s - 1, n_t - 1) = {limit}], got "
+                         f"{max_dim!r}")
+    P_s, P_t = pca_basis(Xs, max_dim), pca_basis(Xt, max_dim)
+    P_st = pca_basis(np.concatenate([Xs, Xt]), max_dim)
+    out = np.empty(max_dim)
+    for d in range(1, max_dim + 1):
+        # the largest principal angle of two d-dim subspaces: cos = the smallest singular value of P1ᵀ P2
+        sin_ab = [np.sqrt(max(0.0, 1.0 - min(1.0, np.linalg.svd(P[:, :d].T @ P_st[:, :d],
+                                                                 compute_uv=False)[-1]) ** 2))
+                  for P in (P_s, P_t)]
+        out[d - 1] = 0.5 * (sin_ab[0] + sin_ab[1])
+    return out
+
+
+def sdm_dimension(X_source, X_target, max_dim: int | None = None, level: float = SDM_LEVEL) -> int:
+    """Gong et al.'s subspace dimension ``d* = min{d : D(d) = 1}`` (:func:`subspace_disagreement`), with
+    "= 1" read as ``D(d) >= level`` (:data:`SDM_LEVEL`, as in the public GFK code); ``max_dim`` (the
+    largest d tried, see :func:`subspace_disagreement`) where no d reaches it.
+
+    Shapes:
+        X_source (n_s, D), X_target (n_t, D) -> int
+    """
+    if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0.0 < level <= 1.0:
+        raise ValueError(f"level: need a number in (0, 1], got {level!r}")
+    return _sdm_choice(subspace_disagreement(X_source, X_target, max_dim), level)
+
+
+def _sdm_choice(curve: np.ndarray, level: float) -> int:
+    hits = np.flatnonzero(curve >= level)
+    return int(hits[0]) + 1 if hits.size else len(curve)
 
 
 def _check_basis(name: str, P) -> np.ndarray:
@@ -191,19 +267,21 @@ class GeodesicFlowKernel:
 
     Args:
         dim: subspace dimension d; needs ``2 dim <= D`` and ``dim <= `` the number of samples of each
-            domain.
+            domain. ``"sdm"``: Gong et al.'s choice by the subspace disagreement measure
+            (:func:`sdm_dimension`, on the standardised data with ``zscore``).
         zscore: standardise each domain with its own statistics.
 
     Attributes (after ``fit``):
-        G_: ``(D, D)`` kernel. principal_angles_: ``(dim,)`` radians, ascending. P_source_, P_target_:
-        ``(D, dim)`` PCA bases. source_mean_, source_std_, target_mean_, target_std_: ``(D,)`` z-score
+        dim_: the d used. sdm_: ``D(1) … D(d_max)`` of :func:`subspace_disagreement` (``dim="sdm"`` only).
+        G_: ``(D, D)`` kernel. principal_angles_: ``(dim_,)`` radians, ascending. P_source_, P_target_:
+        ``(D, dim_)`` PCA bases. source_mean_, source_std_, target_mean_, target_std_: ``(D,)`` z-score
         statistics (only with ``zscore=True``).
 
     Shapes:
         fit: X_source (n_s, D), X_target (n_t, D); transform: X (n, D) -> (n, D)
     """
 
-    def __init__(self, dim: int = 20, zscore: bool = False):
+    def __init__(self, dim: int | Literal["sdm"] = 20, zscore: bool = False):
         self.dim = dim
         self.zscore = zscore
 
@@ -217,24 +295,28 @@ class GeodesicFlowKernel:
         Shapes:
             X_source (n_s, D), X_target (n_t, D) -> self
         """
-        Xs = _as_matrix("X_source", X_source)
-        Xt = _as_matrix("X_target", X_target)
-        if Xs.shape[1] != Xt.shape[1]:
-            raise ValueError(f"X_target: has {Xt.shape[1]} features, X_source has {Xs.shape[1]}")
+        Xs, Xt = _check_pair(X_source, X_target)
         D = Xs.shape[1]
         d = self.dim
-        if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d < 1:
-            raise ValueError(f"dim: need a positive integer, got {d!r}")
-        if 2 * d > D:
-            raise ValueError(f"dim: need 2 * dim <= D = {D} features, got dim = {d}")
-        for name, X in (("X_source", Xs), ("X_target", Xt)):
-            if X.shape[0] < max(d, 2):
-                raise ValueError(f"dim: {d} exceeds the {X.shape[0]} samples of {name} (need >= max(dim, 2))")
+        sdm = isinstance(d, str) and d == "sdm"
+        if not sdm:
+            if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d < 1:
+                raise ValueError(f"dim: need a positive integer or 'sdm', got {d!r}")
+            if 2 * d > D:
+                raise ValueError(f"dim: need 2 * dim <= D = {D} features, got dim = {d}")
+            for name, X in (("X_source", Xs), ("X_target", Xt)):
+                if X.shape[0] < max(d, 2):
+                    raise ValueError(f"dim: {d} exceeds the {X.shape[0]} samples of {name} "
+                                     f"(need >= max(dim, 2))")
         if self.zscore:
             self.source_mean_, self.source_std_ = _zscore_params(Xs)
             self.target_mean_, self.target_std_ = _zscore_params(Xt)
             Xs = (Xs - self.source_mean_) / self.source_std_
             Xt = (Xt - self.target_mean_) / self.target_std_
+        if sdm:
+            self.sdm_ = subspace_disagreement(Xs, Xt)
+            d = _sdm_choice(self.sdm_, SDM_LEVEL)
+        self.dim_ = int(d)
         self.P_source_ = pca_basis(Xs, d)
         self.P_target_ = pca_basis(Xt, d)
         self.G_, self.principal_angles_ = _gfk(self.P_source_, self.P_target_)
