@@ -23,8 +23,9 @@ fit it (the config changed the architecture) is refused in one line naming the s
 Logs: ``fit --ckpt_path last``, or ``--ckpt_path`` a checkpoint file of the same run (``epoch=3.ckpt``), logs
 on into the version folder of the run it resumes (CSV and TensorBoard loggers; each checkpoint records their
 versions, :class:`LogVersions`), ``metrics.csv``'s rows from before the checkpoint kept (those after it are
-logged again by the epochs retrained; the file as it was stays beside it, ``metrics.before-step<N>.csv``); a
-checkpoint that records no version in the logger's folder (written with another log folder) starts a new
+logged again by the epochs retrained; the file as it was stays beside it, ``metrics.before-step<N>.csv``;
+TensorBoard hides the earlier run's events from the checkpoint's step on, by the writer's ``purge_step``);
+a checkpoint that records no version in the logger's folder (written with another log folder) starts a new
 version, and says so; a wandb logger starts a new run. A refused run leaves nothing on disk but an online
 wandb run: the ``last`` checks come before the Trainer is built (and before its device banner),
 ``config.yaml`` is written once the model's ``setup`` has accepted the data, and a refusal there removes what
@@ -147,7 +148,9 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
     resumed epochs' rows follow them, each epoch once (also from an earlier epoch's checkpoint). The rows it
     drops are not lost: the whole file from before is kept beside it as ``metrics.before-step<N>.csv``.
     ``kept`` receives each ``metrics.csv`` path with its text from before and that copy, so that a refused
-    run can put them back."""
+    run can put them back. A TensorBoard logger's writer gets the checkpoint's global step as its
+    ``purge_step``: TensorBoard then hides the earlier run's events from that step on, so each step shows
+    once, and their event files stay on disk."""
     versions = _recorded_versions(checkpoint)
     unrecorded = []
     for lg in trainer.loggers:
@@ -157,11 +160,18 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
             unrecorded.append(lg)
             continue
         lg._version = versions[_version_key(lg)]  # the loggers take one only at construction
-        if not isinstance(lg, CSVLogger) or not trainer.is_global_zero:
+        step = int(checkpoint.get("global_step", 0))
+        if isinstance(lg, TensorBoardLogger):
+            # the SummaryWriter's purge_step: TensorBoard hides the events of the earlier run from this step
+            # on (the epochs trained again), as metrics.csv drops their rows; a purge_step the config gives
+            # is kept (LightningCLI passes the writer's unset arguments as None)
+            if lg._experiment is None and lg._kwargs.get("purge_step") is None:
+                lg._kwargs["purge_step"] = step
+            continue
+        if not trainer.is_global_zero:
             continue
         path = Path(lg.log_dir) / "metrics.csv"
         text = path.read_text() if path.is_file() else ""
-        step = int(checkpoint.get("global_step", 0))
         rows = _rows_before(text, step) if text else ""
         copy = None
         if rows.count("\n") < text.count("\n"):  # rows of the epochs trained again: keep the file as it was

@@ -321,3 +321,58 @@ def test_a_plain_trainer_resumes_a_train_py_checkpoint_without_a_callback_warnin
     assert said == []
     record = torch.load(last, weights_only=True)[LogVersions.key]
     assert record == {f"CSVLogger:{tmp_path / 'runs' / 'log' / 'lightning_logs'}": 0}
+
+
+def _tensorboard_events(folder: Path) -> list:
+    """The events of the TensorBoard event files in ``folder``, file after file in the order they were
+    started, read from their TFRecord framing (a little-endian u64 length, its CRC, the Event proto, its
+    CRC)."""
+    import struct
+
+    from tensorboardX.proto import event_pb2
+
+    files = []
+    for f in folder.glob("events.out.tfevents.*"):
+        data, i, events = f.read_bytes(), 0, []
+        while i < len(data):
+            (n,) = struct.unpack("<Q", data[i:i + 8])
+            events.append(event_pb2.Event.FromString(data[i + 12:i + 12 + n]))
+            i += 12 + n + 4
+        files.append(events)
+    return [e for events in sorted(files, key=lambda ev: ev[0].wall_time) for e in events]
+
+
+def _scalar_steps(events: list, tag: str, purge: bool) -> list[int]:
+    """The steps at which ``tag`` was logged; with ``purge``, as TensorBoard shows them: a SessionLog START
+    at step s (a writer's ``purge_step``) hides the earlier events at steps >= s."""
+    steps = []
+    for e in events:
+        if purge and e.HasField("session_log") and e.session_log.status == e.session_log.START:
+            steps = [s for s in steps if s < e.step]
+        if e.HasField("summary"):
+            steps += [e.step for v in e.summary.value if v.tag == tag]
+    return steps
+
+
+def test_a_resumed_tensorboard_log_shows_each_step_once(run, tmp_path):
+    """fit --ckpt_path FILE with a TensorBoard logger continues the run's version folder, and its writer's
+    purge_step is the checkpoint's global step: TensorBoard hides the events of the epochs trained again
+    (they stay on disk), so each logged step shows once, as in metrics.csv."""
+    pytest.importorskip("tensorboardX")
+    tb = ('--trainer.logger={"class_path": "lightning.pytorch.loggers.TensorBoardLogger", '
+          '"init_args": {"save_dir": "runs/tb"}}')
+    logs = tmp_path / "runs" / "tb" / "lightning_logs"
+    epoch0 = tmp_path / "runs" / "xavtnet_quick" / "checkpoints" / "epoch=0.ckpt"
+    assert run("fit", "--trainer.max_epochs=3", tb, *EVERY_EPOCH)[0] == 0
+    first = _scalar_steps(_tensorboard_events(logs / "version_0"), "val/acc", purge=True)
+    assert len(first) == 3 and len(set(first)) == 3
+    assert run("fit", "--trainer.max_epochs=3", f"--ckpt_path={epoch0}", tb, *EVERY_EPOCH)[0] == 0
+    assert sorted(p.name for p in logs.iterdir()) == ["version_0"]
+    events = _tensorboard_events(logs / "version_0")
+    step = torch.load(epoch0, weights_only=True)["global_step"]
+    starts = [e.step for e in events
+              if e.HasField("session_log") and e.session_log.status == e.session_log.START]
+    assert starts == [step]
+    raw = _scalar_steps(events, "val/acc", purge=False)
+    assert len(raw) == 5  # epochs 1 and 2 are on disk twice: the earlier run's events are kept
+    assert sorted(_scalar_steps(events, "val/acc", purge=True)) == sorted(first)
