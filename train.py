@@ -150,7 +150,7 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
     ``kept`` receives each ``metrics.csv`` path with its text from before and that copy, so that a refused
     run can put them back. A TensorBoard logger's writer gets the checkpoint's global step as its
     ``purge_step``: TensorBoard then hides the earlier run's events from that step on, so each step shows
-    once, and their event files stay on disk."""
+    once, and their event files stay on disk (the resumed run's file ends in ``.resumed-step<N>``)."""
     versions = _recorded_versions(checkpoint)
     unrecorded = []
     for lg in trainer.loggers:
@@ -164,9 +164,14 @@ def _continue_versions(trainer, checkpoint: dict, kept: dict | None = None) -> l
         if isinstance(lg, TensorBoardLogger):
             # the SummaryWriter's purge_step: TensorBoard hides the events of the earlier run from this step
             # on (the epochs trained again), as metrics.csv drops their rows; a purge_step the config gives
-            # is kept (LightningCLI passes the writer's unset arguments as None)
-            if lg._experiment is None and lg._kwargs.get("purge_step") is None:
-                lg._kwargs["purge_step"] = step
+            # is kept (LightningCLI passes the writer's unset arguments as None). The file name's suffix
+            # keeps tensorboardX, which names an event file by the second and the host alone, from
+            # overwriting the earlier run's file when both start within one second.
+            if lg._experiment is None:
+                if lg._kwargs.get("purge_step") is None:
+                    lg._kwargs["purge_step"] = step
+                if not lg._kwargs.get("filename_suffix"):
+                    lg._kwargs["filename_suffix"] = f".resumed-step{step}"
             continue
         if not trainer.is_global_zero:
             continue

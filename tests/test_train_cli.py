@@ -325,21 +325,20 @@ def test_a_plain_trainer_resumes_a_train_py_checkpoint_without_a_callback_warnin
 
 def _tensorboard_events(folder: Path) -> list:
     """The events of the TensorBoard event files in ``folder``, file after file in the order they were
-    started, read from their TFRecord framing (a little-endian u64 length, its CRC, the Event proto, its
-    CRC)."""
+    started (by name: the start second, then a resumed run's suffix), read from their TFRecord framing (a
+    little-endian u64 length, its CRC, the Event proto, its CRC)."""
     import struct
 
     from tensorboardX.proto import event_pb2
 
-    files = []
-    for f in folder.glob("events.out.tfevents.*"):
-        data, i, events = f.read_bytes(), 0, []
+    events = []
+    for f in sorted(folder.glob("events.out.tfevents.*")):
+        data, i = f.read_bytes(), 0
         while i < len(data):
             (n,) = struct.unpack("<Q", data[i:i + 8])
             events.append(event_pb2.Event.FromString(data[i + 12:i + 12 + n]))
             i += 12 + n + 4
-        files.append(events)
-    return [e for events in sorted(files, key=lambda ev: ev[0].wall_time) for e in events]
+    return events
 
 
 def _scalar_steps(events: list, tag: str, purge: bool) -> list[int]:
@@ -354,11 +353,16 @@ def _scalar_steps(events: list, tag: str, purge: bool) -> list[int]:
     return steps
 
 
-def test_a_resumed_tensorboard_log_shows_each_step_once(run, tmp_path):
+def test_a_resumed_tensorboard_log_shows_each_step_once(run, tmp_path, monkeypatch):
     """fit --ckpt_path FILE with a TensorBoard logger continues the run's version folder, and its writer's
     purge_step is the checkpoint's global step: TensorBoard hides the events of the epochs trained again
-    (they stay on disk), so each logged step shows once, as in metrics.csv."""
-    pytest.importorskip("tensorboardX")
+    (they stay on disk), so each logged step shows once, as in metrics.csv. tensorboardX names an event file
+    by the second and the host: both runs here start in the same second, and the resumed run's file does not
+    overwrite the first's."""
+    import types
+
+    writer = pytest.importorskip("tensorboardX.event_file_writer")
+    monkeypatch.setattr(writer, "time", types.SimpleNamespace(time=lambda: 1_800_000_000.25))
     tb = ('--trainer.logger={"class_path": "lightning.pytorch.loggers.TensorBoardLogger", '
           '"init_args": {"save_dir": "runs/tb"}}')
     logs = tmp_path / "runs" / "tb" / "lightning_logs"
@@ -375,4 +379,5 @@ def test_a_resumed_tensorboard_log_shows_each_step_once(run, tmp_path):
     assert starts == [step]
     raw = _scalar_steps(events, "val/acc", purge=False)
     assert len(raw) == 5  # epochs 1 and 2 are on disk twice: the earlier run's events are kept
+    assert len(list((logs / "version_0").glob(f"events.out.tfevents.*.resumed-step{step}"))) == 1
     assert sorted(_scalar_steps(events, "val/acc", purge=True)) == sorted(first)
