@@ -99,7 +99,7 @@ def classify(settings: dict, x_source: np.ndarray, y_source: np.ndarray, x_targe
     if y_source.shape != (len(arrays["x_source"]),):
         raise ValueError(f"y_source: need one label per row of x_source ({len(arrays['x_source'])}), got "
                          f"shape {y_source.shape}")
-    return _classify(settings, y_source, seed, *arrays.values())[:2]
+    return _classify(settings, y_source, seed, **arrays)[:2]
 
 
 def _classify(settings: dict, y_source, seed: int, x_source, x_target, x_test, x_source_test):
