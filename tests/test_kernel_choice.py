@@ -42,6 +42,52 @@ def test_optimal_weights_solve_the_quadratic_programme(seed):
     np.testing.assert_allclose(w.numpy(), _scipy_weights(eta, q), atol=1e-6)
 
 
+def _exhaustive_weights(eta, q, ridge=1e-3):
+    """The programme solved support by support, every one of the 2^b − 1 in turn (the first on a tie): the
+    reference that optimal_kernel_weights's batched screen must reproduce bit for bit."""
+    import itertools
+
+    eta, q = eta.to(torch.float64), q.to(torch.float64)
+    q = 0.5 * (q + q.T)
+    scale = float(q.diagonal().clamp_min(0.0).mean())
+    a = q + (ridge * scale if scale > 0 else ridge) * torch.eye(len(eta), dtype=torch.float64)
+    best, best_obj = None, math.inf
+    for size in range(1, len(eta) + 1):
+        for s in map(list, itertools.combinations(range(len(eta)), size)):
+            if not bool((eta[s] > 0).any()):
+                continue
+            g = torch.linalg.solve(a[s][:, s], eta[s])
+            denom = float(eta[s] @ g)
+            if denom > 0 and bool((g >= 0).all()) and 1.0 / denom < best_obj:
+                best_obj, best = 1.0 / denom, torch.zeros(len(eta), dtype=torch.float64)
+                best[s] = g / denom
+    return torch.full((len(eta),), 1.0 / len(eta), dtype=torch.float64) if best is None else best / best.sum()
+
+
+@pytest.mark.parametrize("b", [1, 2, 5, 9, MAX_KERNELS])
+def test_optimal_weights_match_trying_every_support_alone_bit_for_bit(b):
+    g = torch.Generator().manual_seed(b)
+
+    def draw(*shape, uniform=False):
+        return (torch.rand if uniform else torch.randn)(*shape, generator=g, dtype=torch.float64)
+
+    cases = []
+    for _ in range(40 if b <= 9 else 8):  # the reference tries 4,095 supports one by one at b = 12
+        # statistics as the training takes them: 16 quadruples of b kernels, correlated, some η_u < 0
+        h = draw(16, 1) * draw(b, uniform=True) + 0.3 * draw(16, b) + 0.2 * draw(b)
+        cases.append((h.mean(0), torch.cov(h.T).reshape(b, b)))
+    eye = torch.eye(b, dtype=torch.float64)
+    cases += [(torch.ones(b, dtype=torch.float64), eye),  # alike and independent: the whole family
+              # alike and fully correlated: the supports differ by the ridge alone (a near tie)
+              (torch.ones(b, dtype=torch.float64), torch.ones(b, b, dtype=torch.float64)),
+              (torch.linspace(-1, 1, b, dtype=torch.float64), torch.zeros(b, b, dtype=torch.float64)),
+              (-torch.ones(b, dtype=torch.float64), eye)]  # no kernel tells the samples apart
+    for eta, q in cases:
+        w = optimal_kernel_weights(eta, q)
+        assert torch.equal(w, _exhaustive_weights(eta, q)), (eta, q)
+        assert bool((w >= 0).all()) and float(w.sum()) == pytest.approx(1.0)
+
+
 def test_optimal_weights_hand_computed():
     # two kernels with the same MMD², the second 100 times as variable: β ∝ (Q + εI)⁻¹ η
     eta = torch.tensor([1.0, 1.0], dtype=torch.float64)
