@@ -15,6 +15,7 @@ from vtlearn.losses import (
     gaussian_bandwidths,
     grad_reverse,
     information_maximization,
+    linear_kernel_mmd,
     local_mmd,
     mk_mmd,
 )
@@ -187,6 +188,45 @@ def test_mk_mmd_linear_time_gradcheck_and_errors():
         mk_mmd(x, torch.randn(1, 3), linear_time=True)
 
 
+@pytest.mark.parametrize("unbiased", [False, True])
+def test_linear_kernel_mmd_matches_a_naive_loop_over_dot_products(unbiased):
+    g = torch.Generator().manual_seed(3)
+    xs = torch.randn(7, 4, generator=g, dtype=torch.float64)
+    xt = torch.randn(5, 4, generator=g, dtype=torch.float64) + 0.3
+    rows_s, rows_t = xs.tolist(), xt.tolist()
+
+    def dots(a, b, skip_diagonal):
+        return sum(sum(u * v for u, v in zip(a[i], b[j], strict=True))
+                   for i in range(len(a)) for j in range(len(b)) if not (skip_diagonal and i == j))
+
+    ns, nt = len(rows_s), len(rows_t)
+    norm_ss, norm_tt = (ns * (ns - 1), nt * (nt - 1)) if unbiased else (ns * ns, nt * nt)
+    want = dots(rows_s, rows_s, unbiased) / norm_ss + dots(rows_t, rows_t, unbiased) / norm_tt \
+        - 2 * dots(rows_s, rows_t, False) / (ns * nt)
+    assert linear_kernel_mmd(xs, xt, unbiased=unbiased).item() == pytest.approx(want, rel=1e-10, abs=1e-12)
+
+
+def test_linear_kernel_mmd_compares_the_means_alone():
+    g = torch.Generator().manual_seed(4)
+    xs = torch.randn(40, 3, generator=g, dtype=torch.float64)
+    # the biased estimate is the squared distance between the means: 0.5^2 + 0.2^2 for this shift
+    shift = torch.tensor([0.5, -0.2, 0.0], dtype=torch.float64)
+    assert linear_kernel_mmd(xs, xs + shift).item() == pytest.approx(0.29, rel=1e-12)
+    assert linear_kernel_mmd(xs, xs).item() == pytest.approx(0.0, abs=1e-15)
+    # a sample spread 3x wider about the same mean: MK-MMD sees it, the linear kernel does not
+    centred = xs - xs.mean(0)
+    assert linear_kernel_mmd(centred, 3 * centred).item() == pytest.approx(0.0, abs=1e-12)
+    assert mk_mmd(centred, 3 * centred).item() > 0.05
+    assert torch.autograd.gradcheck(lambda a, b: linear_kernel_mmd(a, b, unbiased=True),
+                                    (xs[:6].clone().requires_grad_(), xs[6:11].clone().requires_grad_()))
+    with pytest.raises(ValueError, match="target"):
+        linear_kernel_mmd(xs, xs[:1], unbiased=True)
+    with pytest.raises(ValueError, match="source"):
+        linear_kernel_mmd(torch.full((3, 3), float("nan")), xs)
+    with pytest.raises(ValueError, match="feature size"):
+        linear_kernel_mmd(xs, xs[:, :2])
+
+
 def test_coral_hand_computed():
     xs = torch.tensor([[0.0, 0.0], [2.0, 0.0]])
     xt = torch.tensor([[0.0, 0.0], [0.0, 2.0]])
@@ -256,6 +296,29 @@ def test_vtloss_with_the_linear_time_estimator_sums_the_linear_time_terms():
     for kwargs in (dict(mmd_unbiased=True), dict(mmd_conditional=True)):
         with pytest.raises(ValueError, match="mmd_linear_time"):
             VTLoss(mmd_linear_time=True, **kwargs)
+
+
+def test_vtloss_with_ddcs_linear_kernel_sums_the_linear_kernel_terms():
+    logits, labels, fs, ft = _feats(5)
+    loss = VTLoss(mmd_kernel="linear")
+    total, parts = loss(logits, labels, fs, ft)
+    ce = torch.nn.functional.cross_entropy(logits, labels)
+    lin = {name: linear_kernel_mmd(fs[name], ft[name]) for name in ("fc1", "fc2")}
+    cor = coral(fs["fc1"], ft["fc1"]) + coral(fs["fc2"], ft["fc2"])
+    assert total.item() == pytest.approx((10 * ce + 10 * (lin["fc1"] + lin["fc2"]) + 10 * cor).item())
+    assert parts["mmd_fc2"].item() == pytest.approx(lin["fc2"].item())
+    assert parts["mmd_fc2"].item() != pytest.approx(mk_mmd(fs["fc2"], ft["fc2"]).item(), rel=1e-3)
+    assert "linear_kernel=True" in repr(loss)
+    unbiased = VTLoss(mmd_kernel="linear", mmd_unbiased=True, use_coral=False)(logits, labels, fs, ft)[1]
+    assert unbiased["mmd_fc1"].item() == pytest.approx(
+        linear_kernel_mmd(fs["fc1"], ft["fc1"], unbiased=True).item())
+    refused = (dict(mmd_kernel_weights="optimal"), dict(mmd_linear_time=True), dict(mmd_conditional=True))
+    for kwargs in refused:
+        with pytest.raises(ValueError, match="mmd_kernel"):
+            VTLoss(mmd_kernel="linear", **kwargs)
+    VTLoss(mmd_kernel="linear", mmd_linear_time=True, use_mmd=False)  # no MMD term: nothing to refuse
+    with pytest.raises(ValueError, match="mmd_kernel: expected one of"):
+        VTLoss(mmd_kernel="laplace")
 
 
 @pytest.mark.parametrize(

@@ -1005,6 +1005,16 @@ def test_the_linear_time_estimator_is_ignored_by_the_rows_without_mk_mmd_and_ref
         XAVTNet(**TINY, mmd_linear_time=True, mmd_unbiased=True)
 
 
+def test_ddcs_linear_kernel_is_ignored_by_the_rows_without_mmd_and_refused_with_optimal_weights():
+    for kwargs in (dict(da_method="none"), dict(use_mmd=False), dict(da_method="dann")):
+        assert not XAVTNet(**TINY, **kwargs, mmd_kernel="linear").vtloss.linear_kernel
+    assert XAVTNet(**TINY, mmd_kernel="linear").vtloss.linear_kernel
+    with pytest.raises(ValueError, match="mmd_kernel"):
+        XAVTNet(**TINY, mmd_kernel="linear", mmd_kernel_weights="optimal")
+    with pytest.raises(ValueError, match="mmd_kernel: expected one of"):
+        XAVTNet(**TINY, mmd_kernel="Linear")
+
+
 def test_da_layers_as_one_name_is_that_layer():
     # before: the string was read letter by letter ("got ['1', 'c', 'f']")
     model = XAVTNet(**TINY, da_layers="fc1")
@@ -1027,6 +1037,8 @@ def test_da_layers_as_one_name_is_that_layer():
     ("mmd_kopt", True, False, ("fc1", "fc2"), False),
     ("vtloss_lin", True, True, ("fc1", "fc2"), False),
     ("mmd_lin", True, False, ("fc1", "fc2"), False),
+    ("vtloss_ddc", True, True, ("fc1", "fc2"), False),
+    ("mmd_ddc", True, False, ("fc1", "fc2"), False),
 ])
 def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd, coral_, layers, dann):
     """configs/xavtnet_ablation/<row>.yaml over configs/quick/xavtnet.yaml (LightningCLI merges the second
@@ -1060,3 +1072,5 @@ def test_each_table_7_2_config_trains_the_terms_its_row_names(tmp_path, row, mmd
         assert model.vtloss.kernel_updates.tolist() == [1.0] * len(layers)
     # DAN's linear-time MK-MMD estimator: on in exactly the rows that name it
     assert model.vtloss.mmd_kwargs["linear_time"] == row.endswith("_lin")
+    # DDC's linear kernel: likewise
+    assert model.vtloss.linear_kernel == row.endswith("_ddc")

@@ -37,6 +37,11 @@ trains in the same way). The default, ``"uniform"``, keeps β_u = 1/b.
 of the biased V-statistic: the mean over disjoint quadruples of two source and two target rows, unbiased,
 and noisier than the quadratic estimators.
 
+``mmd_kernel="linear"`` replaces eq. 7.6's Gaussian family by the linear kernel of DDC (Tzeng et al. 2014;
+:func:`~vtlearn.losses.mmd.linear_kernel_mmd`), whose MMD² is the squared distance between the two domains'
+mean features: the "MMD loss" that Deep CORAL set its covariance term beside, so another reading of Table
+7.2's "MMD only" row, in which CORAL has the second moments left to align.
+
 Also beyond the thesis, ``mmd_conditional=True`` replaces each layer's MK-MMD by the class-conditional
 LMMD of DSAN (:mod:`vtlearn.losses.lmmd`), which needs the source labels and the target class
 probabilities.
@@ -53,19 +58,28 @@ from torch import nn
 from vtlearn.losses.coral import coral
 from vtlearn.losses.kernel_choice import MAX_KERNELS, linear_time_statistics, optimal_kernel_weights
 from vtlearn.losses.lmmd import local_mmd
-from vtlearn.losses.mmd import kernel_bandwidths, mk_mmd
+from vtlearn.losses.mmd import kernel_bandwidths, linear_kernel_mmd, mk_mmd
 from vtlearn.validation import as_int, as_real
 
-__all__ = ["VTLoss", "KERNEL_WEIGHTS", "check_kernel_weights"]
+__all__ = ["VTLoss", "KERNEL_WEIGHTS", "MMD_KERNELS", "check_kernel_weights", "check_mmd_kernel"]
 
 #: the choices of ``VTLoss(mmd_kernel_weights=...)``
 KERNEL_WEIGHTS = ("uniform", "optimal")
+#: the choices of ``VTLoss(mmd_kernel=...)``: eq. 7.6's Gaussian family, or DDC's linear kernel
+MMD_KERNELS = ("gaussian", "linear")
 
 
 def check_kernel_weights(choice: str) -> str:
     """``choice`` if it is one of :data:`KERNEL_WEIGHTS`, else a ValueError naming ``mmd_kernel_weights``."""
     if choice not in KERNEL_WEIGHTS:
         raise ValueError(f"mmd_kernel_weights: expected one of {KERNEL_WEIGHTS}, got {choice!r}")
+    return choice
+
+
+def check_mmd_kernel(choice: str) -> str:
+    """``choice`` if it is one of :data:`MMD_KERNELS`, else a ValueError naming ``mmd_kernel``."""
+    if choice not in MMD_KERNELS:
+        raise ValueError(f"mmd_kernel: expected one of {MMD_KERNELS}, got {choice!r}")
     return choice
 
 
@@ -93,6 +107,10 @@ class VTLoss(nn.Module):
             without ``mmd_conditional``, and at most :data:`~vtlearn.losses.kernel_choice.MAX_KERNELS`
             kernels.
         mmd_kernel_momentum: the momentum of those means, in [0, 1) (0: this batch's statistics alone).
+        mmd_kernel: ``"gaussian"`` (default): eq. 7.6's Gaussian family. ``"linear"``: DDC's linear kernel
+            (:func:`~vtlearn.losses.mmd.linear_kernel_mmd`, biased or, with ``mmd_unbiased``, unbiased; module
+            docstring), which has no bandwidths to weigh, so not with ``mmd_kernel_weights="optimal"``,
+            ``mmd_linear_time`` or ``mmd_conditional``.
         lam_balance: ``None`` (default): λ is ``lam``, as in eq. 7.8. A momentum ``m`` in [0, 1): λ is
             set each training step by Deep CORAL's balance rule (module docstring),
             ``λ_t = α·mean(CE)_t / mean(CORAL)_t``, over exponential means of the detached source
@@ -134,6 +152,7 @@ class VTLoss(nn.Module):
         mmd_kernel_weights: str = "uniform",
         mmd_kernel_momentum: float = 0.9,
         mmd_linear_time: bool = False,
+        mmd_kernel: str = "gaussian",
     ) -> None:
         super().__init__()
         for name, v in (("alpha", alpha), ("beta", beta), ("lam", lam)):
@@ -152,6 +171,13 @@ class VTLoss(nn.Module):
         if mmd_linear_time and (mmd_unbiased or mmd_conditional):
             raise ValueError("mmd_linear_time: not with mmd_unbiased (choose one estimator) or "
                              "mmd_conditional (the LMMD has the biased estimator only)")
+        check_mmd_kernel(mmd_kernel)
+        self.linear_kernel = mmd_kernel == "linear"
+        if self.linear_kernel and use_mmd and (mmd_kernel_weights == "optimal" or mmd_linear_time
+                                               or mmd_conditional):
+            raise ValueError("mmd_kernel: 'linear' (DDC's kernel) has no Gaussian bandwidths to weigh or "
+                             "estimate in linear time and no class-conditional form, so not with "
+                             "mmd_kernel_weights='optimal', mmd_linear_time or mmd_conditional")
         self.alpha, self.beta, self.lam = float(alpha), float(beta), float(lam)
         self.layers = tuple(layers)
         self.use_mmd, self.use_coral = bool(use_mmd), bool(use_coral)
@@ -233,7 +259,9 @@ class VTLoss(nn.Module):
                 raise ValueError(f"layer {layer!r} missing from features_source/features_target")
             fs, ft = features_source[layer], features_target[layer]
             if self.use_mmd:
-                if self.mmd_conditional:
+                if self.linear_kernel:
+                    m = linear_kernel_mmd(fs, ft, unbiased=self.mmd_kwargs["unbiased"])
+                elif self.mmd_conditional:
                     m = local_mmd(fs, ft, labels_source, target_probs, **self.kernel_kwargs)
                 elif self.optimal_kernels:
                     h = kernel_bandwidths(fs, ft, **self.kernel_kwargs)
@@ -303,5 +331,5 @@ class VTLoss(nn.Module):
             f"alpha={self.alpha}, beta={self.beta}, lam={self.lam}, layers={self.layers}, "
             f"use_mmd={self.use_mmd}, use_coral={self.use_coral}, mmd_conditional={self.mmd_conditional}, "
             f"lam_balance={self.lam_balance}, optimal_kernels={self.optimal_kernels}, "
-            f"linear_time={self.mmd_kwargs['linear_time']}"
+            f"linear_time={self.mmd_kwargs['linear_time']}, linear_kernel={self.linear_kernel}"
         )

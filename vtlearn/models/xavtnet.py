@@ -111,7 +111,7 @@ from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_rever
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
-from vtlearn.losses.vtloss import VTLoss, check_kernel_weights
+from vtlearn.losses.vtloss import VTLoss, check_kernel_weights, check_mmd_kernel
 from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
@@ -282,6 +282,11 @@ class XAVTNet(L.LightningModule):
             :func:`~vtlearn.losses.mmd.linear_time_terms`), instead of the biased V-statistic: each of a
             batch's clouds meets one other cloud of its domain and one of the other, so the term is unbiased
             and noisier. Rows without MK-MMD ignore it; not with ``mmd_unbiased`` or ``mmd_conditional``.
+        mmd_kernel: ``"gaussian"`` (default, eq. 7.6's family) or ``"linear"``: the MMD terms with DDC's
+            linear kernel, the squared distance between the two domains' mean features
+            (:func:`~vtlearn.losses.mmd.linear_kernel_mmd`; beyond the thesis, another reading of Table 7.2's
+            "MMD only" row). Rows without MMD ignore it; not with ``mmd_kernel_weights="optimal"``,
+            ``mmd_linear_time`` or ``mmd_conditional``.
         mmd_conditional: VTLoss's MMD terms class-conditional (DSAN's LMMD,
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
             batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
@@ -428,6 +433,7 @@ class XAVTNet(L.LightningModule):
         mmd_kernel_weights: str = "uniform",
         mmd_kernel_momentum: float = 0.9,
         mmd_linear_time: bool = False,
+        mmd_kernel: str = "gaussian",
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
         da_ramp_gamma: float | None = None,
@@ -541,6 +547,7 @@ class XAVTNet(L.LightningModule):
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
         check_kernel_weights(mmd_kernel_weights)  # before the rows without MK-MMD pass VTLoss "uniform"
+        check_mmd_kernel(mmd_kernel)
         if mmd_conditional and da_memory:
             raise ValueError("mmd_conditional: not with da_memory > 0, whose queue holds no labels or "
                              "target probabilities")
@@ -594,6 +601,7 @@ class XAVTNet(L.LightningModule):
             mmd_conditional=mmd_conditional, lam_balance=lam_balance if vt else None,
             mmd_kernel_weights=mmd_kernel_weights if vt and use_mmd else "uniform",
             mmd_kernel_momentum=mmd_kernel_momentum, mmd_linear_time=bool(mmd_linear_time) and vt and use_mmd,
+            mmd_kernel=mmd_kernel if vt and use_mmd else "gaussian",
         )
         self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
         self._memory = (
