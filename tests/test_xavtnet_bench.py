@@ -105,8 +105,11 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     assert (res["accelerator"], res["workers"]) == ("cpu", 1)
     assert Path(res["figures"]["tsne"]).exists() and Path(res["figures"]["confusion"]).exists()
     assert Path(res["figures"]["tsne"]).parent == tmp_path / "cm"
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "Table 7.2/7.4 analogue" in printed and "Seed-paired differences" in printed
+    # the bar counts the trainings' epochs as they run: 2 rows x 2 seeds x max_epochs
+    assert f"{4 * res['max_epochs']}/{4 * res['max_epochs']} " in captured.err.split("bench crossmodal")[-1]
     # with two seeds every row is paired against no-DA, seed by seed, in the table, the JSON and a figure
     (pair,) = res["paired"]
     acc = {(r["variant"], r["seed"]): r["tactile_acc"] for r in res["runs"]}
@@ -119,6 +122,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--workers", "2", "--no-figures", "--json", str(out2)]) == 0
     res2 = json.loads(out2.read_text())
     assert res2["workers"] == 2
+    # the workers' epochs reached the bar through the manager queue
+    bar = capsys.readouterr().err.split("bench crossmodal")[-1]
+    assert f"{4 * res2['max_epochs']}/{4 * res2['max_epochs']} " in bar, bar
     key = [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"]) for r in res["runs"]]
     assert key == [(r["variant"], r["seed"], r["tactile_acc"], r["visual_acc"], r["confusion"])
                    for r in res2["runs"]]
@@ -315,6 +321,8 @@ def test_bench_active_learning_smoke(tmp_path, tiny_crossmodal, capsys):
                  "--json", str(out2), "--plot", str(tmp_path / "al2.png")]) == 0
     res2 = json.loads(out2.read_text())
     assert res2["full_acc"] == res["full_acc"]
+    # the bar counts trainings, the workers' as they end: the reference, and two rounds of two strategies
+    assert "5/5 " in capsys.readouterr().err.split("bench active-learning")[-1]
     for strategy in ("entropy", "random"):
         assert res2["curves"][strategy]["runs"] == res["curves"][strategy]["runs"]
         assert set(res["curves"][strategy]["labels_to_stay"]) == {"10%", "5%", "3%", "2%"}

@@ -304,12 +304,17 @@ def _quiet_lightning() -> None:
     warnings.filterwarnings("ignore", message=r"You defined a `validation_step` but have no `val_dataloader`")
 
 
-def _trainer(max_epochs: int, accelerator: str = "cpu"):
+def _trainer(max_epochs: int, accelerator: str = "cpu", progress=None):
+    """The bench's trainer: no logger, checkpoints, validation or bar of its own; with a ``progress`` sink
+    it ticks once per epoch (:class:`~vtlearn.job_progress.TickCallback`)."""
     import lightning as L
+
+    from vtlearn.job_progress import TickCallback
 
     return L.Trainer(max_epochs=max_epochs, accelerator=accelerator, devices=1, logger=False,
                      enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-                     num_sanity_val_steps=0, limit_val_batches=0)
+                     num_sanity_val_steps=0, limit_val_batches=0,
+                     callbacks=[TickCallback(progress)] if progress is not None else None)
 
 
 def _collect_features(model, loader, layers: tuple[str, ...] = ("fc2",)):
@@ -382,8 +387,9 @@ def _confusion_figure(conf: np.ndarray, class_names, path: Path, title: str) -> 
 
 def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_epochs: int, threads: int,
                     features: bool, accelerator: str = "cpu", adabn: bool = False, balanced: bool = False,
-                    centroid: bool = False, probe: bool = False, discrepancy: bool = False):
+                    centroid: bool = False, probe: bool = False, discrepancy: bool = False, progress=None):
     """Train one (variant, seed) of the Table 7.2/7.4 analogue and score it on tactile and visual test clouds.
+    ``progress``: a sink that the training ticks once per epoch (:mod:`vtlearn.job_progress`).
 
     ``adabn``: afterwards, re-estimate the target batch-norm statistics on the unlabelled target stream
     (:meth:`~vtlearn.models.xavtnet.XAVTNet.adapt_bn_statistics`) and score the tactile clouds again
@@ -430,7 +436,7 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
                          f"data's normalize is {dm.normalize!r}; leave it unset (the bench records that)")
     model = XAVTNet(num_classes=dm.num_classes, **{**kwargs, "input_normalize": dm.normalize})
     t0 = time.perf_counter()
-    trainer = _trainer(max_epochs, accelerator)
+    trainer = _trainer(max_epochs, accelerator, progress)
     loader = dm.labelled_target_train_dataloader() if oracle else dm.train_dataloader()
     trainer.fit(model, train_dataloaders=loader)
     fit_s = time.perf_counter() - t0
@@ -471,14 +477,16 @@ def _crossmodal_job(variant: str, seed: int, data_kwargs: dict, base: dict, max_
     return row, feats, dm.class_names
 
 
-def _call(fn, *args):
-    """``fn(*args)``: lets one pool of ``--workers`` processes run trainings and classical rows alike."""
-    return fn(*args)
+def _call(fn, *args, progress=None):
+    """``fn(*args, progress=progress)``: lets one pool of ``--workers`` processes run trainings and classical
+    rows alike."""
+    return fn(*args, progress=progress)
 
 
-def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int):
+def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int, progress=None):
     """The classical rows ``variants`` of one seed (:func:`~vtlearn.classical.crossmodal_baseline.
-    classical_runs`), as (their rows, no features, class names)."""
+    classical_runs`), as (their rows, no features, class names). ``progress`` is not ticked: the rows have
+    no epochs, and the bench moves its bar when they come back."""
     rows, names = crossmodal_baseline.classical_runs(variants, seed, data_kwargs, threads)
     return rows, None, names
 
@@ -643,23 +651,13 @@ def _readout_scores(model, dm, prior=None, probe: bool = False, centroid: bool =
     return out
 
 
-def _map_jobs(fn, job_args: list[tuple], workers: int):
-    """An iterator of ``fn(*a)`` for every tuple in ``job_args``: in this process, or in ``workers`` spawned
-    ones (results then arrive in completion order). ``workers`` is checked here, before any job runs."""
-    if workers < 1:
-        raise ValueError(f"--workers: need >= 1, got {workers}")
-    if workers == 1:
-        return (fn(*a) for a in job_args)
-    return _map_in_processes(fn, job_args, workers)
+def _map_jobs(fn, job_args: list[tuple], workers: int, tick=None):
+    """An iterator of ``fn(*a, progress=sink)`` for every tuple in ``job_args``, in this process or in
+    ``workers`` spawned ones (results then arrive in completion order); the jobs' ticks reach ``tick``
+    while they train (:func:`vtlearn.job_progress.map_jobs`). ``workers`` is checked before any job runs."""
+    from vtlearn.job_progress import map_jobs
 
-
-def _map_in_processes(fn, job_args: list[tuple], workers: int):
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
-        for fut in as_completed([ex.submit(fn, *a) for a in job_args]):
-            yield fut.result()
+    return map_jobs(fn, job_args, workers, tick)
 
 
 def run_crossmodal_bench(args: argparse.Namespace) -> int:
@@ -735,17 +733,19 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     job_args += [(_crossmodal_job, variant, seed, data_kwargs, base, max_epochs, args.threads,
                   (variant, seed) in figure_jobs, args.accelerator, adabn, balanced, centroid, probe,
                   discrepancy) for variant, seed in jobs if variant not in CLASSICAL_ROWS]
-    results = _map_jobs(_call, job_args, args.workers)
+    # the bar counts epochs, ticked by the trainings while they run; a seed's classical rows count as one
+    # training's epochs when they come back
+    bar = tqdm(total=(len(job_args) * max_epochs), desc="bench crossmodal", unit="epoch")
+    results = _map_jobs(_call, job_args, args.workers, tick=bar.update)
     per_run: list[dict] = []
     keep: dict = {}
-    bar = tqdm(total=len(jobs), desc="bench crossmodal")
     class_names: list[str] = []
     for out, feats, names in results:
         class_names = names
         if isinstance(out, list):  # a seed's classical rows
+            bar.update(max_epochs)
             for row in out:
                 per_run.append(row)
-                bar.update()
                 tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  visual "
                            f"{row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, shared)")
             continue
@@ -753,7 +753,6 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         per_run.append(row)
         if feats is not None:
             keep[row["variant"]] = feats
-        bar.update()
         extra = f"  tactile after AdaBN {row['tactile_acc_adabn']:.1f}%" if adabn else ""
         if "tactile_acc_teacher" in row:
             extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
@@ -996,10 +995,12 @@ def _variant_settings(variants: list[str]) -> dict[str, dict]:
 
 
 def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
-                         threads: int, pool: int, train_steps: int = 0, accelerator: str = "cpu"):
+                         threads: int, pool: int, train_steps: int = 0, accelerator: str = "cpu",
+                         progress=None):
     """One seed of one strategy of the Fig. 7.5a analogue, or (``strategy="full"``) the reference model
     trained on the whole labelled pool of ``pool`` clouds. Returns (strategy, seed, history dicts or the
     full-pool accuracy). ``train_steps > 0``: every training runs exactly that many optimiser steps.
+    ``progress``: a sink that every training ticks once, when it ends (:mod:`vtlearn.job_progress`).
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
@@ -1008,17 +1009,21 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
 
     from vtlearn.active.learning_loop import ActiveLearningLoop, train_and_test
     from vtlearn.datamodules import ActivePoolDataModule
+    from vtlearn.job_progress import TickCallback
     from vtlearn.models.xavtnet import XAVTNet
 
     _quiet_lightning()
     torch.set_num_threads(threads)
     min_steps = int(al["min_steps"])
+    trainer_kwargs = {"accelerator": accelerator}
+    if progress is not None:
+        trainer_kwargs["callbacks"] = [TickCallback(progress, every="fit")]
     if strategy == "full":
         L.seed_everything(seed, verbose=False)
         dm = ActivePoolDataModule(initial_labels=pool, seed=seed, **data_kwargs)
         model = XAVTNet(num_classes=dm.num_classes, **base)
         return strategy, seed, train_and_test(model, dm.train_dataloader(), dm.test_dataloader(), max_epochs,
-                                              min_steps, train_steps, accelerator=accelerator)
+                                              min_steps, train_steps, **trainer_kwargs)
     dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
 
     def factory(round_seed: int):
@@ -1028,7 +1033,7 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
                               mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
                               train_steps=train_steps, warm_start=bool(al["warm_start"]),
                               power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
-                              trainer_kwargs={"accelerator": accelerator})
+                              trainer_kwargs=trainer_kwargs)
     return strategy, seed, (loop.history_dicts() if loop.run() else [])
 
 
@@ -1132,14 +1137,19 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
 
     # The reference is the model trained on the fully labelled pool (Table 7.1 "fully trained network").
     jobs = [(s, seed) for s in ["full", *strategies] for seed in seeds]
+    # the bar counts trainings, ticked as each ends: one per reference, rounds + 1 per strategy and seed (a
+    # pool used up early ends its run sooner, and the bar jumps its missing rounds when the run comes back)
+    trainings = {s: 1 if s == "full" else al["rounds"] + 1 for s in ["full", *strategies]}
+    bar = tqdm(total=sum(trainings[s] for s, _ in jobs), desc="bench active-learning", unit="training")
     outputs = _map_jobs(_active_learning_job, [
         (s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps, args.accelerator)
-        for s, seed in jobs], args.workers)
+        for s, seed in jobs], args.workers, tick=bar.update)
     results: dict = {}
-    bar = tqdm(total=len(jobs), desc="bench active-learning")
     for strategy, seed, res in outputs:
         results[strategy, seed] = res
-        bar.update()
+        done = 1 if strategy == "full" else len(res)
+        if done < trainings[strategy]:
+            bar.update(trainings[strategy] - done)
         if strategy == "full":
             tqdm.write(f"full pool ({pool} labels) seed {seed}: acc {100 * res:.1f}%")
         elif res:

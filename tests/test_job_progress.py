@@ -1,0 +1,61 @@
+"""Tests for vtlearn.job_progress: the benches' jobs tick a progress bar while they train."""
+
+import lightning as L
+import pytest
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from vtlearn.job_progress import LocalSink, TickCallback, map_jobs
+
+
+class _Tiny(L.LightningModule):
+    def __init__(self):
+        super().__init__()
+        self.lin = torch.nn.Linear(2, 1)
+
+    def training_step(self, batch, batch_idx):
+        x, y = batch
+        return torch.nn.functional.mse_loss(self.lin(x), y)
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.1)
+
+
+def _fit(epochs, callbacks):
+    torch.manual_seed(0)
+    data = TensorDataset(torch.randn(8, 2), torch.randn(8, 1))
+    model = _Tiny()
+    L.Trainer(max_epochs=epochs, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+              enable_model_summary=False, callbacks=callbacks).fit(model, DataLoader(data, batch_size=4))
+    return model.lin.weight.detach().clone()
+
+
+def test_tick_callback_ticks_once_per_epoch_or_once_per_fit_and_changes_nothing():
+    ticks = []
+    weights = _fit(3, [TickCallback(LocalSink(ticks.append))])
+    assert ticks == [1, 1, 1]
+    ticks.clear()
+    _fit(3, [TickCallback(LocalSink(ticks.append), every="fit")])
+    assert ticks == [1]
+    assert torch.equal(weights, _fit(3, []))  # the same training without the callback
+
+
+def test_tick_callback_and_map_jobs_refuse_bad_arguments():
+    with pytest.raises(ValueError, match="every"):
+        TickCallback(LocalSink(print), every="step")
+    with pytest.raises(ValueError, match="sink"):
+        TickCallback(object())
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="--workers"):
+            map_jobs(divmod, [(1, 2)], bad)
+
+
+def _job(epochs, progress=None):
+    return _fit(epochs, [TickCallback(progress)] if progress is not None else []).sum().item(), epochs
+
+
+def test_map_jobs_in_this_process_passes_the_sink_and_keeps_the_order():
+    ticks = []
+    out = list(map_jobs(_job, [(2,), (1,), (3,)], 1, tick=ticks.append))
+    assert [e for _, e in out] == [2, 1, 3] and sum(ticks) == 6
+    assert list(map_jobs(_job, [(2,)], 1)) == [out[0]]  # no tick: no sink
