@@ -101,8 +101,11 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     run = next(r for r in res["runs"] if (r["variant"], r["seed"]) == ("esf_gfk_1nn", 1))
     dm = CrossModalDataModule(data_dir=str(cross_dir), batch_size=4, seed=1)
     desc, labels = crossmodal_descriptors(dm, 1)
-    again, _ = crossmodal_descriptors(dm, 1)
+    counted = []  # a progress count: every cloud once, out of all the sets' clouds; the same descriptors
+    again, _ = crossmodal_descriptors(dm, 1, on_cloud=lambda done, total: counted.append((done, total)))
     assert all(np.array_equal(desc[k], again[k]) for k in desc) and labels["target"] is None
+    n_clouds = sum(len(d) for d in desc.values())
+    assert counted == [(i + 1, n_clouds) for i in range(n_clouds)]
     assert desc["source"].shape == (len(dm.source_train_dataset()), 640)
     pred_t, pred_v = classify(CLASSICAL_ROWS["esf_gfk_1nn"], desc["source"], labels["source"], desc["target"],
                               desc["test"], desc["source_test"], 1)
@@ -126,9 +129,36 @@ def test_bench_crossmodal_runs_the_classical_rows_beside_the_network(tmp_path, c
     assert oracle["tactile_acc"] == pytest.approx(100 * (pred_o == labels["test"]).mean())
     conf = np.array(run["confusion"])
     assert conf.sum() == len(labels["test"]) and np.trace(conf) == (pred_t == labels["test"]).sum()
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "esf_gfk_svm seed 0" in printed and "2 seeds, 1 epoch," in printed
+    # one bar for all: two no-DA trainings of one epoch, and each seed's classical rows as one epoch
+    assert "4/4 " in captured.err.split("bench crossmodal")[-1]
     # classical rows alone train nothing, and the table says so instead of the config's epochs
     assert main(["bench", "crossmodal", "--config", str(cfg), "--variants", "esf_1nn", "--seeds", "1",
                  "--no-figures", "--json", str(tmp_path / "c.json")]) == 0
     assert "1 seeds, no training (classical rows)," in capsys.readouterr().out
+
+
+def test_the_classical_job_spreads_its_share_of_the_bar_over_the_clouds(monkeypatch):
+    import vtlearn.models.xavtnet_cli as xc
+    from vtlearn.classical import crossmodal_baseline
+
+    def fake_runs(variants, seed, data_kwargs, threads, on_cloud=None):
+        for done in range(1, 6):
+            on_cloud(done, 5)
+        return [{"variant": variants[0]}], ["a"]
+
+    class Sink:
+        def __init__(self):
+            self.ticks = []
+
+        def put(self, n):
+            self.ticks.append(n)
+
+    monkeypatch.setattr(crossmodal_baseline, "classical_runs", fake_runs)
+    sink = Sink()
+    rows, feats, names = xc._classical_job(["esf_1nn"], 0, {}, 1, 7, progress=sink)
+    assert rows == [{"variant": "esf_1nn"}] and feats is None and names == ["a"]
+    # 7 units over 5 clouds: 1, 1, 2, 1, 2 (floor(7 * done / 5) - what was sent), all positive, 7 in all
+    assert sink.ticks == [1, 1, 2, 1, 2]

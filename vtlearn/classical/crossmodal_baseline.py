@@ -19,6 +19,7 @@ augmentation, as for the network's rows, and ESF's random triplets.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -123,7 +124,8 @@ def _classify(settings: dict, y_source, seed: int, x_source, x_target, x_test, x
     return clf.predict(zt), clf.predict(zv), dim
 
 
-def crossmodal_descriptors(dm, seed: int, tactile_train: bool = False
+def crossmodal_descriptors(dm, seed: int, tactile_train: bool = False,
+                           on_cloud: Callable[[int, int], object] | None = None
                            ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | None]]:
     """ESF descriptors (:data:`ESF_SAMPLES` triplets) of the clouds a seed's rows read from ``dm`` (a
     :class:`~vtlearn.datamodules.CrossModalDataModule`): ``"source"``, its labelled visual training clouds;
@@ -132,7 +134,8 @@ def crossmodal_descriptors(dm, seed: int, tactile_train: bool = False
     ``_oracle`` rows (:meth:`~vtlearn.datamodules.CrossModalDataModule.labelled_target_train_dataloader`).
     The training sets' yaw augmentation draws from torch's generator, seeded here with ``seed`` (as
     ``seed_everything`` seeds a network row) and restored afterwards, so the descriptors repeat for a seed.
-    Returns (descriptors, labels) by set; the target stream has no labels (None).
+    Returns (descriptors, labels) by set; the target stream has no labels (None). ``on_cloud(done, total)``
+    is called after each cloud's descriptor, with the clouds done so far and those of all the sets.
 
     Shapes:
         -> ({set: (n_set, 640)}, {set: (n_set,) int64 or None})
@@ -150,15 +153,24 @@ def crossmodal_descriptors(dm, seed: int, tactile_train: bool = False
         sets["tactile_train"] = dm.labelled_target_train_dataloader().dataset
         streams["tactile_train"] = 1_000_003 + seed
     desc, labels = {}, {}
+    total, done = sum(len(ds) for ds in sets.values()), 0
+
+    def count() -> None:
+        nonlocal done
+        done += 1
+        on_cloud(done, total)
+
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         for name, ds in sets.items():
             clouds, labels[name] = _dataset_clouds(ds)
-            desc[name] = esf_descriptors(clouds, n_samples=ESF_SAMPLES, seed=streams[name])
+            desc[name] = esf_descriptors(clouds, n_samples=ESF_SAMPLES, seed=streams[name],
+                                         on_cloud=count if on_cloud is not None else None)
     return desc, labels
 
 
-def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: int = 1):
+def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: int = 1,
+                   on_cloud: Callable[[int, int], object] | None = None):
     """The rows ``variants`` (names of :data:`CLASSICAL_ROWS`) for one seed, on the data of
     ``CrossModalDataModule(**data_kwargs, seed=seed)``.
 
@@ -166,7 +178,8 @@ def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: i
     and its visual test clouds (and, for ``_oracle`` rows, its labelled tactile training clouds) are
     computed once and shared by the rows. Returns (one bench row per variant, the class names); a row holds
     ``tactile_acc`` and ``visual_acc`` (%), ``fit_s`` (its transfer and classifier), ``descriptor_s`` (the
-    shared descriptors) and the tactile ``confusion`` (rows: true class)."""
+    shared descriptors) and the tactile ``confusion`` (rows: true class). ``on_cloud``: as for
+    :func:`crossmodal_descriptors`, a progress count of the descriptors."""
     from sklearn.metrics import confusion_matrix
     from threadpoolctl import threadpool_limits
 
@@ -180,7 +193,7 @@ def classical_runs(variants: list[str], seed: int, data_kwargs: dict, threads: i
     with threadpool_limits(threads):
         t0 = time.perf_counter()
         oracle = any(CLASSICAL_ROWS[v].get("train_on") == "tactile" for v in variants)
-        desc, labels = crossmodal_descriptors(dm, seed, tactile_train=oracle)
+        desc, labels = crossmodal_descriptors(dm, seed, tactile_train=oracle, on_cloud=on_cloud)
         descriptor_s = time.perf_counter() - t0
         rows = []
         for variant in variants:

@@ -26,7 +26,7 @@ Deviations from PCL (all deliberate):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -309,7 +309,8 @@ def esf_descriptor(
     return _descriptor(pts, n_samples, _make_rng(rng, seed), "points")
 
 
-def esf_descriptors(clouds, n_samples: int = 20000, seed: int = 0, progress: bool = False) -> np.ndarray:
+def esf_descriptors(clouds, n_samples: int = 20000, seed: int = 0, progress: bool = False,
+                    on_cloud: Callable[[], object] | None = None) -> np.ndarray:
     """ESF descriptors of many clouds; cloud ``i`` draws from ``np.random.default_rng([seed, i])``.
 
     Each cloud has its own generator, so a row does not depend on the other clouds and equals
@@ -320,6 +321,7 @@ def esf_descriptors(clouds, n_samples: int = 20000, seed: int = 0, progress: boo
         n_samples: random triplets per cloud.
         seed: non-negative int base seed.
         progress: show a tqdm progress bar.
+        on_cloud: called with no argument after each cloud's descriptor (a caller's own progress count).
 
     Shapes:
         clouds [n x (N_i, 3)] -> (n, 640)
@@ -345,4 +347,6 @@ def esf_descriptors(clouds, n_samples: int = 20000, seed: int = 0, progress: boo
     out = np.empty((len(checked), ESF_DIM))
     for i, pts in items:
         out[i] = _descriptor(pts, n_samples, np.random.default_rng([seed, i]), f"clouds[{i}]")
+        if on_cloud is not None:
+            on_cloud()
     return out

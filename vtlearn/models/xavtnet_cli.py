@@ -483,11 +483,23 @@ def _call(fn, *args, progress=None):
     return fn(*args, progress=progress)
 
 
-def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int, progress=None):
+def _classical_job(variants: list[str], seed: int, data_kwargs: dict, threads: int, units: int = 0,
+                   progress=None):
     """The classical rows ``variants`` of one seed (:func:`~vtlearn.classical.crossmodal_baseline.
-    classical_runs`), as (their rows, no features, class names). ``progress`` is not ticked: the rows have
-    no epochs, and the bench moves its bar when they come back."""
-    rows, names = crossmodal_baseline.classical_runs(variants, seed, data_kwargs, threads)
+    classical_runs`), as (their rows, no features, class names). ``progress``: a sink that the descriptors
+    tick ``units`` times in all, spread over the clouds as they are done (the bench counts a seed's classical
+    rows as one training's epochs)."""
+    sent = 0
+
+    def on_cloud(done: int, total: int) -> None:
+        nonlocal sent
+        due = units * done // total
+        if due > sent:
+            progress.put(due - sent)
+            sent = due
+
+    rows, names = crossmodal_baseline.classical_runs(variants, seed, data_kwargs, threads,
+                                                     on_cloud=on_cloud if progress is not None else None)
     return rows, None, names
 
 
@@ -729,12 +741,13 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     centroid, probe = bool(getattr(args, "centroid", False)), bool(getattr(args, "probe", False))
     discrepancy = bool(getattr(args, "discrepancy", False))
     # the classical rows of a seed share its descriptors: one job per seed computes them all
-    job_args = [(_classical_job, classical, seed, data_kwargs, args.threads) for seed in seeds if classical]
+    job_args = [(_classical_job, classical, seed, data_kwargs, args.threads, max_epochs)
+                for seed in seeds if classical]
     job_args += [(_crossmodal_job, variant, seed, data_kwargs, base, max_epochs, args.threads,
                   (variant, seed) in figure_jobs, args.accelerator, adabn, balanced, centroid, probe,
                   discrepancy) for variant, seed in jobs if variant not in CLASSICAL_ROWS]
     # the bar counts epochs, ticked by the trainings while they run; a seed's classical rows count as one
-    # training's epochs when they come back
+    # training's epochs, spread over their descriptors
     bar = tqdm(total=(len(job_args) * max_epochs), desc="bench crossmodal", unit="epoch")
     results = _map_jobs(_call, job_args, args.workers, tick=bar.update)
     per_run: list[dict] = []
@@ -743,7 +756,6 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     for out, feats, names in results:
         class_names = names
         if isinstance(out, list):  # a seed's classical rows
-            bar.update(max_epochs)
             for row in out:
                 per_run.append(row)
                 tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  visual "
