@@ -38,7 +38,8 @@ def test_ablation_configs_match_bench_variants():
                                   "cpu/xavtnet_balance.yaml", "cpu/xavtnet_objects.yaml",
                                   "cpu/xavtnet_memory.yaml", "cpu/xavtnet_object_frame.yaml",
                                   "cpu/xavtnet_object_frame_k1.yaml", "cpu/xavtnet_object_frame_k9.yaml",
-                                  "cpu/xavtnet_objects_k9.yaml", "cpu/xavtnet_objects_ddc.yaml"])
+                                  "cpu/xavtnet_objects_k9.yaml", "cpu/xavtnet_objects_ddc.yaml",
+                                  "cpu/xavtnet_object_frame_ddc.yaml"])
 def test_configs_build_the_model(path):
     import inspect
 
