@@ -113,8 +113,7 @@ def optimal_kernel_weights(eta: torch.Tensor, q: torch.Tensor, ridge: float = 1e
         if best is not None:
             return best
     # the screen found no support that the exact check accepts (a tie with rounding): try every support
-    supports = [list(s) for size in range(1, b + 1) for s in itertools.combinations(range(b), size)]
-    best = _best_support(a, eta64, supports)
+    best = _best_support(a, eta64, [m.nonzero().flatten().tolist() for m in _support_masks(b)])
     return equal if best is None else best
 
 
