@@ -1,4 +1,5 @@
-"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8) and information maximisation."""
+"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8), information maximisation and
+minimum class confusion."""
 
 import math
 
@@ -17,6 +18,7 @@ from vtlearn.losses import (
     information_maximization,
     linear_kernel_mmd,
     local_mmd,
+    minimum_class_confusion,
     mk_mmd,
 )
 
@@ -571,6 +573,59 @@ def test_information_maximization_bounds_and_gradient():
 def test_information_maximization_rejects_bad_input(bad, match):
     with pytest.raises(ValueError, match=match):
         information_maximization(bad)
+
+
+def naive_mcc(logits, temperature):
+    """Jin et al.'s eq. 1-6 written out entry by entry, with plain floats."""
+    rows = [[math.exp(float(z) / temperature) for z in row] for row in logits]
+    probs = [[e / sum(row) for e in row] for row in rows]
+    n, k = len(probs), len(probs[0])
+    raw = [1.0 + math.exp(sum(p * math.log(p) for p in row)) for row in probs]
+    w = [n * r / sum(raw) for r in raw]
+    c = [[sum(w[i] * probs[i][a] * probs[i][b] for i in range(n)) for b in range(k)] for a in range(k)]
+    col = [sum(c[a][b] for a in range(k)) for b in range(k)]
+    return sum(c[a][b] / col[b] for a in range(k) for b in range(k) if a != b) / k
+
+
+def test_minimum_class_confusion_matches_the_entrywise_equations():
+    g = torch.Generator().manual_seed(3)
+    logits = 3.0 * torch.randn(7, 4, generator=g, dtype=torch.float64)
+    for temperature in (1.0, 2.5):
+        loss, parts = minimum_class_confusion(logits, temperature)
+        assert loss.item() == pytest.approx(naive_mcc(logits.tolist(), temperature), rel=1e-10)
+        # each normalised column sums to 1, so the mean diagonal and the loss add up to 1
+        assert parts["mcc_diagonal"].item() + loss.item() == pytest.approx(1.0, rel=1e-10)
+    # the entropy weights carry no gradient (Jin et al.'s code detaches them): a descent step lowers the loss
+    z = logits.clone().requires_grad_(True)
+    loss = minimum_class_confusion(z)[0]
+    loss.backward()
+    assert minimum_class_confusion(z.detach() - 0.5 * z.grad)[0] < loss
+
+
+def test_minimum_class_confusion_bounds():
+    k = 5
+    # one-hot predictions that use every class, whatever their frequencies: no confusion
+    confident = 200.0 * torch.eye(k)[[0, 0, 1, 2, 3, 3, 4]]
+    assert minimum_class_confusion(confident)[0].item() == pytest.approx(0.0, abs=1e-6)
+    # a class no cloud predicts has its whole normalised column off the diagonal: 1/k each
+    unused = 200.0 * torch.eye(k)[[0, 0, 1, 3, 3, 3]]
+    assert minimum_class_confusion(unused)[0].item() == pytest.approx(2 / k, abs=1e-6)
+    # uniform predictions: every column is 1/k, so the off-diagonal sum over k is (k - 1)/k
+    assert minimum_class_confusion(torch.zeros(4, k))[0].item() == pytest.approx((k - 1) / k, rel=1e-6)
+    # a cloud torn between two classes confuses them more than one that has chosen
+    torn = minimum_class_confusion(torch.tensor([[2.0, 2.0, -5.0], [-5.0, -5.0, 4.0]]))[0]
+    chosen = minimum_class_confusion(torch.tensor([[6.0, -2.0, -5.0], [-5.0, -5.0, 4.0]]))[0]
+    assert torn > chosen
+
+
+@pytest.mark.parametrize("kwargs,match", [(dict(logits=torch.zeros(3)), "logits"),
+                                          (dict(logits=torch.tensor([[0.0, float("inf")]])), "logits"),
+                                          (dict(logits=torch.zeros(2, 3), temperature=0.0), "temperature"),
+                                          (dict(logits=torch.zeros(2, 3), temperature=float("nan")),
+                                           "temperature")])
+def test_minimum_class_confusion_rejects_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        minimum_class_confusion(**kwargs)
 
 
 def _naive_centroid_pseudo_labels(features, probs, fraction):

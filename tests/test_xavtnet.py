@@ -220,6 +220,8 @@ def test_subsample_and_normalize_padded():
         (dict(mmd_conditional=True, da_ramp_gamma=10.0), {"train/mmd_fc1", "train/da_scale"},
          {"train/domain"}),
         (dict(da_method="none", im_weight=1.0), {"train/im", "train/marginal_entropy"}, {"train/mmd"}),
+        (dict(mcc_weight=1.0), {"train/mmd", "train/mcc", "train/mcc_diagonal"}, {"train/im"}),
+        (dict(da_method="none", mcc_weight=1.0), {"train/mcc"}, {"train/mmd", "train/im"}),
         (dict(consistency_weight=1.0), {"train/consistency", "train/consistency_w", "train/mmd"},
          {"train/domain"}),
         (dict(da_method="none", consistency_weight=1.0), {"train/consistency"}, {"train/mmd"}),
@@ -356,6 +358,34 @@ def test_im_weight_adds_the_target_information_maximisation():
     assert entropy[10.0]["marginal_entropy"] > 0.5, entropy  # not collapsed onto one of the 3 classes
     with pytest.raises(ValueError, match="im_weight"):
         XAVTNet(**TINY, im_weight=-1.0)
+
+
+def test_mcc_weight_adds_the_target_class_confusion():
+    """``mcc_weight`` adds w·L_MCC of the target logits to the loss, and training with it leaves the target
+    predictions less confused than no-DA's after the same steps."""
+    from vtlearn.losses import minimum_class_confusion
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    torch.manual_seed(0)
+    model = XAVTNet(**TINY, da_method="none", mcc_weight=2.5, mcc_temperature=1.5, dropout=0.0).train()
+    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
+    torch.manual_seed(1)
+    loss = model.training_step(batch, 0)
+    torch.manual_seed(1)  # the same subsampling of the clouds
+    out_s, out_t = model._joint_forward(batch["source"], batch["target"])
+    ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
+    mcc = minimum_class_confusion(out_t.logits, 1.5)[0]
+    expected = model.hparams.alpha * ce + 2.5 * mcc + model._regulariser(out_s)
+    assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+
+    confusion = {}
+    for weight in (0.0, 10.0):
+        _, out_t = _trained_joint_outputs(batch, da_method="none", mcc_weight=weight)
+        confusion[weight] = minimum_class_confusion(out_t.logits)[0].item()
+    assert confusion[10.0] < confusion[0.0], confusion
+    for bad in (dict(mcc_weight=-1.0), dict(mcc_temperature=0.0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            XAVTNet(**TINY, **bad)
 
 
 def test_da_memory_aligns_the_batch_followed_by_the_last_clouds():

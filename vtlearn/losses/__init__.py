@@ -1,6 +1,6 @@
 """Losses: MK-MMD (with Gretton et al.'s optimal kernel weights), Deep CORAL, VTLoss (thesis ch.7); beyond it
-DDC's linear-kernel MMD, DANN gradient reversal, information maximisation, DSAN's class-conditional LMMD and
-SimCLR's NT-Xent."""
+DDC's linear-kernel MMD, DANN gradient reversal, information maximisation, minimum class confusion, DSAN's
+class-conditional LMMD and SimCLR's NT-Xent."""
 
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.coral import coral, covariance
@@ -8,6 +8,7 @@ from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversaria
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.kernel_choice import linear_time_statistics, optimal_kernel_weights
 from vtlearn.losses.lmmd import local_mmd
+from vtlearn.losses.mcc import minimum_class_confusion
 from vtlearn.losses.mmd import gaussian_bandwidths, linear_kernel_mmd, mk_mmd, multi_kernel_matrix
 from vtlearn.losses.vtloss import VTLoss
 
@@ -27,5 +28,6 @@ __all__ = [
     "dann_lambda",
     "domain_adversarial_loss",
     "information_maximization",
+    "minimum_class_confusion",
     "nt_xent",
 ]

@@ -20,7 +20,9 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 
 ``im_weight > 0`` (beyond the thesis) adds ``im_weight·L_IM`` of the target batch's logits to any of
 them, the information maximisation of :mod:`vtlearn.losses.info_max` (confident target predictions that
-use every class); with ``da_method="none"`` it is the only use of the target stream.
+use every class); with ``da_method="none"`` it is the only use of the target stream. ``mcc_weight > 0``
+adds ``mcc_weight·L_MCC`` in the same way, Jin et al.'s minimum class confusion of the target logits
+(:mod:`vtlearn.losses.mcc`, at temperature ``mcc_temperature``).
 
 ``pseudo_label_weight > 0`` (beyond the thesis) adds self-training on the target stream: from epoch
 ``⌈pseudo_label_start·max_epochs⌉`` on, each epoch starts with one pass over the target clouds, which
@@ -109,6 +111,7 @@ from vtlearn.losses.consistency import confident_cross_entropy, probability_cons
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
+from vtlearn.losses.mcc import MCC_TEMPERATURE, minimum_class_confusion
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss, check_kernel_weights, check_mmd_kernel
@@ -307,6 +310,10 @@ class XAVTNet(L.LightningModule):
         im_weight: weight of the information-maximisation loss on the target batch's logits
             (:func:`~vtlearn.losses.info_max.information_maximization`, beyond the thesis), added to the
             loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
+        mcc_weight: weight of the minimum class confusion of the target batch's logits
+            (:func:`~vtlearn.losses.mcc.minimum_class_confusion`; Jin et al. 2020, beyond the thesis), added
+            to the loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
+        mcc_temperature: the temperature T of its softmax (2.5, Jin et al.'s on every benchmark), > 0.
         pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
             pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
             ``da_method``. 0 (default): off, as in eq. 7.8.
@@ -440,6 +447,8 @@ class XAVTNet(L.LightningModule):
         da_memory: int = 0,
         da_memory_rescale: bool = True,
         im_weight: float = 0.0,
+        mcc_weight: float = 0.0,
+        mcc_temperature: float = MCC_TEMPERATURE,
         pseudo_label_weight: float = 0.0,
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
@@ -488,6 +497,8 @@ class XAVTNet(L.LightningModule):
             as_real(da_ramp_gamma, "da_ramp_gamma", low=0.0, open_low=True)
         as_int(da_memory, "da_memory", minimum=0)
         as_real(im_weight, "im_weight", low=0.0)
+        as_real(mcc_weight, "mcc_weight", low=0.0)
+        as_real(mcc_temperature, "mcc_temperature", low=0.0, open_low=True)
         as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
         as_real(pseudo_label_start, "pseudo_label_start", low=0.0, high=1.0, open_high=True)
         as_real(pseudo_label_fraction, "pseudo_label_fraction", low=0.0, high=1.0, open_low=True)
@@ -881,11 +892,12 @@ class XAVTNet(L.LightningModule):
         y = src["label"]
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
         im_weight = self.hparams.get("im_weight", 0.0)
+        mcc_weight = self.hparams.get("mcc_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
         nb_weight = self.hparams.get("neighbour_weight", 0.0)
         mix_weight = self.hparams.get("mix_weight", 0.0)
-        adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or pl_weight > 0
-                  or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None
+        adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
+                  or pl_weight > 0 or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None
                   or mix_weight > 0 or self.projection_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
@@ -931,6 +943,11 @@ class XAVTNet(L.LightningModule):
             im, im_parts = information_maximization(out_t.logits)
             loss = loss + im_weight * im
             parts = {**parts, "im": im.detach(), **im_parts}
+        if use_target and mcc_weight > 0:
+            mcc, mcc_parts = minimum_class_confusion(out_t.logits, self.hparams.get("mcc_temperature",
+                                                                                     MCC_TEMPERATURE))
+            loss = loss + mcc_weight * mcc
+            parts = {**parts, "mcc": mcc.detach(), **mcc_parts}
         if use_target and self._pseudo_labels is not None:
             if "index" not in tgt:
                 raise ValueError("batch: pseudo_label_weight needs the target items' 'index' in the target "

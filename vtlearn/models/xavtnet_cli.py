@@ -54,6 +54,10 @@ VARIANTS: dict[str, dict] = {
     # equally with the cross-entropy (im_weight = α = 10), alone ("noda_im") and added to VTLoss.
     "noda_im": {"da_method": "none", "im_weight": 10.0},
     "vtloss_im": {**_VTLOSS, "im_weight": 10.0},
+    # Beyond the thesis: Jin et al.'s minimum class confusion on the target logits (losses/mcc.py, T = 2.5),
+    # weighted as the source cross-entropy (their trade-off of 1: α = 10), alone and added to VTLoss.
+    "noda_mcc": {"da_method": "none", "mcc_weight": 10.0},
+    "vtloss_mcc": {**_VTLOSS, "mcc_weight": 10.0},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},
