@@ -897,8 +897,8 @@ class XAVTNet(L.LightningModule):
         nb_weight = self.hparams.get("neighbour_weight", 0.0)
         mix_weight = self.hparams.get("mix_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
-                  or pl_weight > 0 or nb_weight > 0 or self.teacher is not None or self.rotation_head is not None
-                  or mix_weight > 0 or self.projection_head is not None)
+                  or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
+                  or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
         unperturbed = tgt
