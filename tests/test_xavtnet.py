@@ -332,23 +332,29 @@ def _trained_joint_outputs(batch, steps=10, **kwargs):
         return model._joint_forward(batch["source"], batch["target"])
 
 
-def test_im_weight_adds_the_target_information_maximisation():
-    """``im_weight`` adds w·L_IM of the target logits to the loss, and training with it makes the target
-    predictions more confident than no-DA's after the same steps while they keep using several classes."""
-    from vtlearn.losses import information_maximization
-
-    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+def _step_with_target_term(batch, term, **kwargs) -> tuple[float, float]:
+    """One training step of a tiny no-DA model whose ``kwargs`` add a loss on the target logits, and the loss
+    it should give, α·CE(source) + ``term(target logits)`` + the regulariser, on the same subsampling."""
     torch.manual_seed(0)
-    model = XAVTNet(**TINY, da_method="none", im_weight=2.5, dropout=0.0).train()
+    model = XAVTNet(**TINY, da_method="none", dropout=0.0, **kwargs).train()
     model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
     torch.manual_seed(1)
     loss = model.training_step(batch, 0)
     torch.manual_seed(1)  # the same subsampling of the clouds
     out_s, out_t = model._joint_forward(batch["source"], batch["target"])
     ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
-    im = information_maximization(out_t.logits)[0]
-    expected = model.hparams.alpha * ce + 2.5 * im + model._regulariser(out_s)
-    assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+    return loss.item(), (model.hparams.alpha * ce + term(out_t.logits) + model._regulariser(out_s)).item()
+
+
+def test_im_weight_adds_the_target_information_maximisation():
+    """``im_weight`` adds w·L_IM of the target logits to the loss, and training with it makes the target
+    predictions more confident than no-DA's after the same steps while they keep using several classes."""
+    from vtlearn.losses import information_maximization
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    loss, expected = _step_with_target_term(batch, lambda z: 2.5 * information_maximization(z)[0],
+                                            im_weight=2.5)
+    assert loss == pytest.approx(expected, rel=1e-5)
 
     entropy = {}
     for weight in (0.0, 10.0):
@@ -366,17 +372,9 @@ def test_mcc_weight_adds_the_target_class_confusion():
     from vtlearn.losses import minimum_class_confusion
 
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
-    torch.manual_seed(0)
-    model = XAVTNet(**TINY, da_method="none", mcc_weight=2.5, mcc_temperature=1.5, dropout=0.0).train()
-    model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
-    torch.manual_seed(1)
-    loss = model.training_step(batch, 0)
-    torch.manual_seed(1)  # the same subsampling of the clouds
-    out_s, out_t = model._joint_forward(batch["source"], batch["target"])
-    ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
-    mcc = minimum_class_confusion(out_t.logits, 1.5)[0]
-    expected = model.hparams.alpha * ce + 2.5 * mcc + model._regulariser(out_s)
-    assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+    loss, expected = _step_with_target_term(batch, lambda z: 2.5 * minimum_class_confusion(z, 1.5)[0],
+                                            mcc_weight=2.5, mcc_temperature=1.5)
+    assert loss == pytest.approx(expected, rel=1e-5)
 
     confusion = {}
     for weight in (0.0, 10.0):
