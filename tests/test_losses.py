@@ -1,5 +1,5 @@
-"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8), information maximisation and
-minimum class confusion."""
+"""Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8), CDAN+E's conditioning,
+information maximisation and minimum class confusion."""
 
 import math
 
@@ -13,6 +13,7 @@ from vtlearn.losses import (
     covariance,
     dann_lambda,
     domain_adversarial_loss,
+    entropy_weights,
     gaussian_bandwidths,
     grad_reverse,
     information_maximization,
@@ -20,6 +21,7 @@ from vtlearn.losses import (
     local_mmd,
     minimum_class_confusion,
     mk_mmd,
+    multilinear_map,
 )
 
 
@@ -538,6 +540,62 @@ def test_dann_schedule_and_domain_loss():
     ls = torch.randn(3, dtype=torch.float64, requires_grad=True)
     lt = torch.randn(4, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(domain_adversarial_loss, (ls, lt))
+
+
+def test_weighted_domain_loss_is_each_domains_weighted_mean():
+    """CDAN+E's weights: within each domain a weighted mean (weights normalised per domain), the two
+    domains then averaged; equal weights give DANN's loss, and the weights carry no gradient."""
+    ls = torch.tensor([0.5, -1.0, 2.0], dtype=torch.float64)
+    lt = torch.tensor([1.5, 0.0], dtype=torch.float64)
+    ws = torch.tensor([2.0, 1.0, 1.0], dtype=torch.float64, requires_grad=True)
+    wt = torch.tensor([1.0, 3.0], dtype=torch.float64)
+
+    def bce(z, label):  # −log σ(z) for the source label 1, −log(1 − σ(z)) for the target label 0
+        s = 1 / (1 + math.exp(-z))
+        return -math.log(s if label else 1 - s)
+
+    src = (2 * bce(0.5, 1) + bce(-1.0, 1) + bce(2.0, 1)) / 4
+    tgt = (bce(1.5, 0) + 3 * bce(0.0, 0)) / 4
+    loss = domain_adversarial_loss(ls, lt, ws, wt)
+    assert loss.item() == pytest.approx(0.5 * (src + tgt), rel=1e-12)
+    assert not loss.requires_grad  # only the weights asked for a gradient, and they are detached
+    same = domain_adversarial_loss(ls, lt, torch.full_like(ls, 0.7), torch.full_like(lt, 4.0))
+    assert same.item() == pytest.approx(domain_adversarial_loss(ls, lt).item(), rel=1e-12)
+    for bad, name in (((torch.ones(2), None), "weights_source"), ((None, -torch.ones(2)), "weights_target"),
+                      ((torch.zeros(3), None), "weights_source"), ((None, torch.tensor([1.0, math.nan])),
+                                                                  "weights_target")):
+        with pytest.raises(ValueError, match=name):
+            domain_adversarial_loss(ls, lt, *bad)
+
+
+def test_multilinear_map_is_the_flattened_outer_product():
+    """CDAN's map T⊗(f, g) = vec(f gᵀ): entry i·k + c of a row is f_i·g_c, so the discriminator sees which
+    class each feature is predicted as (Long et al. 2018 eq. 4)."""
+    f = torch.tensor([[1.0, -2.0, 0.5], [0.0, 3.0, 1.0]])
+    g = torch.tensor([[0.25, 0.75], [1.0, 0.0]])
+    m = multilinear_map(f, g)
+    assert m.shape == (2, 6)
+    for b in range(2):
+        for i in range(3):
+            for c in range(2):
+                assert m[b, i * 2 + c].item() == pytest.approx(f[b, i].item() * g[b, c].item())
+    # one feature, two predictions: the discriminator's inputs differ, as DANN's (f alone) would not
+    assert not torch.equal(multilinear_map(f[:1], g[:1]), multilinear_map(f[:1], g[1:]))
+    for args, name in (((torch.zeros(2, 0), g), "features"), ((f, g[:1]), "probs"),
+                       ((f, torch.ones(2, 1)), "probs"), ((f.clone().fill_(math.nan), g), "features")):
+        with pytest.raises(ValueError, match=name):
+            multilinear_map(*args)
+
+
+def test_entropy_weights_range_from_uniform_to_one_hot():
+    k = 4
+    probs = torch.tensor([[1.0, 0, 0, 0], [0.25] * 4, [0.5, 0.5, 0, 0]])
+    w = entropy_weights(probs)
+    assert w.tolist() == pytest.approx([2.0, 1 + 1 / k, 1.5])  # e^{−ln 2} = 1/2
+    assert not w.requires_grad
+    for bad in (torch.tensor([[0.5, 0.6]]), torch.tensor([[1.5, -0.5]]), torch.ones(2)):
+        with pytest.raises(ValueError, match="probs"):
+            entropy_weights(bad)
 
 
 def test_information_maximization_hand_computed():

@@ -212,6 +212,7 @@ def test_subsample_and_normalize_padded():
         (dict(da_layers=["fc2"]), {"train/mmd_fc2", "train/coral_fc2"}, {"train/mmd_fc1"}),
         (dict(), {"train/mmd", "train/coral", "train/ce"}, set()),
         (dict(da_method="dann"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
+        (dict(da_method="cdan"), {"train/domain", "train/grl_lambda"}, {"train/mmd"}),
         (dict(da_ramp_gamma=10.0), {"train/mmd", "train/da_scale"}, {"train/domain"}),
         (dict(da_memory=6), {"train/mmd", "train/coral"}, {"train/domain"}),
         (dict(im_weight=1.0), {"train/mmd", "train/im", "train/cond_entropy"}, {"train/domain"}),
@@ -384,6 +385,45 @@ def test_mcc_weight_adds_the_target_class_confusion():
     for bad in (dict(mcc_weight=-1.0), dict(mcc_temperature=0.0)):
         with pytest.raises(ValueError, match=next(iter(bad))):
             XAVTNet(**TINY, **bad)
+
+
+def test_cdan_discriminates_fc2_conditioned_on_the_prediction():
+    """CDAN+E's step: α·CE + w·L_dom with the discriminator on fc2 ⊗ softmax and entropy weights normalised
+    per domain (``cdan_entropy=False``: every cloud alike); behind the gradient reversal the encoder's
+    features get the negated gradient of the discriminator's own loss (times λ)."""
+    from vtlearn.losses import domain_adversarial_loss, entropy_weights, multilinear_map
+    from vtlearn.models.components.xavtnet_backbone import XAVTNetOutput
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    for entropy in (True, False):
+        torch.manual_seed(0)
+        model = XAVTNet(**TINY, da_method="cdan", dropout=0.0, dann_weight=0.7, cdan_entropy=entropy).train()
+        assert model.discriminator.net[0].in_features == 8 * 3  # fc2 (8) ⊗ the 3 class probabilities
+        model._log_train = lambda *a, **k: None  # no trainer: no self.log, and progress 1 (λ = ramp(1))
+        torch.manual_seed(1)
+        loss = model.training_step(batch, 0)
+        torch.manual_seed(1)  # the same subsampling of the clouds
+        out_s, out_t = model._joint_forward(batch["source"], batch["target"])
+        ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
+        terms = []
+        for out, label in ((out_s, 1.0), (out_t, 0.0)):
+            g = out.logits.softmax(-1)
+            d = model.discriminator(multilinear_map(out.features["fc2"], g))
+            bce = torch.nn.functional.binary_cross_entropy_with_logits(d, torch.full_like(d, label),
+                                                                       reduction="none")
+            w = entropy_weights(g) if entropy else torch.ones_like(d)
+            terms.append((w * bce).sum() / w.sum())
+        expected = model.hparams.alpha * ce + 0.7 * 0.5 * (terms[0] + terms[1]) + model._regulariser(out_s)
+        assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+    # the reversal: d(adversarial loss)/d(fc2) = −λ · d(discriminator loss)/d(fc2)
+    f_s = out_s.features["fc2"].detach().requires_grad_()
+    f_t = out_t.features["fc2"].detach().requires_grad_()
+    outs = [XAVTNetOutput(o.logits.detach(), {"fc2": f}, None, None) for o, f in ((out_s, f_s), (out_t, f_t))]
+    (grad_rev,) = torch.autograd.grad(model._adversarial_loss(*outs, 0.4), f_s)
+    plain = domain_adversarial_loss(*(model.discriminator(multilinear_map(f, o.logits.softmax(-1)))
+                                      for o, f in zip(outs, (f_s, f_t), strict=True)))  # no entropy weights
+    (grad_disc,) = torch.autograd.grad(plain, f_s)
+    assert torch.allclose(grad_rev, -0.4 * grad_disc, atol=1e-7)
 
 
 def test_da_memory_aligns_the_batch_followed_by_the_last_clouds():
@@ -1000,6 +1040,7 @@ def test_mean_teacher_rejects_bad_settings():
     (dict(da_method="dann", dann_weight=-1.0), "dann_weight"),
     (dict(da_method="dann", dann_weight=0.0), "dann_weight"),
     (dict(da_method="dann", dann_gamma=0.0), "dann_gamma"),
+    (dict(da_method="cdan", dann_weight=0.0), "dann_weight"),
     (dict(feature_transform_weight=-0.001), "feature_transform_weight"),
     (dict(feature_transform_weight=float("nan")), "feature_transform_weight"),
     (dict(mmd_num_kernels=0), "mmd_num_kernels"),
@@ -1057,6 +1098,7 @@ def test_da_layers_as_one_name_is_that_layer():
     ("vtloss_fc2", True, True, ("fc2",), False),
     ("vtloss", True, True, ("fc1", "fc2"), False),
     ("dann", False, False, (), True),
+    ("cdan", False, False, (), True),
     ("mmd_g12", True, False, ("global", "fc1", "fc2"), False),
     ("mmd_g12_mt_vote", True, False, ("global", "fc1", "fc2"), False),
     ("vtloss_bal", True, True, ("fc1", "fc2"), False),

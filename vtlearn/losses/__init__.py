@@ -1,7 +1,8 @@
 """Losses: MK-MMD (with Gretton et al.'s optimal kernel weights), Deep CORAL, VTLoss (thesis ch.7); beyond it
-DDC's linear-kernel MMD, DANN gradient reversal, information maximisation, minimum class confusion, DSAN's
-class-conditional LMMD and SimCLR's NT-Xent."""
+DDC's linear-kernel MMD, DANN gradient reversal, CDAN+E's conditioning, information maximisation, minimum
+class confusion, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
 
+from vtlearn.losses.cdan import entropy_weights, multilinear_map
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.coral import coral, covariance
 from vtlearn.losses.dann import GradientReversal, dann_lambda, domain_adversarial_loss, grad_reverse
@@ -27,6 +28,8 @@ __all__ = [
     "grad_reverse",
     "dann_lambda",
     "domain_adversarial_loss",
+    "multilinear_map",
+    "entropy_weights",
     "information_maximization",
     "minimum_class_confusion",
     "nt_xent",

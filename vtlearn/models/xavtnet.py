@@ -17,6 +17,10 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 * ``"vtloss"``: eq. 7.8; ``use_mmd``, ``use_coral`` and ``da_layers`` give the rows of Table 7.2.
 * ``"dann"``: DANN (Ganin et al. 2016), beyond the thesis: a domain discriminator on fc2 behind a
   gradient reversal layer whose λ follows Ganin's ramp over training; loss ``α·CE + dann_weight·L_dom``.
+* ``"cdan"``: CDAN+E (Long et al. 2018), beyond the thesis: as DANN, but the discriminator reads the
+  multilinear map of fc2 and the softmax (:mod:`vtlearn.losses.cdan`), so it aligns features jointly with
+  the predicted classes, and each cloud's term is weighted by ``1 + e^{−H}`` of its prediction
+  (``cdan_entropy``); same weight and ramp (``dann_weight``, ``dann_gamma``).
 
 ``im_weight > 0`` (beyond the thesis) adds ``im_weight·L_IM`` of the target batch's logits to any of
 them, the information maximisation of :mod:`vtlearn.losses.info_max` (confident target predictions that
@@ -107,6 +111,7 @@ import torch.nn.functional as F
 from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
+from vtlearn.losses.cdan import entropy_weights, multilinear_map
 from vtlearn.losses.consistency import confident_cross_entropy, probability_consistency
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
@@ -134,7 +139,7 @@ from vtlearn.validation import ConfigMismatchError, as_int, as_real
 
 __all__ = ["XAVTNet", "load_xavtnet", "subsample_padded", "normalize_padded"]
 
-DA_METHODS = ("none", "vtloss", "dann")
+DA_METHODS = ("none", "vtloss", "dann", "cdan")
 LR_SCHEDULES = ("constant", "cosine")
 INPUT_NORMALIZE = ("center", "none", "unit_sphere")  # CrossModalDataModule(normalize=...)
 DA_LAYERS = ("global", "fc1", "fc2", "fc3")
@@ -261,7 +266,7 @@ class XAVTNet(L.LightningModule):
         dropout: dropout on fc2 (thesis: 0.4); MC-dropout uses it at test time.
         input_transform, feature_transform: the 3×3 and 64×64 T-nets.
         feature_transform_weight: weight of the orthogonality regulariser (PointNet: 0.001).
-        da_method: "none", "vtloss" or "dann" (see module docstring).
+        da_method: "none", "vtloss", "dann" or "cdan" (see module docstring).
         use_mmd, use_coral, da_layers: VTLoss switches (Table 7.2 rows); with ``da_method="vtloss"`` at
             least one of the terms is on and ``da_layers`` names each layer once. ``da_layers`` may also name
             ``"fc3"``, the k logits (beyond the thesis, whose eq. 7.8 adapts fc1 and fc2): DAN adapts
@@ -294,8 +299,11 @@ class XAVTNet(L.LightningModule):
             :func:`~vtlearn.losses.lmmd.local_mmd`; beyond the thesis): the source labels and the target
             batch's softmax, without gradient, as pseudo-labels weight each cloud per class. Not with
             ``da_memory`` (the queue keeps features, not labels).
-        dann_weight, dann_gamma: DANN loss weight and the γ of its λ ramp, each > 0 with ``da_method="dann"``
-            (either at 0 leaves the encoder without the adversarial gradient, the no-DA row).
+        dann_weight, dann_gamma: the adversarial loss weight and the γ of its λ ramp, each > 0 with
+            ``da_method="dann"`` or ``"cdan"`` (either at 0 leaves the encoder without the adversarial
+            gradient, the no-DA row).
+        cdan_entropy: CDAN+E's entropy conditioning (default) with ``da_method="cdan"``; ``False`` gives
+            plain CDAN, every cloud weighted alike.
         da_ramp_gamma: if set, VTLoss's MMD and CORAL terms are scaled by Ganin's ramp
             ``2/(1+exp(−γp)) − 1`` of the training progress ``p`` (the warm-up DAN and DANN use; beyond
             the thesis, whose eq. 7.8 weights are constant). ``None`` (default): constant weights.
@@ -443,6 +451,7 @@ class XAVTNet(L.LightningModule):
         mmd_kernel: str = "gaussian",
         dann_weight: float = 1.0,
         dann_gamma: float = 10.0,
+        cdan_entropy: bool = True,
         da_ramp_gamma: float | None = None,
         da_memory: int = 0,
         da_memory_rescale: bool = True,
@@ -585,7 +594,7 @@ class XAVTNet(L.LightningModule):
         as_real(feature_transform_weight, "feature_transform_weight", low=0.0)
         as_real(weight_decay, "weight_decay", low=0.0)
         # a zero weight or ramp leaves the discriminator without effect on the encoder: the DANN row is no-DA
-        dann = da_method == "dann"
+        dann = da_method in ("dann", "cdan")
         as_real(dann_weight, "dann_weight", low=0.0, open_low=dann)
         as_real(dann_gamma, "dann_gamma", low=0.0, open_low=dann)
         if class_names is not None:
@@ -614,7 +623,12 @@ class XAVTNet(L.LightningModule):
             mmd_kernel_momentum=mmd_kernel_momentum, mmd_linear_time=bool(mmd_linear_time) and vt and use_mmd,
             mmd_kernel=mmd_kernel if vt and use_mmd else "gaussian",
         )
-        self.discriminator = DomainDiscriminator(fc_dims[1]) if da_method == "dann" else None
+        # CDAN's discriminator reads fc2 ⊗ softmax (256·k entries) through Long et al.'s 1024-wide layers
+        self.discriminator = None
+        if da_method == "dann":
+            self.discriminator = DomainDiscriminator(fc_dims[1])
+        elif da_method == "cdan":
+            self.discriminator = DomainDiscriminator(fc_dims[1] * num_classes, hidden=1024)
         self._memory = (
             {d: FeatureQueue(int(da_memory)) for d in DOMAINS} if da_memory and self.vtloss.adapts else None
         )
@@ -927,13 +941,10 @@ class XAVTNet(L.LightningModule):
             loss, parts = self.vtloss(out_s.logits, y, feats_s, feats_t, da_scale=scale, target_probs=probs_t)
             if gamma is not None:
                 parts["da_scale"] = torch.tensor(scale)
-        elif use_target and self.hparams.da_method == "dann":
+        elif use_target and self.hparams.da_method in ("dann", "cdan"):
             ce = F.cross_entropy(out_s.logits, y)
             lambd = dann_lambda(self._progress(), self.hparams.dann_gamma)
-            dom = domain_adversarial_loss(
-                self.discriminator(grad_reverse(out_s.features["fc2"], lambd)),
-                self.discriminator(grad_reverse(out_t.features["fc2"], lambd)),
-            )
+            dom = self._adversarial_loss(out_s, out_t, lambd)
             loss = self.hparams.alpha * ce + self.hparams.dann_weight * dom
             parts = {"ce": ce.detach(), "domain": dom.detach(), "grl_lambda": torch.tensor(lambd)}
         else:
@@ -1343,6 +1354,19 @@ class XAVTNet(L.LightningModule):
         finally:
             self.train(was_training)
         return {**out.features, "logits": out.logits}
+
+    def _adversarial_loss(self, out_s: XAVTNetOutput, out_t: XAVTNetOutput, lambd: float) -> torch.Tensor:
+        """The discriminator's loss behind a gradient reversal of ``lambd``: DANN's on fc2, or CDAN's on
+        fc2 ⊗ softmax (detached) with CDAN+E's entropy weights."""
+        f_s, f_t = (grad_reverse(o.features["fc2"], lambd) for o in (out_s, out_t))
+        if self.hparams.da_method == "dann":
+            return domain_adversarial_loss(self.discriminator(f_s), self.discriminator(f_t))
+        g_s, g_t = (o.logits.detach().softmax(-1) for o in (out_s, out_t))
+        w_s = w_t = None
+        if self.hparams.get("cdan_entropy", True):
+            w_s, w_t = entropy_weights(g_s), entropy_weights(g_t)
+        return domain_adversarial_loss(self.discriminator(multilinear_map(f_s, g_s)),
+                                       self.discriminator(multilinear_map(f_t, g_t)), w_s, w_t)
 
     def configure_optimizers(self):
         params = [p for n, p in self.named_parameters() if not n.startswith("teacher.")]
