@@ -116,7 +116,8 @@ class XAVTNetHead(nn.Module):
 
 
 class DomainDiscriminator(nn.Module):
-    """DANN domain classifier (Ganin et al. 2016): Linear-ReLU-Linear-ReLU-Linear(1).
+    """DANN domain classifier (Ganin et al. 2016): Linear-ReLU-Linear-ReLU-Linear(1); CDAN's (Long et al.
+    2018) with ``hidden=1024`` on the multilinear map of fc2 and the softmax.
 
     Shapes:
         features (B, in_dim) -> logits (B,) (source = 1, target = 0)
