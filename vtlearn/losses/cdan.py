@@ -48,7 +48,7 @@ def multilinear_map(features: torch.Tensor, probs: torch.Tensor) -> torch.Tensor
 def entropy_weights(probs: torch.Tensor) -> torch.Tensor:
     """CDAN+E's per-cloud weights ``1 + e^{−H(g)}`` (Long et al. 2018 eq. 9), without gradient.
 
-    They lie in (1 + 1/k, 2]: 2 for a one-hot prediction, 1 + 1/k for a uniform one.
+    They lie in [1 + 1/k, 2]: 2 for a one-hot prediction, 1 + 1/k for a uniform one.
 
     Shapes:
         probs (B, k) rows on the simplex -> (B,)
