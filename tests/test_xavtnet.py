@@ -333,18 +333,26 @@ def _trained_joint_outputs(batch, steps=10, **kwargs):
         return model._joint_forward(batch["source"], batch["target"])
 
 
-def _step_with_target_term(batch, term, **kwargs) -> tuple[float, float]:
-    """One training step of a tiny no-DA model whose ``kwargs`` add a loss on the target logits, and the loss
-    it should give, α·CE(source) + ``term(target logits)`` + the regulariser, on the same subsampling."""
+def _one_step(batch, **kwargs):
+    """One training step of a tiny model (no-DA and no dropout unless ``kwargs`` say otherwise): the step's
+    loss, the model, α·CE(source) + the regulariser, and the joint forward's (source, target) outputs on the
+    step's subsampling of the clouds. No trainer is attached, so the training progress reads 1."""
     torch.manual_seed(0)
-    model = XAVTNet(**TINY, da_method="none", dropout=0.0, **kwargs).train()
+    model = XAVTNet(**{**TINY, "da_method": "none", "dropout": 0.0, **kwargs}).train()
     model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
     torch.manual_seed(1)
     loss = model.training_step(batch, 0)
     torch.manual_seed(1)  # the same subsampling of the clouds
     out_s, out_t = model._joint_forward(batch["source"], batch["target"])
     ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
-    return loss.item(), (model.hparams.alpha * ce + term(out_t.logits) + model._regulariser(out_s)).item()
+    return loss.item(), model, model.hparams.alpha * ce + model._regulariser(out_s), out_s, out_t
+
+
+def _step_with_target_term(batch, term, **kwargs) -> tuple[float, float]:
+    """One training step of a tiny no-DA model whose ``kwargs`` add a loss on the target logits, and the loss
+    it should give, α·CE(source) + ``term(target logits)`` + the regulariser, on the same subsampling."""
+    loss, _, base, _, out_t = _one_step(batch, **kwargs)
+    return loss, (base + term(out_t.logits)).item()
 
 
 def test_im_weight_adds_the_target_information_maximisation():
@@ -396,15 +404,9 @@ def test_cdan_discriminates_fc2_conditioned_on_the_prediction():
 
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
     for entropy in (True, False):
-        torch.manual_seed(0)
-        model = XAVTNet(**TINY, da_method="cdan", dropout=0.0, dann_weight=0.7, cdan_entropy=entropy).train()
+        loss, model, base, out_s, out_t = _one_step(batch, da_method="cdan", dann_weight=0.7,
+                                                     cdan_entropy=entropy)  # progress 1: λ = ramp(1)
         assert model.discriminator.net[0].in_features == 8 * 3  # fc2 (8) ⊗ the 3 class probabilities
-        model._log_train = lambda *a, **k: None  # no trainer: no self.log, and progress 1 (λ = ramp(1))
-        torch.manual_seed(1)
-        loss = model.training_step(batch, 0)
-        torch.manual_seed(1)  # the same subsampling of the clouds
-        out_s, out_t = model._joint_forward(batch["source"], batch["target"])
-        ce = torch.nn.functional.cross_entropy(out_s.logits, batch["source"]["label"])
         terms = []
         for out, label in ((out_s, 1.0), (out_t, 0.0)):
             g = out.logits.softmax(-1)
@@ -413,8 +415,8 @@ def test_cdan_discriminates_fc2_conditioned_on_the_prediction():
                                                                        reduction="none")
             w = entropy_weights(g) if entropy else torch.ones_like(d)
             terms.append((w * bce).sum() / w.sum())
-        expected = model.hparams.alpha * ce + 0.7 * 0.5 * (terms[0] + terms[1]) + model._regulariser(out_s)
-        assert loss.item() == pytest.approx(expected.item(), rel=1e-5)
+        expected = base + 0.7 * 0.5 * (terms[0] + terms[1])
+        assert loss == pytest.approx(expected.item(), rel=1e-5)
     # the reversal: d(adversarial loss)/d(fc2) = −λ · d(discriminator loss)/d(fc2)
     f_s = out_s.features["fc2"].detach().requires_grad_()
     f_t = out_t.features["fc2"].detach().requires_grad_()

@@ -45,7 +45,7 @@ VARIANTS: dict[str, dict] = {
     "vtloss": _VTLOSS,
     "dann": {"da_method": "dann"},
     # Beyond the thesis: CDAN+E (Long et al. 2018; losses/cdan.py), DANN's discriminator conditioned on the
-    # classifier's prediction through fc2 ⊗ softmax, with entropy weights; alone, and added to VTLoss.
+    # classifier's prediction through fc2 ⊗ softmax, with entropy weights; DANN's weight and ramp.
     "cdan": {"da_method": "cdan"},
     # Beyond the thesis: batch-norm statistics per domain during training (models/components/domain_bn.py).
     # "noda_dbn" is no-DA whose target statistics follow the unlabelled tactile stream (AdaBN online);
