@@ -226,6 +226,8 @@ def test_subsample_and_normalize_padded():
         (dict(consistency_weight=1.0), {"train/consistency", "train/consistency_w", "train/mmd"},
          {"train/domain"}),
         (dict(da_method="none", consistency_weight=1.0), {"train/consistency"}, {"train/mmd"}),
+        (dict(defrec_weight=1.0), {"train/mmd", "train/defrec"}, {"train/domain"}),
+        (dict(da_method="none", defrec_weight=1.0), {"train/defrec"}, {"train/mmd"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):

@@ -72,6 +72,13 @@ go through the encoder in one more forward (batch statistics, running ones untou
 head on the pooled feature must name the turn (:mod:`~vtlearn.models.components.rotation_task`; Sun et
 al. 2019, GAST). The step adds ``rotation_weight·CE`` of that head.
 
+``defrec_weight > 0`` (beyond the thesis) adds DefRec's deformation reconstruction, shared by both domains
+(:mod:`~vtlearn.models.components.deformation_task`; Achituve et al., WACV 2021): every step each source
+and target cloud has one voxel of its bounding box's ``defrec_regions³`` replaced by Gaussian draws at the
+voxel's centre, the deformed clouds go through the encoder in one more forward (batch statistics, running
+ones untouched), and a per-point decoder on each point's features and the pooled feature must put the
+voxel's points back. The step adds ``defrec_weight`` times the region's symmetric Chamfer distance.
+
 ``contrast_weight > 0`` (beyond the thesis) adds SimCLR's contrastive task on the target stream
 (:mod:`vtlearn.losses.contrastive`): every step the unperturbed target batch is perturbed twice as the
 teacher's copy is (``consistency_keep``, ``consistency_jitter``), both copies go through the encoder in one
@@ -122,6 +129,7 @@ from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseu
 from vtlearn.losses.vtloss import VTLoss, check_kernel_weights, check_mmd_kernel
 from vtlearn.models.components.class_balance import align_distribution
 from vtlearn.models.components.cloud_mixup import mix_clouds, soft_cross_entropy
+from vtlearn.models.components.deformation_task import RegionDecoder, deform_region, region_chamfer
 from vtlearn.models.components.domain_bn import DOMAINS, DomainBatchNorm, convert_batchnorm, set_bn_domain
 from vtlearn.models.components.feature_queue import FeatureQueue, scale_grad
 from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, sigmoid_rampup
@@ -389,6 +397,10 @@ class XAVTNet(L.LightningModule):
         rotation_weight: weight of the rotation-prediction cross-entropy on the source and target clouds
             (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
             rotation head.
+        defrec_weight: weight of DefRec's region Chamfer distance on the deformed source and target clouds
+            (module docstring; beyond the thesis), added to the loss of ``da_method``. 0 (default): off, no
+            decoder.
+        defrec_regions: voxels per axis of the deformation grid (DefRec's 3).
         contrast_weight: weight of SimCLR's NT-Xent on two perturbed copies of the target batch (module
             docstring; Chen et al. 2020, beyond the thesis), added to the loss of ``da_method``. 0
             (default): off, no projection head.
@@ -482,6 +494,8 @@ class XAVTNet(L.LightningModule):
         neighbour_layer: str = "fc2",
         neighbour_bank: str = "network",
         rotation_weight: float = 0.0,
+        defrec_weight: float = 0.0,
+        defrec_regions: int = 3,
         contrast_weight: float = 0.0,
         contrast_temperature: float = 0.5,
         mix_weight: float = 0.0,
@@ -566,6 +580,11 @@ class XAVTNet(L.LightningModule):
         if rotation_weight > 0 and domain_bn:
             raise ValueError("rotation_weight: not with domain_bn=True (the turned clouds of both domains "
                              "share one forward)")
+        as_real(defrec_weight, "defrec_weight", low=0.0)
+        as_int(defrec_regions, "defrec_regions")
+        if defrec_weight > 0 and domain_bn:
+            raise ValueError("defrec_weight: not with domain_bn=True (the deformed clouds of both domains "
+                             "share one forward)")
         check_kernel_weights(mmd_kernel_weights)  # before the rows without MK-MMD pass VTLoss "uniform"
         check_mmd_kernel(mmd_kernel)
         if mmd_conditional and da_memory:
@@ -646,6 +665,7 @@ class XAVTNet(L.LightningModule):
             self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
             self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
+        self.defrec_head = RegionDecoder(64 + 128 + global_dim) if defrec_weight > 0 else None
         self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
@@ -912,7 +932,8 @@ class XAVTNet(L.LightningModule):
         mix_weight = self.hparams.get("mix_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
                   or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
-                  or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None)
+                  or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None
+                  or self.defrec_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
         unperturbed = tgt
@@ -994,6 +1015,10 @@ class XAVTNet(L.LightningModule):
             rot, rot_acc = self._rotation_loss(src, tgt)
             loss = loss + self.hparams.rotation_weight * rot
             parts = {**parts, "rotation": rot.detach(), "rotation_acc": rot_acc}
+        if use_target and self.defrec_head is not None:
+            rec = self._defrec_loss(src, tgt)
+            loss = loss + self.hparams.defrec_weight * rec
+            parts = {**parts, "defrec": rec.detach()}
         if use_target and self.projection_head is not None:
             con = self._contrast_loss(unperturbed)
             loss = loss + self.hparams.contrast_weight * con
@@ -1104,6 +1129,24 @@ class XAVTNet(L.LightningModule):
         turned, turns = random_quarter_turns(points)
         logits = self.rotation_head(self._pool_by_batch_statistics(turned, lengths))
         return F.cross_entropy(logits, turns), (logits.detach().argmax(-1) == turns).float().mean()
+
+    def _defrec_loss(self, src: dict, tgt: dict) -> torch.Tensor:
+        """DefRec's region Chamfer distance on the source and target clouds, each with one voxel deformed
+        (:mod:`~vtlearn.models.components.deformation_task`). The deformed clouds share one forward,
+        normalised by their own batch statistics; the running statistics are left to the clouds that
+        evaluation sees.
+
+        Shapes:
+            src["points"] (Bs, Ns, 3), tgt["points"] (Bt, Nt, 3) -> ()
+        """
+        points, lengths, _ = _concat_streams(src, tgt)
+        points, lengths = self._prepare(points, lengths)
+        deformed, region, scale = deform_region(points, lengths, self.hparams.defrec_regions)
+        with _batch_statistics_only(_batch_norms(self.encoder, self.defrec_head)):
+            per_point, g = self.encoder.point_features(deformed, lengths)
+            features = torch.cat([per_point, g[:, None].expand(-1, points.shape[1], -1)], -1)
+            pred = self.defrec_head(features, region)
+        return region_chamfer(pred, points, region, scale)
 
     def _contrast_loss(self, tgt: dict) -> torch.Tensor:
         """NT-Xent of the projection head on two perturbed copies of the target batch ``tgt``

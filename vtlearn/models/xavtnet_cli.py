@@ -61,6 +61,11 @@ VARIANTS: dict[str, dict] = {
     # weighted as the source cross-entropy (their trade-off of 1: α = 10), alone and added to VTLoss.
     "noda_mcc": {"da_method": "none", "mcc_weight": 10.0},
     "vtloss_mcc": {**_VTLOSS, "mcc_weight": 10.0},
+    # Beyond the thesis: DefRec's deformation reconstruction on both domains' clouds (Achituve et al. 2021;
+    # models/components/deformation_task.py), weighted 20 times the cross-entropy as theirs (0.5 x 20 against
+    # 0.5), alone and added to VTLoss.
+    "noda_defrec": {"da_method": "none", "defrec_weight": 200.0, "defrec_regions": 3},
+    "vtloss_defrec": {**_VTLOSS, "defrec_weight": 200.0, "defrec_regions": 3},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},

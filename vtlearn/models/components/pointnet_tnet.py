@@ -116,6 +116,22 @@ class MaskedPointMLP(nn.Module):
         """
         return packed_max_pool(self.net(x[mask]), mask)
 
+    def packed_stages(self, packed: torch.Tensor) -> list[torch.Tensor]:
+        """Each layer's output (after its BN + ReLU where it has them) for packed points, first to last; the
+        last is ``self.net(packed)``.
+
+        Shapes:
+            packed (P, C_in) -> [(P, C_1), …, (P, C_L)]
+        """
+        out, x = [], packed
+        for layer in self.net:
+            x = layer(x)
+            if not isinstance(layer, nn.Linear | nn.BatchNorm1d):  # the ReLU closes a stage
+                out.append(x)
+        if isinstance(self.net[-1], nn.Linear):
+            out.append(x)
+        return out
+
 
 class TNet(nn.Module):
     """PointNet alignment network predicting a ``k × k`` matrix per cloud.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask
+from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask, packed_max_pool
 from vtlearn.validation import as_int, as_real
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
@@ -66,6 +66,33 @@ class PointNetEncoder(nn.Module):
         self.mlp2 = MaskedPointMLP((64, 128, global_dim))
 
     def forward(self, points: torch.Tensor, lengths: torch.Tensor):
+        h, mask, trans_input, trans_feat = self._aligned(points, lengths)
+        return self.mlp2.pooled(h, mask), trans_input, trans_feat  # B x global_dim
+
+    def point_features(self, points: torch.Tensor, lengths: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each point's features (the 64 after the feature T-net and the 128 of the next layer) and the
+        pooled feature, as DefRec's decoder reads them (Achituve et al. 2021 concatenate PointNet's
+        per-point layers; :mod:`~vtlearn.models.components.deformation_task`). Padded rows are 0.
+
+        Shapes:
+            points (B, N, 3), lengths (B,) -> (per-point (B, N, 64 + 128), global (B, global_dim))
+        """
+        h, mask, _, _ = self._aligned(points, lengths)
+        packed = h[mask]
+        stages = self.mlp2.packed_stages(packed)
+        local = torch.cat([packed, stages[0]], 1)
+        per_point = local.new_zeros(h.shape[0], h.shape[1], local.shape[1])
+        per_point[mask] = local
+        return per_point, packed_max_pool(stages[-1], mask)
+
+    def _aligned(self, points: torch.Tensor, lengths: torch.Tensor):
+        """The per-point 64-d features after both T-nets, the validity mask and the two T-net matrices.
+
+        Shapes:
+            points (B, N, 3), lengths (B,) -> ((B, N, 64), (B, N) bool, (B, 3, 3) or None,
+            (B, 64, 64) or None)
+        """
         mask = lengths_to_mask(lengths, points.shape[1])
         x = points.masked_fill(~mask[..., None], 0.0)
         trans_input = trans_feat = None
@@ -76,7 +103,7 @@ class PointNetEncoder(nn.Module):
         if self.feature_tnet is not None:
             trans_feat = self.feature_tnet(h, mask)
             h = h @ trans_feat  # padded rows stay 0 (mlp1 zeroes them), and the pool reads valid rows only
-        return self.mlp2.pooled(h, mask), trans_input, trans_feat  # B x global_dim
+        return h, mask, trans_input, trans_feat
 
 
 @dataclass
