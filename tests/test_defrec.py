@@ -147,7 +147,7 @@ def test_defrec_step_adds_its_weighted_loss_and_trains_the_encoder():
 
 def test_defrec_decoder_learns_to_put_the_region_back(tmp_path):
     """Trained on the toy clouds with the task alone (α = 0), the region's Chamfer distance falls to under
-    half of the untrained model's, measured on the same deformations."""
+    a tenth of the untrained model's, measured on the same deformations."""
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
 
     def task_loss(model):
@@ -162,4 +162,4 @@ def test_defrec_decoder_learns_to_put_the_region_back(tmp_path):
                         enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp_path,
                         enable_checkpointing=False)
     trainer.fit(model, datamodule=TinyCrossModalDM())
-    assert task_loss(model.train()) < 0.5 * before
+    assert task_loss(model.train()) < 0.1 * before  # 0.01-0.02 of it on three seeds

@@ -665,7 +665,8 @@ class XAVTNet(L.LightningModule):
             self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
             self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
-        self.defrec_head = RegionDecoder(64 + 128 + global_dim) if defrec_weight > 0 else None
+        self.defrec_head = (RegionDecoder(PointNetEncoder.point_dim + global_dim) if defrec_weight > 0
+                            else None)
         self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")

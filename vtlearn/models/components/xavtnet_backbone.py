@@ -58,6 +58,8 @@ class PointNetEncoder(nn.Module):
         trans_feat (B, 64, 64) or None)
     """
 
+    point_dim = 64 + 128  # the width of :meth:`point_features`'s per-point features
+
     def __init__(self, global_dim: int = 1024, input_transform: bool = True, feature_transform: bool = True):
         super().__init__()
         self.input_tnet = TNet(3, global_dim) if input_transform else None
