@@ -110,8 +110,18 @@ def test_point_features_pool_to_the_encoders_global_feature():
     assert torch.equal(per_point[1, 12:], torch.zeros(8, 192)) and per_point[1, :12].abs().sum() > 0
     region = torch.zeros(3, 20, dtype=torch.bool)
     region[0, :4] = region[2, 1:3] = True
-    out = RegionDecoder(192 + 32).eval()(torch.cat([per_point, g[:, None].expand(-1, 20, -1)], -1), region)
+    decoder = RegionDecoder(192, 32).eval()
+    out = decoder(per_point, g, region)
     assert out.shape == (3, 20, 3) and torch.equal(out[~region], torch.zeros(int((~region).sum()), 3))
+    # the region's rows are the MLP of each point's features beside its own cloud's pooled feature
+    full = decoder.net(torch.cat([per_point, g[:, None].expand(-1, 20, -1)], -1).reshape(60, -1))
+    torch.testing.assert_close(out[region], full.reshape(3, 20, 3)[region])
+    with pytest.raises(ValueError, match="pooled"):
+        decoder(per_point, g[:2], region)
+    with pytest.raises(ValueError, match="point_features"):
+        decoder(per_point[..., :100], g, region)
+    with pytest.raises(ValueError, match="region"):
+        decoder(per_point, g, region.float())
 
 
 def test_defrec_step_adds_its_weighted_loss_and_trains_the_encoder():

@@ -665,7 +665,7 @@ class XAVTNet(L.LightningModule):
             self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
             self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
-        self.defrec_head = (RegionDecoder(PointNetEncoder.point_dim + global_dim) if defrec_weight > 0
+        self.defrec_head = (RegionDecoder(PointNetEncoder.point_dim, global_dim) if defrec_weight > 0
                             else None)
         self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
         self.train_loss = MeanMetric()
@@ -1145,8 +1145,7 @@ class XAVTNet(L.LightningModule):
         deformed, region, scale = deform_region(points, lengths, self.hparams.defrec_regions)
         with _batch_statistics_only(_batch_norms(self.encoder, self.defrec_head)):
             per_point, g = self.encoder.point_features(deformed, lengths)
-            features = torch.cat([per_point, g[:, None].expand(-1, points.shape[1], -1)], -1)
-            pred = self.defrec_head(features, region)
+            pred = self.defrec_head(per_point, g, region)
         return region_chamfer(pred, points, region, scale)
 
     def _contrast_loss(self, tgt: dict) -> torch.Tensor:

@@ -115,12 +115,31 @@ def region_chamfer(pred: torch.Tensor, target: torch.Tensor, region: torch.Tenso
 
 class RegionDecoder(MaskedPointMLP):
     """DefRec's region-reconstruction head: a per-point MLP (256, 256, 128, BN + ReLU) to 3 coordinates,
-    on each point's encoder features concatenated with the cloud's pooled feature, run on the points of
-    ``region`` only (zeros elsewhere).
+    on each point's encoder features concatenated with its cloud's pooled feature. It runs on the points
+    of ``region`` only (zeros elsewhere), so the padded ``(B, N, point_dim + global_dim)`` input is never
+    built.
 
     Shapes:
-        features (B, N, in_dim), region (B, N) bool -> (B, N, 3)
+        point_features (B, N, point_dim), pooled (B, global_dim), region (B, N) bool -> (B, N, 3)
     """
 
-    def __init__(self, in_dim: int):
-        super().__init__((as_int(in_dim, "in_dim"), 256, 256, 128, 3), last_activation=False)
+    def __init__(self, point_dim: int, global_dim: int):
+        point_dim, global_dim = as_int(point_dim, "point_dim"), as_int(global_dim, "global_dim")
+        super().__init__((point_dim + global_dim, 256, 256, 128, 3), last_activation=False)
+        self.point_dim, self.global_dim = point_dim, global_dim
+
+    def forward(self, point_features: torch.Tensor, pooled: torch.Tensor,  # type: ignore[override]
+                region: torch.Tensor) -> torch.Tensor:
+        b, n = region.shape if region.ndim == 2 else (-1, -1)
+        if region.ndim != 2 or region.dtype != torch.bool:
+            raise ValueError(f"region must be a (B, N) bool mask, got {tuple(region.shape)} {region.dtype}")
+        if point_features.shape != (b, n, self.point_dim):
+            raise ValueError(f"point_features must have shape ({b}, {n}, {self.point_dim}), "
+                             f"got {tuple(point_features.shape)}")
+        if pooled.shape != (b, self.global_dim):
+            raise ValueError(f"pooled must have shape ({b}, {self.global_dim}), got {tuple(pooled.shape)}")
+        cloud = region.nonzero(as_tuple=True)[0]  # the cloud of each region point, in x[region]'s order
+        packed = self.net(torch.cat([point_features[region], pooled[cloud]], -1))
+        out = point_features.new_zeros(b, n, 3)
+        out[region] = packed
+        return out
