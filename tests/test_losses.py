@@ -1,6 +1,7 @@
 """Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8), CDAN+E's conditioning,
 information maximisation and minimum class confusion."""
 
+import copy
 import math
 
 import pytest
@@ -9,6 +10,7 @@ import torch
 from vtlearn.losses import (
     GradientReversal,
     VTLoss,
+    classifier_discrepancy,
     coral,
     covariance,
     dann_lambda,
@@ -19,6 +21,7 @@ from vtlearn.losses import (
     information_maximization,
     linear_kernel_mmd,
     local_mmd,
+    mcd_adversarial_loss,
     minimum_class_confusion,
     mk_mmd,
     multilinear_map,
@@ -810,3 +813,52 @@ def test_group_vote_pseudo_labels_reject_bad_input(probs, groups, fraction, matc
 
     with pytest.raises(ValueError, match=match):
         group_vote_pseudo_labels(probs, groups, fraction)
+
+
+def test_classifier_discrepancy_matches_eq_1_and_its_bounds():
+    """Saito et al.'s d(p₁, p₂) = (1/K)·Σ_k |p₁ₖ − p₂ₖ|, averaged over the clouds, against plain floats; 0 for
+    one classifier against itself, 2/K for different one-hot predictions."""
+    g = torch.Generator().manual_seed(5)
+    z1, z2 = (torch.randn(6, 4, generator=g, dtype=torch.float64) for _ in range(2))
+
+    def softmax(row):
+        e = [math.exp(v) for v in row]
+        return [v / sum(e) for v in e]
+
+    naive = sum(abs(a - b) for r1, r2 in zip(z1.tolist(), z2.tolist(), strict=True)
+                for a, b in zip(softmax(r1), softmax(r2), strict=True)) / (6 * 4)
+    assert classifier_discrepancy(z1, z2).item() == pytest.approx(naive, rel=1e-12)
+    assert classifier_discrepancy(z1, z1).item() == 0.0
+    one_hot = 100.0 * torch.eye(4, dtype=torch.float64)
+    assert classifier_discrepancy(one_hot, one_hot.roll(1, 0)).item() == pytest.approx(2 / 4, abs=1e-12)
+    for bad, match in ((z1[:, :3], "logits_2"), (z1[:0], "logits_1"), (z1 * float("nan"), "logits_1")):
+        with pytest.raises(ValueError, match=match):
+            classifier_discrepancy(bad, z1) if match == "logits_1" else classifier_discrepancy(z1, bad)
+
+
+def test_mcd_adversarial_loss_reverses_the_discrepancy_between_features_and_classifiers():
+    """−w·d behind the reversal: the classifiers' gradient is −w·∂d (a descent step raises d) and the
+    features' +w·reversal·∂d (a descent step lowers d)."""
+    torch.manual_seed(0)
+    f1, f2 = torch.nn.Linear(5, 3), torch.nn.Linear(5, 3)
+    z = torch.randn(8, 5, requires_grad=True)
+    loss, d = mcd_adversarial_loss(z, f1, f2, weight=2.0, reversal=0.5)
+    assert loss.item() == pytest.approx(-2.0 * d.item()) and d.item() > 0
+    grads = torch.autograd.grad(loss, [z, f1.weight, f2.weight])
+    plain = torch.autograd.grad(classifier_discrepancy(f1(z), f2(z)), [z, f1.weight, f2.weight])
+    torch.testing.assert_close(grads[0], 2.0 * 0.5 * plain[0])
+    torch.testing.assert_close(grads[1], -2.0 * plain[1])
+    torch.testing.assert_close(grads[2], -2.0 * plain[2])
+    g1, g2 = copy.deepcopy(f1), copy.deepcopy(f2)
+    with torch.no_grad():  # descent on the classifiers raises d, on the features lowers it
+        g1.weight -= 0.1 * grads[1]
+        g2.weight -= 0.1 * grads[2]
+        raised = classifier_discrepancy(g1(z), g2(z)).item()
+    assert raised > d.item()
+    lowered = classifier_discrepancy(f1(z - 0.1 * grads[0]), f2(z - 0.1 * grads[0])).item()
+    assert lowered < d.item()
+    for kwargs, match in ((dict(weight=-1.0), "weight"), (dict(weight=1.0, reversal=-1.0), "reversal")):
+        with pytest.raises(ValueError, match=match):
+            mcd_adversarial_loss(z, f1, f2, **kwargs)
+    with pytest.raises(ValueError, match="features"):
+        mcd_adversarial_loss(z[0], f1, f2, 1.0)

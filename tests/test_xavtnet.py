@@ -228,6 +228,8 @@ def test_subsample_and_normalize_padded():
         (dict(da_method="none", consistency_weight=1.0), {"train/consistency"}, {"train/mmd"}),
         (dict(defrec_weight=1.0), {"train/mmd", "train/defrec"}, {"train/domain"}),
         (dict(da_method="none", defrec_weight=1.0), {"train/defrec"}, {"train/mmd"}),
+        (dict(mcd_weight=1.0), {"train/mmd", "train/mcd", "train/ce_f2"}, {"train/domain"}),
+        (dict(da_method="none", mcd_weight=1.0), {"train/mcd", "train/ce_f2"}, {"train/mmd"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -395,6 +397,44 @@ def test_mcc_weight_adds_the_target_class_confusion():
     for bad in (dict(mcc_weight=-1.0), dict(mcc_temperature=0.0)):
         with pytest.raises(ValueError, match=next(iter(bad))):
             XAVTNet(**TINY, **bad)
+
+
+def test_mcd_weight_adds_the_second_classifier_and_the_reversed_discrepancy():
+    """``mcd_weight``: the step's loss is no-DA's plus α·CE of the second classifier on the source fc2 and
+    −w·d(fc3, F₂) on the target fc2; the discrepancy's gradient raises d in both classifiers and, through the
+    reversal, lowers it in the fc2 feature; the predictions stay fc3's; without the weight there is no F₂."""
+    from vtlearn.losses import classifier_discrepancy
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    assert XAVTNet(**TINY).mcd_head is None
+    loss, model, base, out_s, out_t = _one_step(batch, mcd_weight=0.7)
+    y = batch["source"]["label"]
+    ce_2 = torch.nn.functional.cross_entropy(model.mcd_head(out_s.features["fc2"]), y)
+    f_t = out_t.features["fc2"].detach().requires_grad_()
+    d = classifier_discrepancy(model.head.fc3(f_t), model.mcd_head(f_t))
+    assert loss == pytest.approx((base + model.hparams.alpha * ce_2 - 0.7 * d).item(), rel=1e-5)
+    # the adversarial term's gradients: −w·∂d in the classifiers (they ascend d), +w·∂d in the feature
+    from vtlearn.models.components.xavtnet_backbone import XAVTNetOutput
+
+    f_s = out_s.features["fc2"].detach()
+    outs = [XAVTNetOutput(o.logits.detach(), {"fc2": f}, None, None) for o, f in ((out_s, f_s), (out_t, f_t))]
+    terms = model._mcd_loss(*outs, y)[0]
+    weights = [model.head.fc3.weight, model.mcd_head.weight]
+    got = torch.autograd.grad(terms, [f_t, *weights])
+    plain = torch.autograd.grad(d, [f_t, *weights])
+    ce_grad = torch.autograd.grad(model.hparams.alpha * torch.nn.functional.cross_entropy(
+        model.mcd_head(f_s), y), model.mcd_head.weight)[0]
+    assert d.item() > 0 and all(g.abs().sum() > 0 for g in plain)
+    torch.testing.assert_close(got[0], 0.7 * plain[0])  # the feature descends d
+    torch.testing.assert_close(got[1], -0.7 * plain[1])  # fc3 ascends it
+    torch.testing.assert_close(got[2], ce_grad - 0.7 * plain[2])  # F₂ ascends it and fits the source
+    with torch.no_grad():
+        model.eval()
+        assert torch.equal(model(batch["target"]["points"], batch["target"]["lengths"]).logits,
+                           model.head.fc3(model(batch["target"]["points"],
+                                                batch["target"]["lengths"]).features["fc2"]))
+    with pytest.raises(ValueError, match="mcd_weight"):
+        XAVTNet(**TINY, mcd_weight=-1.0)
 
 
 def test_cdan_discriminates_fc2_conditioned_on_the_prediction():

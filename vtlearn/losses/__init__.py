@@ -1,6 +1,6 @@
 """Losses: MK-MMD (with Gretton et al.'s optimal kernel weights), Deep CORAL, VTLoss (thesis ch.7); beyond it
 DDC's linear-kernel MMD, DANN gradient reversal, CDAN+E's conditioning, information maximisation, minimum
-class confusion, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
+class confusion, maximum classifier discrepancy, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
 
 from vtlearn.losses.cdan import entropy_weights, multilinear_map
 from vtlearn.losses.contrastive import nt_xent
@@ -10,6 +10,7 @@ from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.kernel_choice import linear_time_statistics, optimal_kernel_weights
 from vtlearn.losses.lmmd import local_mmd
 from vtlearn.losses.mcc import minimum_class_confusion
+from vtlearn.losses.mcd import classifier_discrepancy, mcd_adversarial_loss
 from vtlearn.losses.mmd import gaussian_bandwidths, linear_kernel_mmd, mk_mmd, multi_kernel_matrix
 from vtlearn.losses.vtloss import VTLoss
 
@@ -32,5 +33,7 @@ __all__ = [
     "entropy_weights",
     "information_maximization",
     "minimum_class_confusion",
+    "classifier_discrepancy",
+    "mcd_adversarial_loss",
     "nt_xent",
 ]

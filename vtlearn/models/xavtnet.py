@@ -26,7 +26,11 @@ through the *same* weights, one forward each. A plain labelled batch (``{"points
 them, the information maximisation of :mod:`vtlearn.losses.info_max` (confident target predictions that
 use every class); with ``da_method="none"`` it is the only use of the target stream. ``mcc_weight > 0``
 adds ``mcc_weight·L_MCC`` in the same way, Jin et al.'s minimum class confusion of the target logits
-(:mod:`vtlearn.losses.mcc`, at temperature ``mcc_temperature``).
+(:mod:`vtlearn.losses.mcc`, at temperature ``mcc_temperature``). ``mcd_weight > 0`` adds Saito et al.'s
+maximum classifier discrepancy (:mod:`vtlearn.losses.mcd`): a second classifier F₂ beside fc3 on the fc2
+feature, trained on the source clouds with the same ``α·CE``, and ``−mcd_weight·d(F₁, F₂)`` of the target
+batch through a gradient reversal, so the two classifiers pull apart on the target clouds and the network
+below them pulls those clouds back to where the two agree. fc3 (F₁) alone makes the model's predictions.
 
 ``pseudo_label_weight > 0`` (beyond the thesis) adds self-training on the target stream: from epoch
 ``⌈pseudo_label_start·max_epochs⌉`` on, each epoch starts with one pass over the target clouds, which
@@ -124,6 +128,7 @@ from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.dann import dann_lambda, domain_adversarial_loss, grad_reverse
 from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.mcc import MCC_TEMPERATURE, minimum_class_confusion
+from vtlearn.losses.mcd import mcd_adversarial_loss
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss, check_kernel_weights, check_mmd_kernel
@@ -330,6 +335,9 @@ class XAVTNet(L.LightningModule):
             (:func:`~vtlearn.losses.mcc.minimum_class_confusion`; Jin et al. 2020, beyond the thesis), added
             to the loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
         mcc_temperature: the temperature T of its softmax (2.5, Jin et al.'s on every benchmark), > 0.
+        mcd_weight: weight of MCD's adversarial classifier discrepancy on the target batch (module
+            docstring; Saito et al. 2018, beyond the thesis), added to the loss of ``da_method`` with the
+            second classifier's source cross-entropy. 0 (default): off, no second classifier.
         pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
             pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
             ``da_method``. 0 (default): off, as in eq. 7.8.
@@ -470,6 +478,7 @@ class XAVTNet(L.LightningModule):
         im_weight: float = 0.0,
         mcc_weight: float = 0.0,
         mcc_temperature: float = MCC_TEMPERATURE,
+        mcd_weight: float = 0.0,
         pseudo_label_weight: float = 0.0,
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
@@ -522,6 +531,7 @@ class XAVTNet(L.LightningModule):
         as_real(im_weight, "im_weight", low=0.0)
         as_real(mcc_weight, "mcc_weight", low=0.0)
         as_real(mcc_temperature, "mcc_temperature", low=0.0, open_low=True)
+        as_real(mcd_weight, "mcd_weight", low=0.0)
         as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
         as_real(pseudo_label_start, "pseudo_label_start", low=0.0, high=1.0, open_high=True)
         as_real(pseudo_label_fraction, "pseudo_label_fraction", low=0.0, high=1.0, open_low=True)
@@ -668,6 +678,8 @@ class XAVTNet(L.LightningModule):
         self.defrec_head = (RegionDecoder(PointNetEncoder.point_dim, global_dim) if defrec_weight > 0
                             else None)
         self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
+        # MCD's second classifier F₂ on the fc2 feature, beside fc3 (F₁)
+        self.mcd_head = torch.nn.Linear(fc_dims[1], num_classes) if mcd_weight > 0 else None
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -934,7 +946,7 @@ class XAVTNet(L.LightningModule):
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
                   or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
                   or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None
-                  or self.defrec_head is not None)
+                  or self.defrec_head is not None or self.mcd_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
         unperturbed = tgt
@@ -981,6 +993,10 @@ class XAVTNet(L.LightningModule):
                                                                                      MCC_TEMPERATURE))
             loss = loss + mcc_weight * mcc
             parts = {**parts, "mcc": mcc.detach(), **mcc_parts}
+        if use_target and self.mcd_head is not None:
+            mcd, mcd_parts = self._mcd_loss(out_s, out_t, y)
+            loss = loss + mcd
+            parts = {**parts, **mcd_parts}
         if use_target and self._pseudo_labels is not None:
             if "index" not in tgt:
                 raise ValueError("batch: pseudo_label_weight needs the target items' 'index' in the target "
@@ -1147,6 +1163,22 @@ class XAVTNet(L.LightningModule):
             per_point, g = self.encoder.point_features(deformed, lengths)
             pred = self.defrec_head(per_point, g, region)
         return region_chamfer(pred, points, region, scale)
+
+    def _mcd_loss(self, out_s: XAVTNetOutput, out_t: XAVTNetOutput, y: torch.Tensor
+                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """MCD's terms (``mcd_weight``; :mod:`vtlearn.losses.mcd`): the second classifier's ``α·CE`` on the
+        source batch (step A; fc3's is the model's own) plus ``−mcd_weight·d`` of the two classifiers on the
+        target batch's fc2 feature behind a gradient reversal (steps B and C in one). Both classifiers read
+        the feature after the head's dropout, the target's with one mask for both.
+
+        Shapes:
+            out_s.features["fc2"] (Bs, d), out_t.features["fc2"] (Bt, d), y (Bs,) -> (), {name: ()}
+        """
+        hp, head = self.hparams, self.head
+        ce_2 = F.cross_entropy(self.mcd_head(head.dropout(out_s.features["fc2"])), y)
+        adversarial, d = mcd_adversarial_loss(head.dropout(out_t.features["fc2"]), head.fc3, self.mcd_head,
+                                              hp.mcd_weight)
+        return hp.alpha * ce_2 + adversarial, {"ce_f2": ce_2.detach(), "mcd": d}
 
     def _contrast_loss(self, tgt: dict) -> torch.Tensor:
         """NT-Xent of the projection head on two perturbed copies of the target batch ``tgt``

@@ -66,6 +66,11 @@ VARIANTS: dict[str, dict] = {
     # 0.5), alone and added to VTLoss.
     "noda_defrec": {"da_method": "none", "defrec_weight": 200.0, "defrec_regions": 3},
     "vtloss_defrec": {**_VTLOSS, "defrec_weight": 200.0, "defrec_regions": 3},
+    # Beyond the thesis: Saito et al.'s maximum classifier discrepancy (losses/mcd.py; PointDAN's global
+    # alignment), its adversarial discrepancy weighted as the cross-entropy (their steps weigh the two alike:
+    # α = 10), alone and added to VTLoss.
+    "mcd": {"da_method": "none", "mcd_weight": 10.0},
+    "vtloss_mcd": {**_VTLOSS, "mcd_weight": 10.0},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},
