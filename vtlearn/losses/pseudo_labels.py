@@ -23,7 +23,7 @@ of its members' mean softmax instead, with the same class-balanced selection ove
 
 Thesis eq. 7.8 aligns the marginal feature distributions; these labels add a class-wise signal on the
 target clouds (:class:`~vtlearn.models.xavtnet.XAVTNet` ``pseudo_label_weight``). At the 45-55 %
-tactile accuracy that VTLoss reaches here, 33-41 % of the kept labels are wrong (docs/xavtnet.md).
+tactile accuracy that VTLoss reaches here, 33-41 % of the kept labels are wrong (docs/xavtnet_results.md).
 """
 
 from __future__ import annotations

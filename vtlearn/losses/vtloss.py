@@ -23,7 +23,7 @@ VTLoss             defaults
 Beyond the thesis, ``lam_balance`` sets λ during training by Deep CORAL's balance rule (Sun & Saenko
 2016: λ such that the CORAL and classification losses are about equal at the end of training), from
 running means of the two: ``λ_t = α·mean(CE)_t / mean(CORAL)_t``. The thesis fixes λ = 10; the rule,
-read off the end of a λ = 10 training in the centred frame, gives λ ≈ 500-650 (docs/xavtnet.md).
+read off the end of a λ = 10 training in the centred frame, gives λ ≈ 500-650 (docs/xavtnet_results.md).
 Applied online, the ratio feeds back (λ ∝ 1/CORAL, and a larger λ shrinks CORAL) and, on xAVTNet's
 clouds, runs away to the cap and stalls the classifier (stop 51).
 
@@ -120,8 +120,8 @@ class VTLoss(nn.Module):
             saved with the module (a resumed run keeps them). Needs ``use_coral``.
             Kept as a documented negative result: on xAVTNet's clouds the rule runs away (λ ∝ 1/CORAL,
             and a larger λ shrinks CORAL further), λ reaches the cap and the classifier hardly learns
-            (docs/xavtnet.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ once, as
-            the fixed ``lam`` does.
+            (docs/xavtnet_results.md, "Deep CORAL's balance rule, online", stop 51). Deep CORAL sets λ
+            once, as the fixed ``lam`` does.
 
     Shapes:
         logits_source (n_s, k), labels_source (n_s,) int64,

@@ -9,7 +9,8 @@ seeds, or rows run apart) before it does, instead of a script of one's own.
 Pooling is refused when the files differ in data (``data_fingerprint`` or the datamodule settings), in
 training length or in the model, or repeat a (row, seed) with other numbers. A pair whose two runs ran on
 different machines is counted (``cross_machine``): a training repeats bit for bit on one machine, not on
-another CPU (docs/xavtnet.md), so such a pair keeps its seed but loses the shared noise that pairing removes.
+another CPU (docs/xavtnet_results.md), so such a pair keeps its seed but loses the shared noise that pairing
+removes.
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ VARIANTS: dict[str, dict] = {
     # jitter, on the clouds the teacher gives 0.9 or more, weighted α·3/k as French weights his per-class
     # mean against the cross-entropy; the teacher normalises with the joint batch's statistics (the
     # default teacher_norm). Without the threshold the tactile predictions collapse onto one or two classes
-    # at weights 10-100 (docs/xavtnet.md).
+    # at weights 10-100 (docs/xavtnet_results.md).
     "vtloss_g12_mt": {**_VTLOSS, "da_layers": ["global", "fc1", "fc2"], "consistency_weight": 2.5,
                       "consistency_threshold": 0.9},
 }
@@ -146,7 +146,7 @@ VARIANTS["mmd_g12_mt_vote"] = {**VARIANTS["vtloss_g12_mt_vote"], "use_coral": Fa
 # Beyond the thesis: VTLoss and CORAL only with λ set during training by Deep CORAL's balance rule (λ·CORAL
 # kept equal to α·CE from running means with momentum 0.9; losses/vtloss.py), the rule the fixed λ = 500
 # rows apply once, at the end of a λ = 10 training. A negative result: online, λ ∝ 1/CORAL runs away and the
-# training collapses (docs/xavtnet.md, stop 51).
+# training collapses (docs/xavtnet_results.md, stop 51).
 VARIANTS["vtloss_bal"] = {**_VTLOSS, "lam_balance": 0.9}
 VARIANTS["coral_bal"] = {**VARIANTS["coral"], "lam_balance": 0.9}
 # Beyond the thesis: the teacher row's mean teacher with no alignment (no MK-MMD, no CORAL): no-DA plus the

@@ -2,7 +2,7 @@
 
 A classifier trained on one domain and applied to another is biased towards some classes: on the tactile
 test clouds the teacher row of ``bench crossmodal`` predicts wine glass 16-28 times among 144 clouds that
-hold 12 of each class, and detergent bottle 4-8 times (seeds 0-3, docs/xavtnet.md). Two standard
+hold 12 of each class, and detergent bottle 4-8 times (seeds 0-3, docs/xavtnet_results.md). Two standard
 label-free corrections assume that the target stream's classes occur as often as the source's (which
 holds for the benchmark's balanced classes, and is AdaMatch's assumption):
 

@@ -1,9 +1,9 @@
 """A first-in-first-out memory of detached features, for alignment statistics over more clouds than a batch.
 
 Beyond the thesis. VTLoss (eq. 7.8) estimates MK-MMD (eq. 7.5-7.6) and CORAL (eq. 7.7) from one source and
-one target batch. docs/xavtnet.md measured that larger batches raise VTLoss's tactile accuracy by about
-1.7 points per doubling at about equal steps, but the work doubles with them. A queue of the features of
-the last ``capacity`` clouds of each domain, appended to the current batch without gradient, gives the
+one target batch. docs/xavtnet_results.md measured that larger batches raise VTLoss's tactile accuracy by
+about 1.7 points per doubling at about equal steps, but the work doubles with them. A queue of the features
+of the last ``capacity`` clouds of each domain, appended to the current batch without gradient, gives the
 loss the statistics of ``batch + capacity`` clouds at the cost of one batch, as MoCo's queue (He et al.,
 CVPR 2020) holds more negative keys than a batch. Measured there: at batch 32 a 224-cloud queue does not
 give batch 256's gain, so that gain is not the alignment statistics'.
