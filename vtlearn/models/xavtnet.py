@@ -370,7 +370,7 @@ class XAVTNet(L.LightningModule):
             batch (``_split_forward``). ``"running"``: eval mode, on the running statistics averaged from
             the network's (the target ones with ``domain_bn``). With
             ``"running"`` the bench row's teacher scored 8-25 % on the tactile stream while the network
-            scored 37-49 % (docs/xavtnet.md): averaged weights do not match averaged statistics.
+            scored 37-49 % (docs/xavtnet_results.md): averaged weights do not match averaged statistics.
         consistency_align: ReMixMatch's distribution alignment of the teacher's target probabilities before
             the threshold and the consistency
             (:func:`~vtlearn.models.components.class_balance.align_distribution`, beyond the thesis):
@@ -426,7 +426,7 @@ class XAVTNet(L.LightningModule):
             run's optimiser steps (SGDR without restarts, Loshchilov & Hutter 2017). With a constant Adam
             rate the final weights are one point of a noisy trajectory, so the test accuracy of two
             short trainings of the same data differs by several points; the cosine decay settles them,
-            which the active-learning curves need (docs/xavtnet.md).
+            which the active-learning curves need (docs/xavtnet_results.md).
         max_points: if set, clouds with more points are subsampled to this many (random in training,
             strided in evaluation). A speed knob for quick CPU runs; the thesis uses all 1024.
         normalize_clouds: centre each cloud and scale it into the unit ball before the network.
