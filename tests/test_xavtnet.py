@@ -430,9 +430,8 @@ def test_mcd_weight_adds_the_second_classifier_and_the_reversed_discrepancy():
     torch.testing.assert_close(got[2], ce_grad - 0.7 * plain[2])  # F₂ ascends it and fits the source
     with torch.no_grad():
         model.eval()
-        assert torch.equal(model(batch["target"]["points"], batch["target"]["lengths"]).logits,
-                           model.head.fc3(model(batch["target"]["points"],
-                                                batch["target"]["lengths"]).features["fc2"]))
+        out = model(batch["target"]["points"], batch["target"]["lengths"])
+        assert torch.equal(out.logits, model.head.fc3(out.features["fc2"]))
     with pytest.raises(ValueError, match="mcd_weight"):
         XAVTNet(**TINY, mcd_weight=-1.0)
 

@@ -130,9 +130,9 @@ class RegionDecoder(MaskedPointMLP):
 
     def forward(self, point_features: torch.Tensor, pooled: torch.Tensor,  # type: ignore[override]
                 region: torch.Tensor) -> torch.Tensor:
-        b, n = region.shape if region.ndim == 2 else (-1, -1)
         if region.ndim != 2 or region.dtype != torch.bool:
             raise ValueError(f"region must be a (B, N) bool mask, got {tuple(region.shape)} {region.dtype}")
+        b, n = region.shape
         if point_features.shape != (b, n, self.point_dim):
             raise ValueError(f"point_features must have shape ({b}, {n}, {self.point_dim}), "
                              f"got {tuple(point_features.shape)}")
