@@ -1,6 +1,7 @@
 """Seed-paired comparisons of ``bench crossmodal`` rows and the pooling of results (``--merge``)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,9 +11,12 @@ from vtlearn.bench_utils import paired_difference
 from vtlearn.models.crossmodal_compare import (
     default_pairs,
     load_crossmodal_results,
+    load_object_sets,
     paired_rows,
     parse_pairs,
     score_field,
+    set_paired_rows,
+    set_table_rows,
 )
 
 HOST_A = {"platform": "Linux-6.18.44-fc-v1252-x86_64", "cpu_model": "AMD EPYC", "cpu_capability": "AVX512"}
@@ -162,3 +166,99 @@ def test_merge_refuses_other_protocols_and_conflicting_runs(tmp_path):
     # results from before the fingerprint was recorded are compared on the rest
     old = _result(tmp_path, "old.json", _runs("noda", [1], [41.0]), data_fingerprint=None)
     assert len(load_crossmodal_results([f1, old])[1]) == 2
+
+
+def _set(tmp_path, name, fp, runs, data_dir=None, **over):
+    """A result of one object set: ``fp`` its data fingerprint, ``data_dir`` its folder."""
+    data = {"data_dir": data_dir or f"runs/xavtnet/{fp}", "batch_size": 32}
+    return _result(tmp_path, name, runs, **{"data": data, "data_fingerprint": {"data_dir": fp}, **over})
+
+
+def test_object_sets_are_paired_by_their_means(tmp_path):
+    # set s1 in two files (rows run apart), s2 and s3 in one each; s3 has no mmd
+    a1 = _set(tmp_path, "s1a.json", "s1", _runs("noda", [0, 1, 2], [30.0, 33.0, 36.0])
+              + _runs("vtloss", [0, 1, 2], [50.0, 52.0, 51.0]))
+    a2 = _set(tmp_path, "s1b.json", "s1", _runs("mmd", [0, 1, 2], [55.0, 50.0, 51.0]), machine=HOST_B)
+    b = _set(tmp_path, "s2.json", "s2", _runs("noda", [0, 1], [40.0, 42.0])
+             + _runs("vtloss", [0, 1], [45.0, 49.0]) + _runs("mmd", [0, 1], [44.0, 47.0]))
+    c = _set(tmp_path, "s3.json", "s3", _runs("noda", [0, 1, 2], [28.0, 26.0, 30.0])
+             + _runs("vtloss", [0, 1], [54.0, 50.0]))
+    meta, sets = load_object_sets([a1, b, a2, c])
+    assert [s["label"] for s in sets] == ["s1", "s2", "s3"] and sets[0]["files"] == [a1, a2]
+    assert meta["data"] == {"batch_size": 32} and meta["max_epochs"] == 30 and meta["merged_from"][0] == a1
+    rows = {r["comparison"]: r for r in set_paired_rows(sets, [("vtloss", "noda"), ("vtloss", "mmd")], 20.0)}
+    vt = rows["vtloss − noda"]
+    # each set's pair is the means over the seeds both rows have there (s3: seeds 0-1 only)
+    assert vt["sets"] == ["s1", "s2", "s3"]
+    assert vt["diffs"] == pytest.approx([51.0 - 33.0, 47.0 - 41.0, 52.0 - 27.0])
+    ref = paired_difference([51.0, 47.0, 52.0], [33.0, 41.0, 27.0], margin=20.0)
+    assert vt["mean_diff"] == pytest.approx(ref["mean_diff"]) and vt["t_p"] == pytest.approx(ref["t_p"])
+    assert vt["p_at_most_margin"] == pytest.approx(ref["p_at_most_margin"])
+    assert vt["sets ahead"] == "3/3" and vt["runs_ahead"] == 7 and vt["runs"] == 7
+    vm = rows["vtloss − mmd"]
+    assert vm["sets"] == ["s1", "s2"] and vm["diffs"] == pytest.approx([51.0 - 52.0, 47.0 - 45.5])
+    assert vm["runs ahead"] == "3/5" and vm["cross_machine"] == 3  # s1's mmd ran on another host
+    table = set_table_rows(sets, ["noda", "vtloss", "mmd"])
+    assert [t["set"] for t in table[:3]] == ["s1", "s2", "s3"] and table[2]["mmd"] == "-"
+    assert table[2]["vtloss"] == "52.0" and table[2]["seeds"] == "0,1,2"
+    assert table[3]["noda"] == f"{np.mean([33.0, 41.0, 28.0]):.1f}"
+    assert table[3]["mmd"] == f"{np.mean([52.0, 45.5]):.1f} (2 sets)"
+    with pytest.raises(ValueError, match="no object set has runs of both mmd and oracle"):
+        set_paired_rows(sets, [("mmd", "oracle")])
+
+
+def test_object_sets_refuse_other_protocols_and_unknown_sets(tmp_path):
+    a = _set(tmp_path, "a.json", "s1", _runs("noda", [0], [40.0]))
+    b = _set(tmp_path, "b.json", "s2", _runs("noda", [0], [41.0]))
+    assert len(load_object_sets([a, b])[1]) == 2
+    with pytest.raises(ValueError, match="--merge-sets: the files hold one dataset"):
+        load_object_sets([a, _set(tmp_path, "a2.json", "s1", _runs("vtloss", [0], [50.0]))])
+    old = _set(tmp_path, "old.json", "s3", _runs("noda", [0], [41.0]), data_fingerprint=None)
+    with pytest.raises(ValueError, match="--merge-sets: .*old.json has no data_fingerprint"):
+        load_object_sets([a, old])
+    with pytest.raises(ValueError, match="--merge-sets: .*ep.json has max_epochs=60"):
+        load_object_sets([a, _set(tmp_path, "ep.json", "s2", _runs("noda", [0], [41.0]), max_epochs=60)])
+    batch = _result(tmp_path, "bs.json", _runs("noda", [0], [41.0]), data_fingerprint={"data_dir": "s2"},
+                    data={"data_dir": "runs/xavtnet/s2", "batch_size": 64})
+    with pytest.raises(ValueError, match="--merge-sets: .*bs.json has data="):
+        load_object_sets([a, batch])
+    s1 = _set(tmp_path, "v1.json", "s1", _runs("noda", [0], [40.0]), variant_settings={"noda": {"da": 0}})
+    s2 = _set(tmp_path, "v2.json", "s2", _runs("noda", [0], [40.0]), variant_settings={"noda": {"da": 1}})
+    with pytest.raises(ValueError, match="--merge-sets: .*trains noda with"):
+        load_object_sets([s1, s2])
+    clash = _set(tmp_path, "cl.json", "s1", _runs("noda", [0], [43.0]))
+    with pytest.raises(ValueError, match="--merge-sets: .*both hold noda seed 0"):
+        load_object_sets([a, b, clash])
+    # one folder regenerated with another draw: the fingerprints tell the two sets apart
+    r1 = _set(tmp_path, "r1.json", "aaaa1111bbbb", _runs("noda", [0], [40.0]), data_dir="runs/obj")
+    r2 = _set(tmp_path, "r2.json", "cccc2222dddd", _runs("noda", [0], [42.0]), data_dir="runs/obj")
+    assert [s["label"] for s in load_object_sets([r1, r2])[1]] == ["obj (aaaa1111)", "obj (cccc2222)"]
+
+
+def test_bench_merge_sets_writes_the_set_table_pairs_and_figure(tmp_path, capsys):
+    from vtlearn.cli import main
+
+    files = [_set(tmp_path, f"s{i}.json", f"s{i}", _runs("noda", [0, 1], [30.0 + i, 32.0])
+                  + _runs("vtloss", [0, 1], [45.0 + 2 * i, 50.0]) + _runs("mmd", [0, 1], [47.0, 49.0 + i]))
+             for i in range(4)]
+    out = tmp_path / "sets.json"
+    assert main(["bench", "crossmodal", "--merge-sets", *files, "--pairs", "vtloss-mmd", "--margin", "20",
+                 "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["by"] == "object set" and [s["label"] for s in res["sets"]] == ["s0", "s1", "s2", "s3"]
+    assert res["sets"][2]["means"] == {"noda": 32.0, "vtloss": 49.5, "mmd": 49.0}
+    assert res["sets"][2]["seeds"]["vtloss"] == [0, 1] and res["sets"][2]["files"] == [files[2]]
+    pairs = {r["comparison"]: r for r in res["paired"]}
+    assert set(pairs) == {"vtloss − noda", "mmd − noda", "vtloss − mmd"}
+    assert pairs["vtloss − noda"]["diffs"] == pytest.approx([16.5, 17.0, 17.5, 18.0])
+    assert "p(≤ 20)" in pairs["vtloss − noda"] and Path(res["figures"]["paired"]).exists()
+    text = capsys.readouterr().out
+    assert "per object set" in text and "sets ahead" in text and "| s3 " in text
+    # refused by name: an input as the output, --merge beside --merge-sets, a baseline no set has
+    assert main(["bench", "crossmodal", "--merge-sets", *files, "--json", files[0]]) == 2
+    assert "--json:" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--merge-sets", *files, "--merge", files[0], "--json", str(out)]) == 2
+    assert "give either --merge" in capsys.readouterr().err
+    assert main(["bench", "crossmodal", "--merge-sets", *files, "--baseline", "coral",
+                 "--json", str(out)]) == 2
+    assert "--baseline: 'coral' is not one of the rows" in capsys.readouterr().err

@@ -6,6 +6,12 @@ than the rows themselves. ``bench crossmodal`` prints them against ``--baseline`
 ``bench crossmodal --merge A.json B.json ...`` pools the runs of earlier results of the same protocol (more
 seeds, or rows run apart) before it does, instead of a script of one's own.
 
+The thesis's own protocol (7.3.2: twelve objects, one per class) hangs on which twelve objects are drawn:
+here one draw gives anything from +4 to +25 points for VTLoss over no-DA (docs/xavtnet_results.md, stop 59),
+far more than the seeds of one draw. ``bench crossmodal --merge-sets`` reads the results of one protocol on
+several datasets (object sets), pools each set's files as ``--merge`` does, and pairs the rows by object set:
+each set's mean over its seeds is one pair (:func:`load_object_sets`, :func:`set_paired_rows`).
+
 Pooling is refused when the files differ in data (``data_fingerprint`` or the datamodule settings), in
 training length or in the model, or repeat a (row, seed) with other numbers. A pair whose two runs ran on
 different machines is counted (``cross_machine``): a training repeats bit for bit on one machine, not on
@@ -15,6 +21,7 @@ removes.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +29,8 @@ import numpy as np
 from vtlearn.bench_utils import check_same_protocol, paired_difference, read_results
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
-           "paired_table_columns", "paired_figure"]
+           "paired_table_columns", "paired_figure", "load_object_sets", "set_paired_rows",
+           "set_table_rows"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
@@ -86,7 +94,7 @@ def _machine_of(doc: dict) -> dict | None:
     return {k: m.get(k) for k in ("platform", "cpu_model", "cpu_capability") if m.get(k) is not None}
 
 
-def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
+def load_crossmodal_results(paths: list[str], flag: str = "--merge") -> tuple[dict, list[dict]]:
     """The runs of several ``bench crossmodal`` JSONs of one protocol, pooled.
 
     Every run keeps its numbers and gains ``machine`` (its file's platform and CPU, unless it has one
@@ -95,19 +103,19 @@ def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
     ``bench crossmodal`` result, was run on other data (``data_fingerprint``, or other datamodule settings),
     for another number of epochs or with another model, gives a row other settings (``variant_settings``),
     or repeats a (row, seed) with other numbers. Results written before the fingerprint or the settings
-    were recorded are compared on the rest.
+    were recorded are compared on the rest. ``flag`` is the command-line flag the messages name.
 
     Returns:
         meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the
         ``variant_settings`` known, ``config`` and ``merged_from`` lists), runs (one dict per (row, seed))
     """
-    docs = read_results(paths, "crossmodal", "runs")
-    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS)
+    docs = read_results(paths, "crossmodal", "runs", flag)
+    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS, flag)
     settings: dict[str, tuple[str, dict]] = {}
     for path, doc in zip(paths, docs, strict=True):
         for variant, s in (doc.get("variant_settings") or {}).items():
             if variant in settings and settings[variant][1] != s:
-                raise ValueError(f"--merge: {path} trains {variant} with {s}, {settings[variant][0]} with "
+                raise ValueError(f"{flag}: {path} trains {variant} with {s}, {settings[variant][0]} with "
                                  f"{settings[variant][1]}")
             settings.setdefault(variant, (path, s))
     runs: list[dict] = []
@@ -116,12 +124,12 @@ def load_crossmodal_results(paths: list[str]) -> tuple[dict, list[dict]]:
         machine = _machine_of(doc)
         for r in doc["runs"]:
             if not isinstance(r, dict) or not {"variant", "seed", "tactile_acc"} <= r.keys():
-                raise ValueError(f"--merge: {path} holds a run without variant, seed and tactile_acc")
+                raise ValueError(f"{flag}: {path} holds a run without variant, seed and tactile_acc")
             key = (r["variant"], r["seed"])
             if key in where:
                 old = runs[where[key]]
                 if (old["tactile_acc"], old.get("visual_acc")) != (r["tactile_acc"], r.get("visual_acc")):
-                    raise ValueError(f"--merge: {path} and {old['file']} both hold {key[0]} seed {key[1]}, "
+                    raise ValueError(f"{flag}: {path} and {old['file']} both hold {key[0]} seed {key[1]}, "
                                      f"with tactile accuracy {r['tactile_acc']:.2f} against "
                                      f"{old['tactile_acc']:.2f}; leave one of them out")
                 continue
@@ -177,6 +185,137 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
     return out
 
 
+def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict, list[dict]]:
+    """The results of one protocol run on several datasets (object sets), grouped by dataset.
+
+    The files are grouped by their ``data_fingerprint``; each group is pooled by
+    :func:`load_crossmodal_results` (the same checks, naming ``flag``). Across the groups everything but the
+    data folder must agree: the datamodule settings other than ``data_dir``, the training length, the model,
+    and the settings of every row that two sets both train. Raises ``ValueError`` naming ``flag`` and the
+    file for a file without a fingerprint (its set cannot be told from another's), for fewer than two
+    datasets (pooling one is ``--merge``'s work) and for a file of another protocol.
+
+    Returns:
+        meta (``data`` without ``data_dir``, ``max_epochs``, ``model_base``, ``variant_settings``,
+        ``merged_from``), sets (one dict per dataset in the order first named: ``label``, the folder's name,
+        with the fingerprint's first characters where two sets share a name; ``data_dir``,
+        ``data_fingerprint``, ``files``, ``runs``)
+    """
+    docs = read_results(paths, "crossmodal", "runs", flag)
+    groups: dict[str, list[str]] = {}
+    for path, doc in zip(paths, docs, strict=True):
+        fp = doc.get("data_fingerprint")
+        if not fp:
+            raise ValueError(f"{flag}: {path} has no data_fingerprint, so its object set cannot be told from "
+                             "another's; rerun it with this version's bench")
+        groups.setdefault(json.dumps(fp, sort_keys=True), []).append(path)
+    if len(groups) < 2:
+        raise ValueError(f"{flag}: the files hold one dataset; pairing by object set needs two or more "
+                         "(--merge pools the seeds of one dataset)")
+
+    def protocol(doc: dict) -> dict:
+        data = {k: v for k, v in (doc.get("data") or {}).items() if k != "data_dir"}
+        return {"data": data, **{key: doc.get(key) for key in _MERGE_KEYS if key != "data"}}
+
+    first = protocol(docs[0])
+    for path, doc in zip(paths[1:], docs[1:], strict=True):
+        for key, value in protocol(doc).items():
+            if value != first[key]:
+                raise ValueError(f"{flag}: {path} has {key}={value!r}, {paths[0]} has {first[key]!r}: "
+                                 "not the same protocol")
+    sets, settings = [], {}
+    for group in groups.values():
+        meta, runs = load_crossmodal_results(group, flag)
+        for variant, s in meta["variant_settings"].items():
+            if variant in settings and settings[variant][1] != s:
+                raise ValueError(f"{flag}: {group[0]} trains {variant} with {s}, {settings[variant][0]} with "
+                                 f"{settings[variant][1]}")
+            settings.setdefault(variant, (group[0], s))
+        data_dir = str((meta["data"] or {}).get("data_dir", ""))
+        sets.append({"label": Path(data_dir).name or data_dir, "data_dir": data_dir, "runs": runs,
+                     "data_fingerprint": meta["data_fingerprint"], "files": meta["merged_from"]})
+    names = [s["label"] for s in sets]
+    for s in sets:
+        if names.count(s["label"]) > 1:  # one folder regenerated: the fingerprint tells the draws apart
+            s["label"] += " (" + "/".join(str(v)[:8] for v in s["data_fingerprint"].values()) + ")"
+    meta = {**first, "variant_settings": {v: s for v, (_, s) in settings.items()},
+            "merged_from": [str(p) for p in paths]}
+    return meta, sets
+
+
+def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: float | None = None
+                    ) -> list[dict]:
+    """One row per ``(a, b)`` of ``pairs`` over the object sets of :func:`load_object_sets`: in each set that
+    has both sides, the mean of ``a`` and of ``b`` over the seeds both have there is one pair;
+    :func:`~vtlearn.bench_utils.paired_difference` of those set means, the sets and single runs ``a``
+    leads, the runs whose two sides ran on different machines (``cross_machine``), and table text. A pair
+    that no set has both sides of is refused naming it.
+
+    Shapes:
+        sets: one dict per object set, each with its runs -> one dict per pair
+    """
+    out = []
+    for a, b in pairs:
+        (va, fa), (vb, fb) = score_field(a), score_field(b)
+        labels, xa, xb, run_a, run_b, cross = [], [], [], [], [], 0
+        for s in sets:
+            ra = {r["seed"]: r for r in s["runs"] if r["variant"] == va and r.get(fa) is not None}
+            rb = {r["seed"]: r for r in s["runs"] if r["variant"] == vb and r.get(fb) is not None}
+            seeds = sorted(set(ra) & set(rb))
+            if not seeds:
+                continue
+            labels.append(s["label"])
+            run_a += [float(ra[k][fa]) for k in seeds]
+            run_b += [float(rb[k][fb]) for k in seeds]
+            xa.append(float(np.mean([ra[k][fa] for k in seeds])))
+            xb.append(float(np.mean([rb[k][fb] for k in seeds])))
+            cross += sum(not _same_machine(ra[k].get("machine"), rb[k].get("machine")) for k in seeds)
+        if not labels:
+            raise ValueError(f"--pairs: no object set has runs of both {a} and {b} on a common seed")
+        x, y = np.array(xa), np.array(xb)
+        stats = paired_difference(x, y, margin)
+        ci = stats["ci95"]
+        runs_ahead = int(sum(p > q for p, q in zip(run_a, run_b, strict=True)))
+        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "sets": labels, **stats, "cross_machine": cross,
+               "a_mean": float(x.mean()), "b_mean": float(y.mean()), "diffs": (x - y).tolist(),
+               "runs": len(run_a), "runs_ahead": runs_ahead,
+               "means": f"{x.mean():.2f} vs {y.mean():.2f}",
+               "difference": f"{stats['mean_diff']:+.2f} ± {stats['sd']:.2f}",
+               "95% CI": f"{ci[0]:+.1f} to {ci[1]:+.1f}" if ci else None,
+               "p (t)": _p_text(stats["t_p"]), "p (Wilcoxon)": _p_text(stats["wilcoxon_p"]),
+               "sets ahead": f"{stats['ahead']}/{len(labels)}", "runs ahead": f"{runs_ahead}/{len(run_a)}"}
+        if margin is not None:
+            row[f"p(≤ {margin:g})"] = _p_text(stats["p_at_most_margin"])
+        out.append(row)
+    return out
+
+
+def set_table_rows(sets: list[dict], variants: list[str]) -> list[dict]:
+    """The per-set table of :func:`load_object_sets`' sets: each row's mean tactile accuracy over the seeds
+    it has in the set (``"-"`` where it has none) and the seeds, then the mean over the sets that have the
+    row.
+
+    Shapes:
+        sets: one dict per object set -> one dict per set, and the mean
+    """
+    rows, per_variant = [], {v: [] for v in variants}
+    for s in sets:
+        row = {"set": s["label"]}
+        seeds = set()
+        for v in variants:
+            acc = [r["tactile_acc"] for r in s["runs"] if r["variant"] == v]
+            seeds |= {r["seed"] for r in s["runs"] if r["variant"] == v}
+            row[v] = f"{np.mean(acc):.1f}" if acc else "-"
+            if acc:
+                per_variant[v].append(float(np.mean(acc)))
+        row["seeds"] = ",".join(str(k) for k in sorted(seeds))
+        rows.append(row)
+    rows.append({"set": f"mean of the sets ({len(sets)})",
+                 **{v: f"{np.mean(m):.1f}" + ("" if len(m) == len(sets) else f" ({len(m)} sets)")
+                    if m else "-" for v, m in per_variant.items()}, "seeds": ""})
+    return rows
+
+
 def _p_text(p: float | None) -> str | None:
     if p is None:
         return None
@@ -193,9 +332,11 @@ def paired_table_columns(rows: list[dict], margin: float | None) -> list[str]:
     return cols
 
 
-def paired_figure(rows: list[dict], path, margin: float | None = None, title: str = "") -> Path:
-    """A forest plot of :func:`paired_rows`: each comparison's seed differences (dots), their mean and 95 %
-    interval (bar), a line at 0 and one at ``margin``. Returns the path written."""
+def paired_figure(rows: list[dict], path, margin: float | None = None, title: str = "",
+                  unit: str = "seeds") -> Path:
+    """A forest plot of :func:`paired_rows` (or :func:`set_paired_rows`, with ``unit="object sets"``): each
+    comparison's differences per seed or set (dots), their mean and 95 % interval (bar), a line at 0 and one
+    at ``margin``. Returns the path written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -221,7 +362,7 @@ def paired_figure(rows: list[dict], path, margin: float | None = None, title: st
     ax.set_yticks(range(len(rows)))
     ax.set_yticklabels(labels, fontsize=8)
     ax.set_xlabel("difference in tactile accuracy (points)")
-    ax.set_title(f"{title or 'Seed-paired differences'}\nseeds (dots), mean and 95 % interval (bar)",
+    ax.set_title(f"{title or 'Seed-paired differences'}\n{unit} (dots), mean and 95 % interval (bar)",
                  fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path)

@@ -699,8 +699,13 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if margin is not None and not np.isfinite(margin):
         raise ValueError(f"--margin: need a finite number of accuracy points, got {margin}")
     asked = parse_pairs(getattr(args, "pairs", None))  # a malformed --pairs is refused before any work
+    if getattr(args, "merge", None) and getattr(args, "merge_sets", None):
+        raise ValueError("--merge-sets: give either --merge (the seeds of one dataset) or --merge-sets (one "
+                         "protocol on several datasets), not both")
     if getattr(args, "merge", None):
         return _merge_crossmodal(args, asked)
+    if getattr(args, "merge_sets", None):
+        return _merge_sets_crossmodal(args, asked)
 
     cfg = load_config(args.config, "crossmodal")
     data_kwargs = _data_kwargs(cfg, args.data)
@@ -878,6 +883,78 @@ def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) ->
         result["figures"]["paired"] = str(out_dir / "paired.png")
         paired_figure(paired, result["figures"]["paired"], getattr(args, "margin", None),
                       f"Seed-paired differences, {len(args.merge)} merged results")
+        print(f"paired: {result['figures']['paired']}")
+        write_json(args.json, result)
+    print(f"wrote {args.json}")
+    return 0
+
+
+def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) -> int:
+    """``bench crossmodal --merge-sets``: the results of one protocol on several datasets (the thesis's
+    twelve-object protocol on several object draws; :func:`~vtlearn.models.crossmodal_compare.
+    load_object_sets`), each set's files pooled as ``--merge`` pools them. Prints each set's row means and
+    the comparisons paired by object set (every row against ``--baseline``, and ``asked``; one pair per set,
+    its mean over the seeds both rows have there), writes both as a JSON and the set differences as a
+    figure. Trains nothing."""
+    from vtlearn.bench_utils import check_output_path, print_table, write_json
+    from vtlearn.models.crossmodal_compare import (
+        default_pairs,
+        load_object_sets,
+        paired_figure,
+        paired_table_columns,
+        set_paired_rows,
+        set_table_rows,
+    )
+
+    out = check_output_path(args.json, "--json", "JSON")
+    if any(Path(m).resolve() == out.resolve() for m in args.merge_sets):
+        raise ValueError(f"--json: {args.json} is one of the --merge-sets inputs; write the merged result "
+                         "elsewhere")
+    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
+    if not args.no_figures:
+        check_output_path(out_dir, "--out-dir", "figures", folder=True)
+    meta, sets = load_object_sets(args.merge_sets)
+    runs = [r for s in sets for r in s["runs"]]
+    baseline = getattr(args, "baseline", "noda")
+    variants = list(dict.fromkeys(r["variant"] for r in runs))
+    _check_baseline(args, variants)
+    variants.sort(key=lambda v: v != baseline)  # the baseline's column first, the rest as first found
+    margin = getattr(args, "margin", None)
+    print(f"merged {len(args.merge_sets)} results on {len(sets)} object sets: rows {variants}")
+    print_table(set_table_rows(sets, variants), ["set", *variants, "seeds"],
+                "V→T accuracy (%) on tactile test clouds per object set: each row's mean over the set's "
+                "seeds")
+    pairs = list(dict.fromkeys(default_pairs(variants, runs, baseline) + asked))
+    paired = set_paired_rows(sets, pairs, margin) if pairs else []
+    if paired:
+        cols = paired_table_columns(paired, margin)
+        cols[cols.index("seeds ahead")] = "sets ahead"
+        cols.insert(cols.index("sets ahead") + 1, "runs ahead")
+        print_table(paired, cols,
+                    "Set-paired differences of tactile accuracy (points): mean ± std over the object sets "
+                    "that have both rows (each set: its mean over the seeds both rows have there), 95 % "
+                    "interval, two-sided p of the paired t and Wilcoxon tests over the sets, sets and runs "
+                    "ahead" + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
+                               if margin is not None else ""))
+    machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
+                    .values())
+    summaries = []
+    for s in sets:
+        acc: dict[str, list[float]] = {}
+        seeds: dict[str, list[int]] = {}
+        for r in s["runs"]:
+            acc.setdefault(r["variant"], []).append(r["tactile_acc"])
+            seeds.setdefault(r["variant"], []).append(r["seed"])
+        summaries.append({**{k: v for k, v in s.items() if k != "runs"},
+                          "means": {v: float(np.mean(a)) for v, a in acc.items()},
+                          "seeds": {v: sorted(k) for v, k in seeds.items()}})
+    result = {"bench": "crossmodal", "by": "object set", **meta, "sets": summaries, "paired": paired,
+              "machines": machines, "figures": {}}
+    write_json(args.json, result)
+    if paired and not args.no_figures:
+        result["figures"]["paired"] = str(out_dir / "paired_sets.png")
+        paired_figure(paired, result["figures"]["paired"], margin,
+                      f"Object-set-paired differences, {len(sets)} sets", unit="object sets")
         print(f"paired: {result['figures']['paired']}")
         write_json(args.json, result)
     print(f"wrote {args.json}")
@@ -1722,6 +1799,12 @@ def register_bench(sub) -> None:
                         "rows run apart; the same data, epochs and model) into one table, the paired "
                         "comparisons, a figure and --json; pairs whose runs ran on different machines are "
                         "counted (cross_machine). --variants and the training flags are not used")
+    p.add_argument("--merge-sets", dest="merge_sets", nargs="+", default=None, metavar="JSON",
+                   help="train nothing: read the results of one protocol on several datasets (object sets, "
+                        "e.g. the thesis's twelve-object protocol on several draws; told apart by their data "
+                        "fingerprints), pool each set's files as --merge does, and pair the rows by object "
+                        "set (each set's mean over its seeds is one pair): a per-set table, the set-paired "
+                        "comparisons (--baseline, --pairs, --margin), a figure and --json")
     p.add_argument("--no-figures", action="store_true",
                    help="skip the confusion matrix, t-SNE and paired-difference figures")
     p.add_argument("--out-dir", default=None,
