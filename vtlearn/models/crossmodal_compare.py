@@ -190,13 +190,14 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
 
     The files are grouped by their ``data_fingerprint``; each group is pooled by
     :func:`load_crossmodal_results` (the same checks, naming ``flag``). Across the groups everything but the
-    data folder must agree: the datamodule settings other than ``data_dir``, the training length, the model,
-    and the settings of every row that two sets both train. Raises ``ValueError`` naming ``flag`` and the
-    file for a file without a fingerprint (its set cannot be told from another's), for fewer than two
-    datasets (pooling one is ``--merge``'s work) and for a file of another protocol.
+    data folders must agree: the datamodule settings other than ``data_dir`` (and ``target_data_dir``), the
+    training length, the model, and the settings of every row that two sets both train. Raises
+    ``ValueError`` naming ``flag`` and the file for a file without a fingerprint (its set cannot be told
+    from another's), for fewer than two datasets (pooling one is ``--merge``'s work) and for a file of
+    another protocol.
 
     Returns:
-        meta (``data`` without ``data_dir``, ``max_epochs``, ``model_base``, ``variant_settings``,
+        meta (``data`` without the folders, ``max_epochs``, ``model_base``, ``variant_settings``,
         ``merged_from``), sets (one dict per dataset in the order first named: ``label``, the folder's name,
         with the fingerprint's first characters where two sets share a name; ``data_dir``,
         ``data_fingerprint``, ``files``, ``runs``)
@@ -214,7 +215,7 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
                          "(--merge pools the seeds of one dataset)")
 
     def protocol(doc: dict) -> dict:
-        data = {k: v for k, v in (doc.get("data") or {}).items() if k != "data_dir"}
+        data = {k: v for k, v in (doc.get("data") or {}).items() if k not in ("data_dir", "target_data_dir")}
         return {"data": data, **{key: doc.get(key) for key in _MERGE_KEYS if key != "data"}}
 
     first = protocol(docs[0])

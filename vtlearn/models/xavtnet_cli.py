@@ -891,8 +891,8 @@ def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) ->
 
 def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) -> int:
     """``bench crossmodal --merge-sets``: the results of one protocol on several datasets (the thesis's
-    twelve-object protocol on several object draws; :func:`~vtlearn.models.crossmodal_compare.
-    load_object_sets`), each set's files pooled as ``--merge`` pools them. Prints each set's row means and
+    twelve-object protocol on several object draws; ``crossmodal_compare.load_object_sets``), each set's
+    files pooled as ``--merge`` pools them. Prints each set's row means and
     the comparisons paired by object set (every row against ``--baseline``, and ``asked``; one pair per set,
     its mean over the seeds both rows have there), writes both as a JSON and the set differences as a
     figure. Trains nothing."""
