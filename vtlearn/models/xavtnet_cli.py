@@ -850,21 +850,30 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _merged_output(args: argparse.Namespace, inputs: list[str], flag: str) -> Path:
+    """The figure folder of a ``--merge`` / ``--merge-sets`` result, after checking its outputs before any
+    work: ``--json`` writable and not one of the ``inputs`` (named by ``flag``), ``--out-dir`` a folder."""
+    from vtlearn.bench_utils import check_output_path
+
+    out = check_output_path(args.json, "--json", "JSON")
+    if any(Path(m).resolve() == out.resolve() for m in inputs):
+        raise ValueError(f"--json: {args.json} is one of the {flag} inputs; write the merged result "
+                         "elsewhere")
+    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
+    if not args.no_figures:
+        check_output_path(out_dir, "--out-dir", "figures", folder=True)
+    return out_dir
+
+
 def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) -> int:
     """``bench crossmodal --merge``: pool the runs of earlier results of one protocol
     (:func:`~vtlearn.models.crossmodal_compare.load_crossmodal_results`), print their table and the
     seed-paired comparisons (``asked``: the parsed ``--pairs``, beside those against ``--baseline``), and
     write both as a JSON (and the paired differences as a figure). Trains nothing."""
-    from vtlearn.bench_utils import check_output_path, write_json
+    from vtlearn.bench_utils import write_json
     from vtlearn.models.crossmodal_compare import load_crossmodal_results, paired_figure
 
-    out = check_output_path(args.json, "--json", "JSON")
-    if any(Path(m).resolve() == out.resolve() for m in args.merge):
-        raise ValueError(f"--json: {args.json} is one of the --merge inputs; write the merged result "
-                         "elsewhere")
-    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
-    if not args.no_figures:
-        check_output_path(out_dir, "--out-dir", "figures", folder=True)
+    out_dir = _merged_output(args, args.merge, "--merge")
     meta, runs = load_crossmodal_results(args.merge)
     variants = list(dict.fromkeys(r["variant"] for r in runs))
     _check_baseline(args, variants)
@@ -896,7 +905,7 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
     the comparisons paired by object set (every row against ``--baseline``, and ``asked``; one pair per set,
     its mean over the seeds both rows have there), writes both as a JSON and the set differences as a
     figure. Trains nothing."""
-    from vtlearn.bench_utils import check_output_path, print_table, write_json
+    from vtlearn.bench_utils import print_table, write_json
     from vtlearn.models.crossmodal_compare import (
         default_pairs,
         load_object_sets,
@@ -906,13 +915,7 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
         set_table_rows,
     )
 
-    out = check_output_path(args.json, "--json", "JSON")
-    if any(Path(m).resolve() == out.resolve() for m in args.merge_sets):
-        raise ValueError(f"--json: {args.json} is one of the --merge-sets inputs; write the merged result "
-                         "elsewhere")
-    out_dir = Path(args.out_dir) if args.out_dir else Path(args.json).with_suffix("")
-    if not args.no_figures:
-        check_output_path(out_dir, "--out-dir", "figures", folder=True)
+    out_dir = _merged_output(args, args.merge_sets, "--merge-sets")
     meta, sets = load_object_sets(args.merge_sets)
     runs = [r for s in sets for r in s["runs"]]
     baseline = getattr(args, "baseline", "noda")
