@@ -16,6 +16,7 @@ from vtlearn.models.crossmodal_compare import (
     parse_pairs,
     score_field,
     set_paired_rows,
+    set_summaries,
     set_table_rows,
 )
 
@@ -198,7 +199,7 @@ def test_object_sets_are_paired_by_their_means(tmp_path):
     vm = rows["vtloss − mmd"]
     assert vm["sets"] == ["s1", "s2"] and vm["diffs"] == pytest.approx([51.0 - 52.0, 47.0 - 45.5])
     assert vm["runs ahead"] == "3/5" and vm["cross_machine"] == 3  # s1's mmd ran on another host
-    table = set_table_rows(sets, ["noda", "vtloss", "mmd"])
+    table = set_table_rows(set_summaries(sets), ["noda", "vtloss", "mmd"])
     assert [t["set"] for t in table[:3]] == ["s1", "s2", "s3"] and table[2]["mmd"] == "-"
     assert table[2]["vtloss"] == "52.0" and table[2]["seeds"] == "0,1,2"
     assert table[3]["noda"] == f"{np.mean([33.0, 41.0, 28.0]):.1f}"

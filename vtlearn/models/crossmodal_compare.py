@@ -30,7 +30,7 @@ from vtlearn.bench_utils import check_same_protocol, paired_difference, read_res
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
            "paired_table_columns", "paired_figure", "load_object_sets", "set_paired_rows",
-           "set_table_rows"]
+           "set_summaries", "set_table_rows"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
@@ -109,15 +109,27 @@ def load_crossmodal_results(paths: list[str], flag: str = "--merge") -> tuple[di
         meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the
         ``variant_settings`` known, ``config`` and ``merged_from`` lists), runs (one dict per (row, seed))
     """
-    docs = read_results(paths, "crossmodal", "runs", flag)
-    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS, flag)
+    return _pool_results(paths, read_results(paths, "crossmodal", "runs", flag), flag)
+
+
+def _merge_settings(named: list[tuple[str, dict | None]], flag: str) -> dict[str, dict]:
+    """The ``variant_settings`` of several results as one dict; a ``ValueError`` naming ``flag`` and both
+    files when two give a row different settings. ``named``: (file, its variant_settings) pairs."""
     settings: dict[str, tuple[str, dict]] = {}
-    for path, doc in zip(paths, docs, strict=True):
-        for variant, s in (doc.get("variant_settings") or {}).items():
+    for path, given in named:
+        for variant, s in (given or {}).items():
             if variant in settings and settings[variant][1] != s:
                 raise ValueError(f"{flag}: {path} trains {variant} with {s}, {settings[variant][0]} with "
                                  f"{settings[variant][1]}")
             settings.setdefault(variant, (path, s))
+    return {v: s for v, (_, s) in settings.items()}
+
+
+def _pool_results(paths: list[str], docs: list[dict], flag: str) -> tuple[dict, list[dict]]:
+    """:func:`load_crossmodal_results` on results already read (``docs``, one per path)."""
+    fingerprint = check_same_protocol(paths, docs, _MERGE_KEYS, flag)
+    named = [(path, doc.get("variant_settings")) for path, doc in zip(paths, docs, strict=True)]
+    settings = _merge_settings(named, flag)
     runs: list[dict] = []
     where: dict[tuple[str, int], int] = {}
     for path, doc in zip(paths, docs, strict=True):
@@ -136,8 +148,7 @@ def load_crossmodal_results(paths: list[str], flag: str = "--merge") -> tuple[di
             where[key] = len(runs)
             runs.append({**r, "machine": r.get("machine") or machine, "file": str(path)})
     meta = {key: docs[0].get(key) for key in _MERGE_KEYS}
-    meta.update({"data_fingerprint": fingerprint,
-                 "variant_settings": {v: s for v, (_, s) in settings.items()},
+    meta.update({"data_fingerprint": fingerprint, "variant_settings": settings,
                  "config": [doc.get("config") for doc in docs], "merged_from": [str(p) for p in paths]})
     return meta, runs
 
@@ -167,22 +178,31 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
             raise ValueError(f"--pairs: {a} (seeds {sorted(ra)}) and {b} (seeds {sorted(rb)}) share no seed")
         x = np.array([ra[s][fa] for s in seeds], dtype=np.float64)
         y = np.array([rb[s][fb] for s in seeds], dtype=np.float64)
-        stats = paired_difference(x, y, margin)
         cross = sum(not _same_machine(ra[s].get("machine"), rb[s].get("machine")) for s in seeds)
-        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "seeds": seeds, **stats, "cross_machine": cross,
-               "a_mean": float(x.mean()), "b_mean": float(y.mean()), "diffs": (x - y).tolist()}
-        ci = stats["ci95"]
-        row.update({
-            "means": f"{x.mean():.2f} vs {y.mean():.2f}",
-            "difference": f"{stats['mean_diff']:+.2f} ± {stats['sd']:.2f}",
-            "95% CI": f"{ci[0]:+.1f} to {ci[1]:+.1f}" if ci else None,
-            "p (t)": _p_text(stats["t_p"]), "p (Wilcoxon)": _p_text(stats["wilcoxon_p"]),
-            "seeds ahead": f"{stats['ahead']}/{len(seeds)}",
-        })
-        if margin is not None:
-            row[f"p(≤ {margin:g})"] = _p_text(stats["p_at_most_margin"])
+        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "seeds": seeds, **_pair_row(x, y, margin),
+               "cross_machine": cross}
+        row["seeds ahead"] = f"{row['ahead']}/{len(seeds)}"
         out.append(row)
     return out
+
+
+def _pair_row(x: np.ndarray, y: np.ndarray, margin: float | None) -> dict:
+    """:func:`~vtlearn.bench_utils.paired_difference` of ``x`` over ``y``, the two means, the differences,
+    and the table text of a comparison (``p(≤ margin)`` with a ``margin``).
+
+    Shapes:
+        x (N,), y (N,) -> dict
+    """
+    stats = paired_difference(x, y, margin)
+    ci = stats["ci95"]
+    row = {**stats, "a_mean": float(x.mean()), "b_mean": float(y.mean()), "diffs": (x - y).tolist(),
+           "means": f"{x.mean():.2f} vs {y.mean():.2f}",
+           "difference": f"{stats['mean_diff']:+.2f} ± {stats['sd']:.2f}",
+           "95% CI": f"{ci[0]:+.1f} to {ci[1]:+.1f}" if ci else None,
+           "p (t)": _p_text(stats["t_p"]), "p (Wilcoxon)": _p_text(stats["wilcoxon_p"])}
+    if margin is not None:
+        row[f"p(≤ {margin:g})"] = _p_text(stats["p_at_most_margin"])
+    return row
 
 
 def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict, list[dict]]:
@@ -203,44 +223,34 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
         ``data_fingerprint``, ``files``, ``runs``)
     """
     docs = read_results(paths, "crossmodal", "runs", flag)
-    groups: dict[str, list[str]] = {}
-    for path, doc in zip(paths, docs, strict=True):
+    groups: dict[str, list[int]] = {}
+    for i, (path, doc) in enumerate(zip(paths, docs, strict=True)):
         fp = doc.get("data_fingerprint")
         if not fp:
             raise ValueError(f"{flag}: {path} has no data_fingerprint, so its object set cannot be told from "
                              "another's; rerun it with this version's bench")
-        groups.setdefault(json.dumps(fp, sort_keys=True), []).append(path)
+        groups.setdefault(json.dumps(fp, sort_keys=True), []).append(i)
     if len(groups) < 2:
         raise ValueError(f"{flag}: the files hold one dataset; pairing by object set needs two or more "
                          "(--merge pools the seeds of one dataset)")
-
-    def protocol(doc: dict) -> dict:
-        data = {k: v for k, v in (doc.get("data") or {}).items() if k not in ("data_dir", "target_data_dir")}
-        return {"data": data, **{key: doc.get(key) for key in _MERGE_KEYS if key != "data"}}
-
-    first = protocol(docs[0])
-    for path, doc in zip(paths[1:], docs[1:], strict=True):
-        for key, value in protocol(doc).items():
-            if value != first[key]:
-                raise ValueError(f"{flag}: {path} has {key}={value!r}, {paths[0]} has {first[key]!r}: "
-                                 "not the same protocol")
-    sets, settings = [], {}
+    # across the sets: the protocol bar the data folders (no fingerprint: the sets' differ by design)
+    protocols = [{"data": {k: v for k, v in (doc.get("data") or {}).items()
+                           if k not in ("data_dir", "target_data_dir")},
+                  **{key: doc.get(key) for key in _MERGE_KEYS if key != "data"}} for doc in docs]
+    check_same_protocol(paths, protocols, _MERGE_KEYS, flag)
+    sets, named = [], []
     for group in groups.values():
-        meta, runs = load_crossmodal_results(group, flag)
-        for variant, s in meta["variant_settings"].items():
-            if variant in settings and settings[variant][1] != s:
-                raise ValueError(f"{flag}: {group[0]} trains {variant} with {s}, {settings[variant][0]} with "
-                                 f"{settings[variant][1]}")
-            settings.setdefault(variant, (group[0], s))
+        meta, runs = _pool_results([paths[i] for i in group], [docs[i] for i in group], flag)
+        named.append((paths[group[0]], meta["variant_settings"]))
         data_dir = str((meta["data"] or {}).get("data_dir", ""))
         sets.append({"label": Path(data_dir).name or data_dir, "data_dir": data_dir, "runs": runs,
                      "data_fingerprint": meta["data_fingerprint"], "files": meta["merged_from"]})
+    settings = _merge_settings(named, flag)  # a row trained alike in every set
     names = [s["label"] for s in sets]
     for s in sets:
         if names.count(s["label"]) > 1:  # one folder regenerated: the fingerprint tells the draws apart
             s["label"] += " (" + "/".join(str(v)[:8] for v in s["data_fingerprint"].values()) + ")"
-    meta = {**first, "variant_settings": {v: s for v, (_, s) in settings.items()},
-            "merged_from": [str(p) for p in paths]}
+    meta = {**protocols[0], "variant_settings": settings, "merged_from": [str(p) for p in paths]}
     return meta, sets
 
 
@@ -273,48 +283,54 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
             cross += sum(not _same_machine(ra[k].get("machine"), rb[k].get("machine")) for k in seeds)
         if not labels:
             raise ValueError(f"--pairs: no object set has runs of both {a} and {b} on a common seed")
-        x, y = np.array(xa), np.array(xb)
-        stats = paired_difference(x, y, margin)
-        ci = stats["ci95"]
         runs_ahead = int(sum(p > q for p, q in zip(run_a, run_b, strict=True)))
-        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "sets": labels, **stats, "cross_machine": cross,
-               "a_mean": float(x.mean()), "b_mean": float(y.mean()), "diffs": (x - y).tolist(),
-               "runs": len(run_a), "runs_ahead": runs_ahead,
-               "means": f"{x.mean():.2f} vs {y.mean():.2f}",
-               "difference": f"{stats['mean_diff']:+.2f} ± {stats['sd']:.2f}",
-               "95% CI": f"{ci[0]:+.1f} to {ci[1]:+.1f}" if ci else None,
-               "p (t)": _p_text(stats["t_p"]), "p (Wilcoxon)": _p_text(stats["wilcoxon_p"]),
-               "sets ahead": f"{stats['ahead']}/{len(labels)}", "runs ahead": f"{runs_ahead}/{len(run_a)}"}
-        if margin is not None:
-            row[f"p(≤ {margin:g})"] = _p_text(stats["p_at_most_margin"])
+        row = {"comparison": f"{a} − {b}", "a": a, "b": b, "sets": labels,
+               **_pair_row(np.array(xa), np.array(xb), margin), "cross_machine": cross,
+               "runs": len(run_a), "runs_ahead": runs_ahead, "runs ahead": f"{runs_ahead}/{len(run_a)}"}
+        row["sets ahead"] = f"{row['ahead']}/{len(labels)}"
         out.append(row)
     return out
 
 
-def set_table_rows(sets: list[dict], variants: list[str]) -> list[dict]:
-    """The per-set table of :func:`load_object_sets`' sets: each row's mean tactile accuracy over the seeds
-    it has in the set (``"-"`` where it has none) and the seeds, then the mean over the sets that have the
-    row.
+def set_summaries(sets: list[dict]) -> list[dict]:
+    """Each object set of :func:`load_object_sets` without its runs, with each row's mean tactile accuracy
+    over the seeds it has in the set (``means``) and those seeds (``seeds``).
 
     Shapes:
-        sets: one dict per object set -> one dict per set, and the mean
+        sets: one dict per object set -> one dict per set
     """
-    rows, per_variant = [], {v: [] for v in variants}
+    out = []
     for s in sets:
-        row = {"set": s["label"]}
-        seeds = set()
-        for v in variants:
-            acc = [r["tactile_acc"] for r in s["runs"] if r["variant"] == v]
-            seeds |= {r["seed"] for r in s["runs"] if r["variant"] == v}
-            row[v] = f"{np.mean(acc):.1f}" if acc else "-"
-            if acc:
-                per_variant[v].append(float(np.mean(acc)))
-        row["seeds"] = ",".join(str(k) for k in sorted(seeds))
-        rows.append(row)
-    rows.append({"set": f"mean of the sets ({len(sets)})",
-                 **{v: f"{np.mean(m):.1f}" + ("" if len(m) == len(sets) else f" ({len(m)} sets)")
-                    if m else "-" for v, m in per_variant.items()}, "seeds": ""})
-    return rows
+        acc: dict[str, list[float]] = {}
+        seeds: dict[str, list[int]] = {}
+        for r in s["runs"]:
+            acc.setdefault(r["variant"], []).append(r["tactile_acc"])
+            seeds.setdefault(r["variant"], []).append(r["seed"])
+        out.append({**{k: v for k, v in s.items() if k != "runs"},
+                    "means": {v: float(np.mean(a)) for v, a in acc.items()},
+                    "seeds": {v: sorted(k) for v, k in seeds.items()}})
+    return out
+
+
+def set_table_rows(summaries: list[dict], variants: list[str]) -> list[dict]:
+    """The per-set table of :func:`set_summaries`: each row's mean over the seeds it has in the set (``"-"``
+    where it has none) and the set's seeds, then the mean over the sets that have the row.
+
+    Shapes:
+        summaries: one dict per object set -> one dict per set, and the mean
+    """
+    rows = []
+    for s in summaries:
+        seeds = sorted({k for v in variants for k in s["seeds"].get(v, [])})
+        rows.append({"set": s["label"], **{v: f"{s['means'][v]:.1f}" if v in s["means"] else "-"
+                                           for v in variants},
+                     "seeds": ",".join(str(k) for k in seeds)})
+    mean_row = {"set": f"mean of the sets ({len(summaries)})", "seeds": ""}
+    for v in variants:
+        m = [s["means"][v] for s in summaries if v in s["means"]]
+        mean_row[v] = (f"{np.mean(m):.1f}" + ("" if len(m) == len(summaries) else f" ({len(m)} sets)")
+                       if m else "-")
+    return [*rows, mean_row]
 
 
 def _p_text(p: float | None) -> str | None:

@@ -912,6 +912,7 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
         paired_figure,
         paired_table_columns,
         set_paired_rows,
+        set_summaries,
         set_table_rows,
     )
 
@@ -924,7 +925,8 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
     variants.sort(key=lambda v: v != baseline)  # the baseline's column first, the rest as first found
     margin = getattr(args, "margin", None)
     print(f"merged {len(args.merge_sets)} results on {len(sets)} object sets: rows {variants}")
-    print_table(set_table_rows(sets, variants), ["set", *variants, "seeds"],
+    summaries = set_summaries(sets)
+    print_table(set_table_rows(summaries, variants), ["set", *variants, "seeds"],
                 "V→T accuracy (%) on tactile test clouds per object set: each row's mean over the set's "
                 "seeds")
     pairs = list(dict.fromkeys(default_pairs(variants, runs, baseline) + asked))
@@ -941,16 +943,6 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
                                if margin is not None else ""))
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
-    summaries = []
-    for s in sets:
-        acc: dict[str, list[float]] = {}
-        seeds: dict[str, list[int]] = {}
-        for r in s["runs"]:
-            acc.setdefault(r["variant"], []).append(r["tactile_acc"])
-            seeds.setdefault(r["variant"], []).append(r["seed"])
-        summaries.append({**{k: v for k, v in s.items() if k != "runs"},
-                          "means": {v: float(np.mean(a)) for v, a in acc.items()},
-                          "seeds": {v: sorted(k) for v, k in seeds.items()}})
     result = {"bench": "crossmodal", "by": "object set", **meta, "sets": summaries, "paired": paired,
               "machines": machines, "figures": {}}
     write_json(args.json, result)
