@@ -1,5 +1,6 @@
 """Tests for vtlearn.losses: MK-MMD, CORAL, VTLoss, DANN (thesis eq. 7.5-7.8), CDAN+E's conditioning,
-information maximisation and minimum class confusion."""
+information maximisation, minimum class confusion, maximum classifier discrepancy and the adaptive feature
+norm."""
 
 import copy
 import math
@@ -10,6 +11,7 @@ import torch
 from vtlearn.losses import (
     GradientReversal,
     VTLoss,
+    adaptive_feature_norm,
     classifier_discrepancy,
     coral,
     covariance,
@@ -862,3 +864,27 @@ def test_mcd_adversarial_loss_reverses_the_discrepancy_between_features_and_clas
             mcd_adversarial_loss(z, f1, f2, **kwargs)
     with pytest.raises(ValueError, match="features"):
         mcd_adversarial_loss(z[0], f1, f2, 1.0)
+
+
+def test_adaptive_feature_norm_is_step_squared_and_raises_every_norm_by_the_step():
+    """Xu et al.'s L_SAFN: its value is Δr² whatever the features; its gradient is −2Δr/n times each row's
+    unit direction, so one descent step of size η lengthens every feature by 2ηΔr/n and leaves its direction
+    alone; the mean norm it reports is the rows' own."""
+    g = torch.Generator().manual_seed(3)
+    x = torch.randn(5, 4, generator=g, dtype=torch.float64).requires_grad_()
+    for step in (1.0, 0.3):
+        loss, mean_norm = adaptive_feature_norm(x, step)
+        assert loss.item() == pytest.approx(step**2, rel=1e-12)
+        assert mean_norm.item() == pytest.approx(sum(math.hypot(*row) for row in x.tolist()) / 5, rel=1e-12)
+        (grad,) = torch.autograd.grad(loss, x)
+        unit = x.detach() / x.detach().norm(dim=1, keepdim=True)
+        torch.testing.assert_close(grad, -2 * step / 5 * unit)
+    moved = x.detach() - 0.5 * grad  # the last step, 0.3
+    torch.testing.assert_close(moved.norm(dim=1), x.detach().norm(dim=1) + 2 * 0.5 * 0.3 / 5)
+    torch.testing.assert_close(moved / moved.norm(dim=1, keepdim=True), unit)
+    for bad, match in ((x[0], "features"), (x[:0], "features"), (x.detach() * float("nan"), "features")):
+        with pytest.raises(ValueError, match=match):
+            adaptive_feature_norm(bad)
+    for step in (0.0, -1.0):
+        with pytest.raises(ValueError, match="step"):
+            adaptive_feature_norm(x, step)

@@ -230,6 +230,9 @@ def test_subsample_and_normalize_padded():
         (dict(da_method="none", defrec_weight=1.0), {"train/defrec"}, {"train/mmd"}),
         (dict(mcd_weight=1.0), {"train/mmd", "train/mcd", "train/ce_f2"}, {"train/domain"}),
         (dict(da_method="none", mcd_weight=1.0), {"train/mcd", "train/ce_f2"}, {"train/mmd"}),
+        (dict(afn_weight=1.0), {"train/mmd", "train/afn_norm_source", "train/afn_norm_target"},
+         {"train/domain"}),
+        (dict(da_method="none", afn_weight=1.0), {"train/afn_norm_target"}, {"train/mmd"}),
     ],
 )
 def test_fast_dev_run_every_table_7_2_row(tmp_path, kwargs, logged, absent):
@@ -434,6 +437,27 @@ def test_mcd_weight_adds_the_second_classifier_and_the_reversed_discrepancy():
         assert torch.equal(out.logits, model.head.fc3(out.features["fc2"]))
     with pytest.raises(ValueError, match="mcd_weight"):
         XAVTNet(**TINY, mcd_weight=-1.0)
+
+
+def test_afn_weight_adds_the_feature_norm_of_both_domains_and_lengthens_the_target_features():
+    """``afn_weight``: the step's loss is no-DA's plus w·(L_SAFN(source fc2) + L_SAFN(target fc2)) = no-DA's +
+    2·w·Δr², and training with it leaves the target fc2 features with larger norms than no-DA's after the
+    same steps."""
+    from vtlearn.losses import adaptive_feature_norm
+
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    loss, model, base, out_s, out_t = _one_step(batch, afn_weight=0.7, afn_step=0.5)
+    terms = sum(adaptive_feature_norm(o.features["fc2"], 0.5)[0] for o in (out_s, out_t))
+    assert loss == pytest.approx((base + 0.7 * terms).item(), rel=1e-5)
+    assert terms.item() == pytest.approx(2 * 0.5**2)
+    norms = {}
+    for weight in (0.0, 10.0):
+        _, out_t = _trained_joint_outputs(batch, da_method="none", afn_weight=weight)
+        norms[weight] = out_t.features["fc2"].norm(dim=1).mean().item()
+    assert norms[10.0] > 1.1 * norms[0.0], norms
+    for bad in (dict(afn_weight=-1.0), dict(afn_step=0.0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            XAVTNet(**TINY, **bad)
 
 
 def test_cdan_discriminates_fc2_conditioned_on_the_prediction():

@@ -1,7 +1,9 @@
 """Losses: MK-MMD (with Gretton et al.'s optimal kernel weights), Deep CORAL, VTLoss (thesis ch.7); beyond it
 DDC's linear-kernel MMD, DANN gradient reversal, CDAN+E's conditioning, information maximisation, minimum
-class confusion, maximum classifier discrepancy, DSAN's class-conditional LMMD and SimCLR's NT-Xent."""
+class confusion, maximum classifier discrepancy, the stepwise adaptive feature norm, DSAN's class-conditional
+LMMD and SimCLR's NT-Xent."""
 
+from vtlearn.losses.afn import adaptive_feature_norm
 from vtlearn.losses.cdan import entropy_weights, multilinear_map
 from vtlearn.losses.contrastive import nt_xent
 from vtlearn.losses.coral import coral, covariance
@@ -35,5 +37,6 @@ __all__ = [
     "minimum_class_confusion",
     "classifier_discrepancy",
     "mcd_adversarial_loss",
+    "adaptive_feature_norm",
     "nt_xent",
 ]

@@ -31,6 +31,9 @@ maximum classifier discrepancy (:mod:`vtlearn.losses.mcd`): a second classifier 
 feature, trained on the source clouds with the same ``α·CE``, and ``−mcd_weight·d(F₁, F₂)`` of the target
 batch through a gradient reversal, so the two classifiers pull apart on the target clouds and the network
 below them pulls those clouds back to where the two agree. fc3 (F₁) alone makes the model's predictions.
+``afn_weight > 0`` adds Xu et al.'s stepwise adaptive feature norm (:mod:`vtlearn.losses.afn`),
+``afn_weight·(L_SAFN(fc2 source) + L_SAFN(fc2 target))``: every step asks the fc2 feature of every source
+and target cloud for a norm ``afn_step`` larger than it has, rather than aligning the two domains.
 
 ``pseudo_label_weight > 0`` (beyond the thesis) adds self-training on the target stream: from epoch
 ``⌈pseudo_label_start·max_epochs⌉`` on, each epoch starts with one pass over the target clouds, which
@@ -122,6 +125,7 @@ import torch.nn.functional as F
 from torchmetrics import MeanMetric
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
+from vtlearn.losses.afn import AFN_STEP, adaptive_feature_norm
 from vtlearn.losses.cdan import entropy_weights, multilinear_map
 from vtlearn.losses.consistency import confident_cross_entropy, probability_consistency
 from vtlearn.losses.contrastive import nt_xent
@@ -338,6 +342,11 @@ class XAVTNet(L.LightningModule):
         mcd_weight: weight of MCD's adversarial classifier discrepancy on the target batch (module
             docstring; Saito et al. 2018, beyond the thesis), added to the loss of ``da_method`` with the
             second classifier's source cross-entropy. 0 (default): off, no second classifier.
+        afn_weight: weight of the stepwise adaptive feature norm of the fc2 features, source and target
+            (:func:`~vtlearn.losses.afn.adaptive_feature_norm`; Xu et al. 2019, beyond the thesis), added to
+            the loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
+        afn_step: its residual step Δr, the norm each step asks for beyond the current one (1, Xu et
+            al.'s), > 0.
         pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
             pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
             ``da_method``. 0 (default): off, as in eq. 7.8.
@@ -479,6 +488,8 @@ class XAVTNet(L.LightningModule):
         mcc_weight: float = 0.0,
         mcc_temperature: float = MCC_TEMPERATURE,
         mcd_weight: float = 0.0,
+        afn_weight: float = 0.0,
+        afn_step: float = AFN_STEP,
         pseudo_label_weight: float = 0.0,
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
@@ -532,6 +543,8 @@ class XAVTNet(L.LightningModule):
         as_real(mcc_weight, "mcc_weight", low=0.0)
         as_real(mcc_temperature, "mcc_temperature", low=0.0, open_low=True)
         as_real(mcd_weight, "mcd_weight", low=0.0)
+        as_real(afn_weight, "afn_weight", low=0.0)
+        as_real(afn_step, "afn_step", low=0.0, open_low=True)
         as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
         as_real(pseudo_label_start, "pseudo_label_start", low=0.0, high=1.0, open_high=True)
         as_real(pseudo_label_fraction, "pseudo_label_fraction", low=0.0, high=1.0, open_low=True)
@@ -940,11 +953,12 @@ class XAVTNet(L.LightningModule):
         # CORAL needs >= 2 target clouds; a lone leftover target cloud is skipped.
         im_weight = self.hparams.get("im_weight", 0.0)
         mcc_weight = self.hparams.get("mcc_weight", 0.0)
+        afn_weight = self.hparams.get("afn_weight", 0.0)
         pl_weight = self.hparams.get("pseudo_label_weight", 0.0)
         nb_weight = self.hparams.get("neighbour_weight", 0.0)
         mix_weight = self.hparams.get("mix_weight", 0.0)
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
-                  or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
+                  or afn_weight > 0 or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
                   or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None
                   or self.defrec_head is not None or self.mcd_head is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
@@ -993,6 +1007,12 @@ class XAVTNet(L.LightningModule):
                                                                                      MCC_TEMPERATURE))
             loss = loss + mcc_weight * mcc
             parts = {**parts, "mcc": mcc.detach(), **mcc_parts}
+        if use_target and afn_weight > 0:
+            step = self.hparams.get("afn_step", AFN_STEP)
+            afn_s, norm_s = adaptive_feature_norm(out_s.features["fc2"], step)
+            afn_t, norm_t = adaptive_feature_norm(out_t.features["fc2"], step)
+            loss = loss + afn_weight * (afn_s + afn_t)
+            parts = {**parts, "afn_norm_source": norm_s, "afn_norm_target": norm_t}
         if use_target and self.mcd_head is not None:
             mcd, mcd_parts = self._mcd_loss(out_s, out_t, y)
             loss = loss + mcd

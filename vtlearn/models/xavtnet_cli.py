@@ -71,6 +71,11 @@ VARIANTS: dict[str, dict] = {
     # α = 10), alone and added to VTLoss.
     "mcd": {"da_method": "none", "mcd_weight": 10.0},
     "vtloss_mcd": {**_VTLOSS, "mcd_weight": 10.0},
+    # Beyond the thesis: Xu et al.'s stepwise adaptive feature norm of the fc2 features, source and target
+    # (losses/afn.py, SAFN, Δr = 1), at their ratio to the cross-entropy (0.05 against 1: 0.5 against
+    # α = 10), alone and added to VTLoss.
+    "noda_afn": {"da_method": "none", "afn_weight": 0.5},
+    "vtloss_afn": {**_VTLOSS, "afn_weight": 0.5},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},
