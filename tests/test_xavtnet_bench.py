@@ -789,8 +789,8 @@ def test_domain_discrepancy_is_zero_for_one_domain_and_grows_with_a_shift():
     same = _domain_discrepancy(model, SimpleNamespace(source_test_dataloader=loader(clouds),
                                                       test_dataloader=loader(clouds)))
     assert torch.equal(torch.random.get_rng_state(), state) and model.training
-    assert set(same) == {f"{k}_{layer}" for k in ("mmd", "coral") for layer in DISCREPANCY_LAYERS}
-    assert all(v == pytest.approx(0.0, abs=1e-12) for v in same.values())
+    assert set(same) == {f"{k}_{layer}" for k in ("mmd", "coral", "norm") for layer in DISCREPANCY_LAYERS}
+    assert all(v == pytest.approx(1.0 if k.startswith("norm") else 0.0, abs=1e-12) for k, v in same.items())
     stretched = clouds * torch.tensor([1.0, 1.0, 3.0])
     shifted = _domain_discrepancy(model, SimpleNamespace(source_test_dataloader=loader(clouds),
                                                          test_dataloader=loader(stretched)))
@@ -804,3 +804,5 @@ def test_domain_discrepancy_is_zero_for_one_domain_and_grows_with_a_shift():
         s, t = src[layer].double(), tgt[layer].double()
         assert shifted[f"mmd_{layer}"] == pytest.approx(float(mk_mmd(s, t)), rel=1e-4)
         assert shifted[f"coral_{layer}"] == pytest.approx(float(coral(s, t)), rel=1e-4)
+        assert shifted[f"norm_{layer}"] == pytest.approx(float(t.norm(dim=1).mean() / s.norm(dim=1).mean()),
+                                                         rel=1e-4)

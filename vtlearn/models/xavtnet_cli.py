@@ -582,11 +582,14 @@ def _domain_discrepancy(model, dm, layers: tuple[str, ...] = DISCREPANCY_LAYERS)
     distance (eq. 7.7, :func:`~vtlearn.losses.coral.coral`) of each of ``layers``, between the eval-mode
     features of the visual test clouds (the source statistics) and of the tactile test clouds, each set
     whole. It tells whether a row's alignment terms, or another row's, left the covariances apart: for
-    instance whether MMD alone already closes CORAL's distance. Torch's random state is restored, as by
-    :func:`_readout_scores`.
+    instance whether MMD alone already closes CORAL's distance. ``norm_<layer>`` is the tactile clouds' mean
+    feature norm over the visual clouds' (Xu et al.'s premise for the adaptive feature norm,
+    :mod:`vtlearn.losses.afn`, is that it is below 1 after source training). Torch's random state is
+    restored, as by :func:`_readout_scores`.
 
     Shapes:
-        ``layer`` features (n_visual, d) and (n_tactile, d) -> {"mmd_<layer>": float, "coral_<layer>": float}
+        ``layer`` features (n_visual, d) and (n_tactile, d) -> {"mmd_<layer>": float, "coral_<layer>": float,
+        "norm_<layer>": float}
     """
     import torch
 
@@ -603,6 +606,7 @@ def _domain_discrepancy(model, dm, layers: tuple[str, ...] = DISCREPANCY_LAYERS)
         t_feat = torch.from_numpy(target[layer]).double()
         out[f"mmd_{layer}"] = float(mk_mmd(s_feat, t_feat))
         out[f"coral_{layer}"] = float(coral(s_feat, t_feat))
+        out[f"norm_{layer}"] = float(t_feat.norm(dim=1).mean() / s_feat.norm(dim=1).mean())
     return out
 
 
@@ -1027,7 +1031,8 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
         keys = [k for k in discrepancy_rows[0] if k not in ("variant", "seeds") and not k.endswith("_mean")]
         print_table(discrepancy_rows, ["variant", *keys, "seeds"],
                     "Domain discrepancy left by each row: squared MK-MMD and Deep CORAL distance of "
-                    "eval-mode features, visual test clouds vs tactile test clouds (mean ± std over seeds)")
+                    "eval-mode features, visual test clouds vs tactile test clouds, and the tactile over "
+                    "the visual mean feature norm (mean ± std over seeds)")
     return rows, checks, discrepancy_rows
 
 
@@ -1780,7 +1785,8 @@ def register_bench(sub) -> None:
     p.add_argument("--discrepancy", action="store_true",
                    help="also measure the squared MK-MMD and the Deep CORAL distance (eq. 7.5-7.7) that "
                         "every row leaves between the visual and the tactile test clouds' eval-mode global, "
-                        "fc1 and fc2 features (per run: discrepancy; a table of means ± std)")
+                        "fc1 and fc2 features, and the tactile over the visual mean feature norm (per run: "
+                        "discrepancy; a table of means ± std)")
     p.add_argument("--accelerator", choices=["cpu", "gpu", "auto"], default="cpu",
                    help="Lightning accelerator of every training (default cpu; with gpu, --workers trainings "
                         "share the one device)")
