@@ -24,13 +24,10 @@ import torch
 from vtlearn.losses.mmd import check_features
 from vtlearn.validation import as_real
 
-__all__ = ["AFN_STEP", "AFN_WEIGHT", "adaptive_feature_norm"]
+__all__ = ["AFN_STEP", "adaptive_feature_norm"]
 
 AFN_STEP = 1.0
 """Xu et al.'s residual step Δr (Office-31, VisDA)."""
-
-AFN_WEIGHT = 0.05
-"""Xu et al.'s λ, against a cross-entropy of weight 1."""
 
 
 def adaptive_feature_norm(features: torch.Tensor, step: float = AFN_STEP
