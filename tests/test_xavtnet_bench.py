@@ -806,3 +806,37 @@ def test_domain_discrepancy_is_zero_for_one_domain_and_grows_with_a_shift():
         assert shifted[f"coral_{layer}"] == pytest.approx(float(coral(s, t)), rel=1e-4)
         assert shifted[f"norm_{layer}"] == pytest.approx(float(t.norm(dim=1).mean() / s.norm(dim=1).mean()),
                                                          rel=1e-4)
+
+
+def test_domain_discrepancy_norm_ratio_is_nan_where_the_visual_features_are_all_zero(monkeypatch):
+    """A layer whose visual features are all zero (dead ReLUs) has no norm ratio: NaN, which the table prints
+    as "-" and the JSON writes as null, instead of inf or a division warning; the other layers keep theirs."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import torch
+
+    from vtlearn.bench_utils import to_jsonable
+    from vtlearn.models import xavtnet_cli
+
+    real = xavtnet_cli._collect_features
+    calls = []
+
+    def zero_source_fc2(model, loader, layers):
+        feats, labels = real(model, loader, layers)
+        if not calls:  # the first pass reads the visual test clouds
+            feats["fc2"] = np.zeros_like(feats["fc2"])
+        calls.append(loader)
+        return feats, labels
+
+    monkeypatch.setattr(xavtnet_cli, "_collect_features", zero_source_fc2)
+    torch.manual_seed(0)
+    model = XAVTNet(num_classes=3, global_dim=32, fc_dims=[16, 8])
+    clouds = torch.randn(10, 20, 3, generator=torch.Generator().manual_seed(4))
+    loader = _counting_loader([{"points": p, "lengths": torch.tensor(20), "label": torch.tensor(0)}
+                               for p in clouds], batch_size=5)
+    out = xavtnet_cli._domain_discrepancy(model, SimpleNamespace(source_test_dataloader=loader,
+                                                                 test_dataloader=loader))
+    assert len(calls) == 2 and np.isnan(out["norm_fc2"])
+    assert out["norm_fc1"] == pytest.approx(1.0) and out["norm_global"] == pytest.approx(1.0)
+    assert to_jsonable(out)["norm_fc2"] is None

@@ -584,8 +584,8 @@ def _domain_discrepancy(model, dm, layers: tuple[str, ...] = DISCREPANCY_LAYERS)
     whole. It tells whether a row's alignment terms, or another row's, left the covariances apart: for
     instance whether MMD alone already closes CORAL's distance. ``norm_<layer>`` is the tactile clouds' mean
     feature norm over the visual clouds' (Xu et al.'s premise for the adaptive feature norm,
-    :mod:`vtlearn.losses.afn`, is that it is below 1 after source training). Torch's random state is
-    restored, as by :func:`_readout_scores`.
+    :mod:`vtlearn.losses.afn`, is that it is below 1 after source training); it is NaN where every visual
+    feature of the layer is zero. Torch's random state is restored, as by :func:`_readout_scores`.
 
     Shapes:
         ``layer`` features (n_visual, d) and (n_tactile, d) -> {"mmd_<layer>": float, "coral_<layer>": float,
@@ -606,7 +606,9 @@ def _domain_discrepancy(model, dm, layers: tuple[str, ...] = DISCREPANCY_LAYERS)
         t_feat = torch.from_numpy(target[layer]).double()
         out[f"mmd_{layer}"] = float(mk_mmd(s_feat, t_feat))
         out[f"coral_{layer}"] = float(coral(s_feat, t_feat))
-        out[f"norm_{layer}"] = float(t_feat.norm(dim=1).mean() / s_feat.norm(dim=1).mean())
+        s_norm = float(s_feat.norm(dim=1).mean())
+        # all-zero visual features (a layer of dead ReLUs) have no ratio: NaN, "-" in the table, null in JSON
+        out[f"norm_{layer}"] = float(t_feat.norm(dim=1).mean()) / s_norm if s_norm > 0 else float("nan")
     return out
 
 
