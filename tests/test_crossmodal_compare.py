@@ -263,3 +263,39 @@ def test_bench_merge_sets_writes_the_set_table_pairs_and_figure(tmp_path, capsys
     assert main(["bench", "crossmodal", "--merge-sets", *files, "--baseline", "coral",
                  "--json", str(out)]) == 2
     assert "--baseline: 'coral' is not one of the rows" in capsys.readouterr().err
+
+
+def test_bench_merges_keep_only_the_rows_asked(tmp_path, capsys):
+    """--rows keeps the rows named in the tables, the comparisons and the JSON (their settings too); a set
+    left without them is dropped and said to be; a row no file holds, fewer than two sets left, or --rows on
+    a training run are refused by name."""
+    from vtlearn.cli import main
+
+    settings = {"noda": {"da": 0}, "vtloss": {"da": 1}, "mmd": {"da": 2}}
+    one = _result(tmp_path, "one.json", _runs("noda", [0, 1], [40.0, 42.0])
+                  + _runs("vtloss", [0, 1], [50.0, 49.0]) + _runs("mmd", [0, 1], [51.0, 52.0]),
+                  variant_settings=settings)
+    out = tmp_path / "m.json"
+    assert main(["bench", "crossmodal", "--merge", one, "--rows", "noda,vtloss", "--no-figures",
+                 "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [r["variant"] for r in res["rows"]] == ["noda", "vtloss"]
+    assert {r["variant"] for r in res["runs"]} == {"noda", "vtloss"}
+    assert [p["comparison"] for p in res["paired"]] == ["vtloss − noda"]
+    assert set(res["variant_settings"]) == {"noda", "vtloss"}
+    files = [_set(tmp_path, f"s{i}.json", f"s{i}", _runs("noda", [0], [30.0 + i])
+                  + _runs("vtloss", [0], [45.0])) for i in range(2)]
+    files.append(_set(tmp_path, "s2.json", "s2", _runs("mmd", [0], [47.0])))
+    capsys.readouterr()
+    assert main(["bench", "crossmodal", "--merge-sets", *files, "--rows", "vtloss,noda", "--no-figures",
+                 "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [s["label"] for s in res["sets"]] == ["s0", "s1"]
+    assert [p["comparison"] for p in res["paired"]] == ["vtloss − noda"]
+    assert "s2 hold none of the rows kept" in capsys.readouterr().out
+    for argv, msg in [(["--merge", one, "--rows", "noda,oracle"], "--rows: ['oracle'] are in none"),
+                      (["--merge-sets", *files, "--rows", "mmd"], "--rows: only 1 object set"),
+                      (["--merge", one, "--rows", " , "], "--rows: need a comma list"),
+                      (["--variants", "noda", "--rows", "noda"], "--rows: only with --merge")]:
+        assert main(["bench", "crossmodal", *argv, "--no-figures", "--json", str(out)]) == 2
+        assert msg in capsys.readouterr().err

@@ -717,6 +717,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         return _merge_crossmodal(args, asked)
     if getattr(args, "merge_sets", None):
         return _merge_sets_crossmodal(args, asked)
+    if getattr(args, "rows", None):
+        raise ValueError("--rows: only with --merge or --merge-sets; a training run's rows are --variants")
 
     cfg = load_config(args.config, "crossmodal")
     data_kwargs = _data_kwargs(cfg, args.data)
@@ -886,6 +888,7 @@ def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) ->
 
     out_dir = _merged_output(args, args.merge, "--merge")
     meta, runs = load_crossmodal_results(args.merge)
+    runs = _keep_rows(args, meta, runs)
     variants = list(dict.fromkeys(r["variant"] for r in runs))
     _check_baseline(args, variants)
     seeds = sorted({r["seed"] for r in runs})
@@ -929,6 +932,16 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
 
     out_dir = _merged_output(args, args.merge_sets, "--merge-sets")
     meta, sets = load_object_sets(args.merge_sets)
+    kept = {r["variant"] for r in _keep_rows(args, meta, [r for s in sets for r in s["runs"]])}
+    for s in sets:
+        s["runs"] = [r for r in s["runs"] if r["variant"] in kept]
+    dropped = [s["label"] for s in sets if not s["runs"]]
+    if dropped:
+        print(f"--rows: {', '.join(dropped)} hold none of the rows kept, so they are left out")
+        sets = [s for s in sets if s["runs"]]
+    if len(sets) < 2:
+        raise ValueError(f"--rows: only {len(sets)} object set holds the rows kept; pairing by object set "
+                         "needs two or more")
     runs = [r for s in sets for r in s["runs"]]
     baseline = getattr(args, "baseline", "noda")
     variants = list(dict.fromkeys(r["variant"] for r in runs))
@@ -965,6 +978,24 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
         write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
+
+
+def _keep_rows(args: argparse.Namespace, meta: dict, runs: list[dict]) -> list[dict]:
+    """The runs of the rows ``--rows`` names (all when it is not given), for ``--merge`` and
+    ``--merge-sets``; ``meta["variant_settings"]`` keeps those rows' settings only, so the merged JSON holds
+    nothing of the rows left out. A named row that no file holds is refused by name."""
+    if not getattr(args, "rows", None):
+        return runs
+    keep = list(dict.fromkeys(v.strip() for v in args.rows.split(",") if v.strip()))
+    if not keep:
+        raise ValueError(f"--rows: need a comma list of rows, got {args.rows!r}")
+    held = list(dict.fromkeys(r["variant"] for r in runs))
+    missing = [v for v in keep if v not in held]
+    if missing:
+        raise ValueError(f"--rows: {missing} are in none of the merged files (their rows: {held})")
+    if isinstance(meta.get("variant_settings"), dict):
+        meta["variant_settings"] = {v: st for v, st in meta["variant_settings"].items() if v in keep}
+    return [r for r in runs if r["variant"] in keep]
 
 
 def _check_baseline(args: argparse.Namespace, variants: list[str]) -> None:
@@ -1813,6 +1844,9 @@ def register_bench(sub) -> None:
                         "fingerprints), pool each set's files as --merge does, and pair the rows by object "
                         "set (each set's mean over its seeds is one pair): a per-set table, the set-paired "
                         "comparisons (--baseline, --pairs, --margin), a figure and --json")
+    p.add_argument("--rows", default=None, metavar="ROW,...",
+                   help="with --merge or --merge-sets: keep only these rows of the files read (default: "
+                        "all), in the tables, the comparisons and --json")
     p.add_argument("--no-figures", action="store_true",
                    help="skip the confusion matrix, t-SNE and paired-difference figures")
     p.add_argument("--out-dir", default=None,
