@@ -986,7 +986,7 @@ def _keep_rows(args: argparse.Namespace, meta: dict, runs: list[dict]) -> list[d
     nothing of the rows left out. A named row that no file holds is refused by name."""
     if not getattr(args, "rows", None):
         return runs
-    keep = list(dict.fromkeys(v.strip() for v in args.rows.split(",") if v.strip()))
+    keep = list(dict.fromkeys(csv_list(args.rows)))
     if not keep:
         raise ValueError(f"--rows: need a comma list of rows, got {args.rows!r}")
     held = list(dict.fromkeys(r["variant"] for r in runs))
