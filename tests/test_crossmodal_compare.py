@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from vtlearn.bench_utils import paired_difference
+from vtlearn.bench_utils import holm_adjust, paired_difference
 from vtlearn.models.crossmodal_compare import (
     default_pairs,
     load_crossmodal_results,
     load_object_sets,
     paired_rows,
+    paired_table_columns,
     parse_pairs,
     score_field,
     set_paired_rows,
@@ -63,6 +64,23 @@ def test_paired_difference_refuses_bad_samples(a, b, match):
         paired_difference(a, b)
 
 
+def test_holm_adjustment_matches_the_step_down_rule():
+    # Holm 1979 by hand: sorted 0.01, 0.02, 0.03, 0.04 of m = 4 -> 4·0.01, 3·0.02, then 2·0.03 = 0.06 is
+    # below the running 0.06, and 1·0.04 is lifted to it (the adjusted values never fall with the rank)
+    assert holm_adjust([0.03, 0.01, 0.04, 0.02]) == pytest.approx([0.06, 0.04, 0.06, 0.06])
+    # capped at 1; undefined p-values stay undefined and are not counted in m
+    assert holm_adjust([0.5, None, 0.2]) == [pytest.approx(0.5), None, pytest.approx(0.4)]
+    assert holm_adjust([0.9, 0.8]) == pytest.approx([1.0, 1.0]) and holm_adjust([0.3]) == [0.3]
+    assert holm_adjust([]) == []
+    # every adjusted p is at least the raw one and at most m times it
+    raw = np.random.default_rng(1).uniform(0, 0.3, 7)
+    adj = np.array(holm_adjust(raw.tolist()))
+    assert np.all(adj >= raw) and np.all(adj <= np.minimum(1.0, 7 * raw) + 1e-12)
+    for bad in ([1.5], [-0.1], [float("nan")], ["0.1"]):
+        with pytest.raises(ValueError, match=r"pvalues\[0\]: need a probability"):
+            holm_adjust(bad)
+
+
 def test_pairs_and_score_fields_parse_or_are_refused_by_flag():
     assert parse_pairs("vtloss-mmd, vtloss_g12_mt_vote.teacher-noda_vote") == [
         ("vtloss", "mmd"), ("vtloss_g12_mt_vote.teacher", "noda_vote")]
@@ -107,6 +125,13 @@ def test_merge_pools_seeds_and_rows_and_pairs_them(tmp_path):
     assert rows["vote.teacher − noda"]["diffs"] == pytest.approx([21.0, 20.0, 22.0, 17.0])
     assert rows["vote − vtloss"]["mean_diff"] == pytest.approx(np.mean([10.0, 10.0, 15.0, 8.0]))
     assert rows["vtloss − noda"]["p_at_most_margin"] > 0.99
+    # the t-test p of each comparison, adjusted over the table's family of four
+    raw = [rows[c]["t_p"] for c in rows]
+    assert [rows[c]["t_p_holm"] for c in rows] == pytest.approx(holm_adjust(raw))
+    assert all(rows[c]["t_p_holm"] >= rows[c]["t_p"] for c in rows) and rows["vtloss − noda"]["p (Holm)"]
+    assert "p (Holm)" in paired_table_columns(list(rows.values()), 20.0)
+    one = paired_rows(runs, [("vtloss", "noda")])  # one comparison: nothing to adjust
+    assert one[0]["t_p_holm"] is None and "p (Holm)" not in paired_table_columns(one, None)
     assert default_pairs(variants, runs, "nope") == []
 
 
@@ -253,8 +278,10 @@ def test_bench_merge_sets_writes_the_set_table_pairs_and_figure(tmp_path, capsys
     assert set(pairs) == {"vtloss − noda", "mmd − noda", "vtloss − mmd"}
     assert pairs["vtloss − noda"]["diffs"] == pytest.approx([16.5, 17.0, 17.5, 18.0])
     assert "p(≤ 20)" in pairs["vtloss − noda"] and Path(res["figures"]["paired"]).exists()
+    holm = holm_adjust([pairs[c]["t_p"] for c in pairs])
+    assert [pairs[c]["t_p_holm"] for c in pairs] == pytest.approx(holm)
     text = capsys.readouterr().out
-    assert "per object set" in text and "sets ahead" in text and "| s3 " in text
+    assert "per object set" in text and "sets ahead" in text and "| s3 " in text and "p (Holm)" in text
     # refused by name: an input as the output, --merge beside --merge-sets, a baseline no set has
     assert main(["bench", "crossmodal", "--merge-sets", *files, "--json", files[0]]) == 2
     assert "--json:" in capsys.readouterr().err

@@ -16,8 +16,8 @@ import numpy as np
 
 __all__ = [
     "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
-    "welch_p", "wilcoxon_p", "paired_difference", "read_results", "check_same_protocol", "ratio",
-    "cloud_extent", "check_metres", "check_same_units",
+    "welch_p", "wilcoxon_p", "holm_adjust", "paired_difference", "read_results", "check_same_protocol",
+    "ratio", "cloud_extent", "check_metres", "check_same_units",
 ]
 
 
@@ -67,6 +67,29 @@ def wilcoxon_p(diff) -> float | None:
     from scipy.stats import wilcoxon
 
     return float(wilcoxon(d).pvalue)
+
+
+def holm_adjust(pvalues) -> list[float | None]:
+    """Holm's step-down adjustment of a family of p-values (Holm 1979): sorted ascending, the i-th smallest
+    of the m defined ones becomes ``max_{j ≤ i} min(1, (m − j + 1)·p_(j))``, so rejecting every hypothesis
+    whose adjusted p is at most α holds the family-wise error rate at α, with no assumption on how the tests
+    depend on each other. Undefined p-values (None) stay None and do not count towards m.
+
+    Shapes:
+        pvalues (m,) of float in [0, 1] or None -> list (m,), in the input order
+    """
+    ps = list(pvalues)
+    for i, p in enumerate(ps):
+        if p is not None and not (isinstance(p, (int, float)) and 0.0 <= p <= 1.0):
+            raise ValueError(f"pvalues[{i}]: need a probability in [0, 1] or None, got {p!r}")
+    defined = sorted((p, i) for i, p in enumerate(ps) if p is not None)
+    m = len(defined)
+    out: list[float | None] = [None] * len(ps)
+    running = 0.0
+    for rank, (p, i) in enumerate(defined):
+        running = max(running, min(1.0, (m - rank) * float(p)))
+        out[i] = running
+    return out
 
 
 def paired_difference(a, b, margin: float | None = None) -> dict:

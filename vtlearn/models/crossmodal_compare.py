@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_utils import check_same_protocol, paired_difference, read_results
+from vtlearn.bench_utils import check_same_protocol, holm_adjust, paired_difference, read_results
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
            "paired_table_columns", "paired_figure", "load_object_sets", "set_paired_rows",
-           "set_summaries", "set_table_rows"]
+           "set_summaries", "set_table_rows", "with_holm"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
@@ -156,7 +156,8 @@ def _pool_results(paths: list[str], docs: list[dict], flag: str) -> tuple[dict, 
 def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | None = None) -> list[dict]:
     """One row per ``(a, b)`` of ``pairs`` (sides as :func:`score_field` reads them): the seeds both have,
     :func:`~vtlearn.bench_utils.paired_difference` of ``a`` over ``b`` on them, the pairs whose runs ran on
-    different machines (``cross_machine``), and table text. A side with no run, or two sides without a seed
+    different machines (``cross_machine``), the t-test p adjusted over the pairs (:func:`with_holm`), and
+    table text. A side with no run, or two sides without a seed
     in common, is refused naming it.
 
     Shapes:
@@ -183,7 +184,7 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
                "cross_machine": cross}
         row["seeds ahead"] = f"{row['ahead']}/{len(seeds)}"
         out.append(row)
-    return out
+    return with_holm(out)
 
 
 def _pair_row(x: np.ndarray, y: np.ndarray, margin: float | None) -> dict:
@@ -259,7 +260,8 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
     """One row per ``(a, b)`` of ``pairs`` over the object sets of :func:`load_object_sets`: in each set that
     has both sides, the mean of ``a`` and of ``b`` over the seeds both have there is one pair;
     :func:`~vtlearn.bench_utils.paired_difference` of those set means, the sets and single runs ``a``
-    leads, the runs whose two sides ran on different machines (``cross_machine``), and table text. A pair
+    leads, the runs whose two sides ran on different machines (``cross_machine``), the t-test p adjusted
+    over the pairs (:func:`with_holm`), and table text. A pair
     that no set has both sides of is refused naming it.
 
     Shapes:
@@ -289,7 +291,7 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
                "runs": len(run_a), "runs_ahead": runs_ahead, "runs ahead": f"{runs_ahead}/{len(run_a)}"}
         row["sets ahead"] = f"{row['ahead']}/{len(labels)}"
         out.append(row)
-    return out
+    return with_holm(out)
 
 
 def set_summaries(sets: list[dict]) -> list[dict]:
@@ -333,6 +335,24 @@ def set_table_rows(summaries: list[dict], variants: list[str]) -> list[dict]:
     return [*rows, mean_row]
 
 
+def with_holm(rows: list[dict]) -> list[dict]:
+    """``rows`` of :func:`paired_rows` or :func:`set_paired_rows` with the t-test p-values adjusted for
+    the family of comparisons they form (:func:`~vtlearn.bench_utils.holm_adjust`): ``t_p_holm`` and its
+    text ``"p (Holm)"`` in each row, when two or more of them have a p-value (None otherwise). One
+    comparison read among many is significant at α only when its Holm p is at most α; the margin's
+    one-sided p is not adjusted. The rows are changed in place and returned.
+
+    Shapes:
+        rows: one dict per comparison -> the same list
+    """
+    ps = [r.get("t_p") for r in rows]
+    adjusted = holm_adjust(ps) if sum(p is not None for p in ps) >= 2 else [None] * len(rows)
+    for r, p in zip(rows, adjusted, strict=True):
+        r["t_p_holm"] = p
+        r["p (Holm)"] = _p_text(p)
+    return rows
+
+
 def _p_text(p: float | None) -> str | None:
     if p is None:
         return None
@@ -342,6 +362,8 @@ def _p_text(p: float | None) -> str | None:
 def paired_table_columns(rows: list[dict], margin: float | None) -> list[str]:
     """The columns :func:`paired_rows`' table prints."""
     cols = ["comparison", "means", "difference", "95% CI", "p (t)", "p (Wilcoxon)", "seeds ahead"]
+    if any(r.get("t_p_holm") is not None for r in rows):
+        cols.insert(cols.index("p (Wilcoxon)") + 1, "p (Holm)")
     if margin is not None:
         cols.append(f"p(≤ {margin:g})")
     if any(r["cross_machine"] for r in rows):

@@ -962,9 +962,10 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
         print_table(paired, cols,
                     "Set-paired differences of tactile accuracy (points): mean ± std over the object sets "
                     "that have both rows (each set: its mean over the seeds both rows have there), 95 % "
-                    "interval, two-sided p of the paired t and Wilcoxon tests over the sets, sets and runs "
-                    "ahead" + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
-                               if margin is not None else ""))
+                    "interval, two-sided p of the paired t and Wilcoxon tests over the sets, the t-test's "
+                    "p adjusted by Holm's method over the comparisons of the table, sets and runs ahead"
+                    + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
+                       if margin is not None else ""))
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
     result = {"bench": "crossmodal", "by": "object set", **meta, "sets": summaries, "paired": paired,
@@ -1078,7 +1079,7 @@ def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[
     that the runs do not hold, such as ``.teacher`` of a row without a teacher) raises ``ValueError``, or,
     without ``strict`` (after trainings, whose results must not be lost), is left out with a note."""
     from vtlearn.bench_utils import print_table
-    from vtlearn.models.crossmodal_compare import default_pairs, paired_rows, paired_table_columns
+    from vtlearn.models.crossmodal_compare import default_pairs, paired_rows, paired_table_columns, with_holm
 
     margin = getattr(args, "margin", None)
     pairs = asked
@@ -1098,9 +1099,11 @@ def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[
                 print(f"left out of the paired table: {exc}")
         if not rows:
             return []
+        with_holm(rows)  # the family is the pairs that could be read
     print_table(rows, paired_table_columns(rows, margin),
                 "Seed-paired differences of tactile accuracy (points): mean ± std over the seeds both rows "
-                "have, 95 % interval, two-sided p of the paired t and Wilcoxon tests, seeds ahead"
+                "have, 95 % interval, two-sided p of the paired t and Wilcoxon tests, the t-test's p "
+                "adjusted by Holm's method over the comparisons of the table, seeds ahead"
                 + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
                    if margin is not None else ""))
     if any(r["cross_machine"] for r in rows):
