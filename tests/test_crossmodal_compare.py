@@ -146,6 +146,11 @@ def test_pairs_across_machines_are_counted(tmp_path):
     f3 = _result(tmp_path, "c.json", _runs("coral", [0], [42.0]), machine={"platform": HOST_A["platform"]})
     _, runs = load_crossmodal_results([f1, f3])
     assert paired_rows(runs, [("vtloss", "coral")])[0]["cross_machine"] == 0
+    # one kernel build and CPU name, but AVX2 kernels instead of AVX-512 ones: another host's rounding
+    avx2 = {**HOST_A, "cpu_capability": "AVX2"}
+    f4 = _result(tmp_path, "d.json", _runs("coral", [0], [42.0]), machine=avx2)
+    _, runs = load_crossmodal_results([f1, f4])
+    assert paired_rows(runs, [("vtloss", "coral")])[0]["cross_machine"] == 1
 
 
 def test_pairs_without_runs_or_common_seeds_are_refused(tmp_path):

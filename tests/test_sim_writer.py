@@ -150,6 +150,40 @@ def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     assert not list(out.glob("*.tmp*"))
 
 
+def test_shards_record_their_host_and_a_resume_elsewhere_is_flagged(tmp_path, caplog):
+    """Each side file names the host that wrote the shard (outside the fingerprint); resuming shards that
+    another host finished warns that the dataset mixes two hosts' rounding."""
+    import json
+    import logging
+
+    from vtlearn.bench_utils import host_info
+    from vtlearn.datamodules.shards import dataset_fingerprint
+
+    out = tmp_path / "out"
+    assert generate_dataset(_cfg(), out, progress=False, max_shards=2) == {}
+    sides = sorted(out.glob("*.npz.json"))
+    assert len(sides) == 2 and all(json.loads(f.read_text())["host"] == host_info() for f in sides)
+    # the same host resuming: no warning
+    with caplog.at_level(logging.WARNING, logger="vtlearn.sim_data.writer"):
+        assert generate_dataset(_cfg(), out, progress=False, max_shards=1) == {}
+    assert "mixes two hosts" not in caplog.text
+    # a shard finished on an AVX-512 host, resumed here
+    meta = json.loads(sides[0].read_text())
+    meta["host"] = {**meta["host"], "cpu_capability": "AVX512-elsewhere"}
+    sides[0].write_text(json.dumps(meta))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="vtlearn.sim_data.writer"):
+        manifest = generate_dataset(_cfg(), out, progress=False)
+    assert "mixes two hosts" in caplog.text and sides[0].name.removesuffix(".json") in caplog.text
+    assert "AVX512-elsewhere" in caplog.text
+    # the host record rides in the manifest but not in the fingerprint, which is the checksums' alone
+    hosts = [m["host"]["cpu_capability"] for m in manifest["shards"]]
+    assert hosts.count("AVX512-elsewhere") == 1
+    ref = generate_dataset(_cfg(), tmp_path / "ref", progress=False)
+    assert [m["sha256"] for m in manifest["shards"]] == [m["sha256"] for m in ref["shards"]]
+    assert dataset_fingerprint(out) == dataset_fingerprint(tmp_path / "ref")
+
+
 @pytest.mark.slow
 def test_two_workers_write_the_same_bytes_and_resume(tmp_path):
     """Shards are planned up front and seeded per shard, so worker processes change nothing."""

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 __all__ = [
-    "print_table", "format_table", "write_json", "save_figure", "machine_info", "to_jsonable", "csv_list",
-    "welch_p", "wilcoxon_p", "holm_adjust", "paired_difference", "read_results", "check_same_protocol",
-    "ratio", "cloud_extent", "check_metres", "check_same_units",
+    "print_table", "format_table", "write_json", "save_figure", "machine_info", "host_info", "numpy_simd",
+    "to_jsonable", "csv_list", "welch_p", "wilcoxon_p", "holm_adjust", "paired_difference", "read_results",
+    "check_same_protocol", "ratio", "cloud_extent", "check_metres", "check_same_units",
 ]
 
 
@@ -295,10 +295,33 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def numpy_simd() -> list[str] | None:
+    """The SIMD targets numpy dispatches to on this CPU beyond its build baseline (e.g. ``["X86_V3"]`` on
+    an AVX2 CPU, ``["X86_V3", "X86_V4", ...]`` on an AVX-512 one), from numpy's own feature detection;
+    None where this numpy does not expose it. Functions with a kernel per target (numpy's AVX-512 ones of
+    ``exp``, ``log``, ``sin``, ``cos`` among them) may round differently from one target to another."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:
+        return None
+    return [t for t in __cpu_dispatch__ if __cpu_features__.get(t)]
+
+
+def host_info() -> dict:
+    """The host's identity as far as floating point is concerned: the platform string (with the kernel
+    build), the CPU model, the vector kernels torch dispatches to (``cpu_capability``, e.g. AVX512 or AVX2:
+    float sums round differently on each, so a training reproduces bit for bit only on the same capability)
+    and numpy's SIMD targets (:func:`numpy_simd`). `gen-data` records it beside each shard's checksum."""
+    import torch
+
+    return {"platform": platform.platform(), "cpu_model": cpu_model(),
+            "cpu_capability": torch.backends.cpu.get_cpu_capability(), "numpy_simd": numpy_simd()}
+
+
 def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
-    """What a benchmark ran on: CPU count, model and vector capability, Python, torch, threads, and the
-    versions of :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names; ``None`` for one that
-    is not installed)."""
+    """What a benchmark ran on: CPU count, model and vector capability (:func:`host_info`), Python, torch,
+    threads, and the versions of :data:`RECORDED_PACKAGES` and ``extra_packages`` (distribution names;
+    ``None`` for one that is not installed)."""
     from importlib import metadata
 
     import torch
@@ -309,14 +332,14 @@ def machine_info(extra_packages: tuple[str, ...] = ()) -> dict:
         except metadata.PackageNotFoundError:
             return None
 
+    host = host_info()
     return {
         "python": platform.python_version(),
-        "platform": platform.platform(),
+        "platform": host["platform"],
         "cpu_count": os.cpu_count(),
-        "cpu_model": cpu_model(),
-        # the vector kernels torch dispatches to (e.g. AVX512, AVX2): float sums round differently on each,
-        # so a training reproduces bit for bit only on the same capability
-        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "cpu_model": host["cpu_model"],
+        "cpu_capability": host["cpu_capability"],
+        "numpy_simd": host["numpy_simd"],
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
         "packages": {name: version(name) for name in (*RECORDED_PACKAGES, *extra_packages)},

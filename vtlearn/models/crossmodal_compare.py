@@ -79,12 +79,14 @@ def default_pairs(variants: list[str], runs: list[dict], baseline: str) -> list[
 
 def _same_machine(m1: dict | None, m2: dict | None) -> bool:
     """Whether two runs' ``machine`` records name the same host (platform string, with the kernel build, and
-    the CPU model where both have one); an unrecorded machine is taken as the same."""
+    the CPU model and torch's vector capability where both have them: two hosts of one kernel build and CPU
+    name can still run AVX-512 kernels on one and AVX2 ones on the other); an unrecorded machine is taken as
+    the same."""
     if not m1 or not m2:
         return True
     if m1.get("platform") != m2.get("platform"):
         return False
-    return not (m1.get("cpu_model") and m2.get("cpu_model") and m1["cpu_model"] != m2["cpu_model"])
+    return not any(m1.get(k) and m2.get(k) and m1[k] != m2[k] for k in ("cpu_model", "cpu_capability"))
 
 
 def _machine_of(doc: dict) -> dict | None:

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_utils import host_info
 from vtlearn.io import atomic_path, atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
 from vtlearn.validation import as_int, as_real
@@ -442,6 +443,25 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
     ex.shutdown(wait=True)
 
 
+def _warn_other_hosts(done: dict, todo: list[dict], desc: str) -> list[str]:
+    """Warn, before a resumed run writes ``todo``, that finished shards in ``done`` were written on a host
+    whose floating point may round otherwise (another :func:`~vtlearn.bench_utils.host_info`): the dataset
+    will then mix two hosts' bytes, and the same command run whole on either host would give other
+    checksums (docs/sim_data.md). Returns the names of those shards."""
+    kept = {name: meta for name, meta in done.items() if meta is not None and meta.get("host")}
+    if not (kept and todo):
+        return []
+    here = host_info()
+    other = sorted(name for name, meta in kept.items() if meta["host"] != here)
+    if other:
+        first = kept[other[0]]["host"]
+        log.warning("%s: resuming on %s (%s, %s) the shards %s finished on %s (%s, %s): the dataset mixes "
+                    "two hosts' rounding, so its checksums match neither host's whole run", desc,
+                    here["platform"], here["cpu_model"], here["cpu_capability"], ", ".join(other),
+                    first.get("platform"), first.get("cpu_model"), first.get("cpu_capability"))
+    return other
+
+
 def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, workers: int = 1,
                    max_shards: int | None = None, desc: str = "shards", progress: bool = True) -> list | None:
     """Run ``worker(*worker_args, job, str(out))`` for every job whose shard is not already on disk.
@@ -457,6 +477,7 @@ def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, work
     if max_shards is not None:
         todo = todo[: int(max_shards)]
     log.info("%s: %d shards, %d already done", desc, len(jobs), len(jobs) - len(todo))
+    _warn_other_hosts(done, todo, desc)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, disable=not progress)
     try:
         if workers <= 1:
@@ -656,6 +677,7 @@ def _run_job(cfg_dict: dict, job: dict, out_dir: str) -> dict:
         "instances": int(len(arrays["label"])),
         "tactile_clouds": int(len(arrays["tactile_label"])),
         "visual_clouds": int(len(arrays.get("visual_label", ()))),
+        "host": host_info(),  # not in the fingerprint: says which host's rounding wrote these bytes
     }
     write_json_atomic(out / (job["name"] + ".json"), meta)
     return meta
