@@ -113,6 +113,17 @@ def test_machine_info_records_the_package_versions_and_none_for_a_missing_one(mo
 
     assert info["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
     assert isinstance(info["cpu_model"], str) and info["cpu_model"]
+    # numpy's SIMD targets: a target numpy is told to leave off is no longer listed
+    simd = info["numpy_simd"]
+    assert isinstance(simd, list) and all(isinstance(t, str) for t in simd)
+    if simd:
+        import os
+
+        code = "from vtlearn.bench_utils import numpy_simd; print(','.join(numpy_simd()))"
+        env = dict(os.environ, NPY_DISABLE_CPU_FEATURES=simd[0])
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                             check=True)
+        assert simd[0] not in out.stdout.strip().split(",")
 
 
 def test_cpu_model_reads_proc_cpuinfo_and_falls_back(monkeypatch, tmp_path):
