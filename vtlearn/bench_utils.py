@@ -298,8 +298,8 @@ def cpu_model() -> str:
 def numpy_simd() -> list[str] | None:
     """The SIMD targets numpy dispatches to on this CPU beyond its build baseline (e.g. ``["X86_V3"]`` on
     an AVX2 CPU, ``["X86_V3", "X86_V4", ...]`` on an AVX-512 one), from numpy's own feature detection;
-    None where this numpy does not expose it. Functions with a kernel per target (numpy's AVX-512 ones of
-    ``exp``, ``log``, ``sin``, ``cos`` among them) may round differently from one target to another."""
+    None where this numpy does not expose it. Functions with a kernel per target (numpy's AVX-512 float64
+    ``exp`` and ``log`` among them) may round differently from one target to another."""
     try:
         from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
     except ImportError:
