@@ -161,22 +161,9 @@ def _episode_shard(cfg_dict: dict, sections: int, sensor: str, items: list[dict]
 
 
 def _run_shard(cfg_dict: dict, sections: int, sensor: str, job: dict, out_dir: str) -> dict:
-    from vtlearn.bench_utils import host_info
-    from vtlearn.sim_data.writer import write_json_atomic, write_npz_atomic
+    from vtlearn.sim_data.writer import write_shard
 
-    arrays = _episode_shard(cfg_dict, sections, sensor, job["items"])
-    digest = write_npz_atomic(Path(out_dir) / job["name"], arrays)
-    meta = {
-        "file": job["name"],
-        "split": job["split"],
-        "sha256": digest,
-        "instances": int(len(arrays["label"])),
-        "tactile_clouds": int(len(arrays["tactile_label"])),
-        "visual_clouds": 0,
-        "host": host_info(),  # not in the fingerprint: says which host's rounding wrote these bytes
-    }
-    write_json_atomic(Path(out_dir) / (job["name"] + ".json"), meta)
-    return meta
+    return write_shard(out_dir, job, _episode_shard(cfg_dict, sections, sensor, job["items"]))
 
 
 def generate_episode_dataset(

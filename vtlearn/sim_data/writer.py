@@ -443,14 +443,14 @@ def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, worker
     ex.shutdown(wait=True)
 
 
-def _warn_other_hosts(done: dict, todo: list[dict], desc: str) -> list[str]:
+def _warn_other_hosts(done: dict, todo: list[dict], desc: str) -> None:
     """Warn, before a resumed run writes ``todo``, that finished shards in ``done`` were written on a host
     whose floating point may round otherwise (another :func:`~vtlearn.bench_utils.host_info`): the dataset
     will then mix two hosts' bytes, and the same command run whole on either host would give other
-    checksums (docs/sim_data.md). Returns the names of those shards."""
+    checksums (docs/sim_data.md)."""
     kept = {name: meta for name, meta in done.items() if meta is not None and meta.get("host")}
     if not (kept and todo):
-        return []
+        return
     here = host_info()
     other = sorted(name for name, meta in kept.items() if meta["host"] != here)
     if other:
@@ -459,7 +459,6 @@ def _warn_other_hosts(done: dict, todo: list[dict], desc: str) -> list[str]:
                     "two hosts' rounding, so its checksums match neither host's whole run", desc,
                     here["platform"], here["cpu_model"], here["cpu_capability"], ", ".join(other),
                     first.get("platform"), first.get("cpu_model"), first.get("cpu_capability"))
-    return other
 
 
 def run_shard_jobs(out: Path, jobs: list[dict], worker, worker_args: tuple, workers: int = 1,
@@ -667,17 +666,27 @@ def generate_shard(cfg: GenConfig, job: dict) -> dict[str, np.ndarray]:
 
 def _run_job(cfg_dict: dict, job: dict, out_dir: str) -> dict:
     cfg = GenConfig(**cfg_dict)
-    arrays = generate_shard(cfg, job)
+    return write_shard(out_dir, job, generate_shard(cfg, job))
+
+
+def write_shard(out_dir: str | Path, job: dict, arrays: dict[str, np.ndarray]) -> dict:
+    """Write one finished shard of ``job`` (its ``name`` and ``split``): the ``.npz`` atomically, then its
+    side file, whose sha256 marks it done for :func:`run_shard_jobs`. The side file also names the host
+    that wrote the bytes (:func:`~vtlearn.bench_utils.host_info`; not part of the fingerprint). Returns the
+    side file's content.
+
+    Shapes:
+        arrays: ``label`` (n,), ``tactile_label`` (m,), ``visual_label`` (v,) if any, ... -> dict
+    """
     out = Path(out_dir)
-    digest = write_npz_atomic(out / job["name"], arrays)
     meta = {
         "file": job["name"],
         "split": job["split"],
-        "sha256": digest,
+        "sha256": write_npz_atomic(out / job["name"], arrays),
         "instances": int(len(arrays["label"])),
         "tactile_clouds": int(len(arrays["tactile_label"])),
         "visual_clouds": int(len(arrays.get("visual_label", ()))),
-        "host": host_info(),  # not in the fingerprint: says which host's rounding wrote these bytes
+        "host": host_info(),
     }
     write_json_atomic(out / (job["name"] + ".json"), meta)
     return meta
