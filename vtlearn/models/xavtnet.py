@@ -31,6 +31,11 @@ maximum classifier discrepancy (:mod:`vtlearn.losses.mcd`): a second classifier 
 feature, trained on the source clouds with the same ``α·CE``, and ``−mcd_weight·d(F₁, F₂)`` of the target
 batch through a gradient reversal, so the two classifiers pull apart on the target clouds and the network
 below them pulls those clouds back to where the two agree. fc3 (F₁) alone makes the model's predictions.
+``sa_nodes > 0`` puts PointDAN's self-adaptive nodes in the encoder after the feature T-net
+(:mod:`~vtlearn.models.components.sa_nodes`; Qin et al. 2019, beyond the thesis), and ``node_mmd_weight > 0``
+adds PointDAN's local alignment, ``node_mmd_weight·MK-MMD²`` of the source and target node features, each
+domain's through its own node attention (:mod:`vtlearn.losses.pointdan`). With ``mcd_weight > 0`` as well,
+the model is PointDAN: MCD's global alignment and the nodes' local one.
 ``afn_weight > 0`` adds Xu et al.'s stepwise adaptive feature norm (:mod:`vtlearn.losses.afn`),
 ``afn_weight·(L_SAFN(fc2 source) + L_SAFN(fc2 target))``: every step asks the fc2 feature of every source
 and target cloud for a norm ``afn_step`` larger than it has, rather than aligning the two domains.
@@ -134,6 +139,7 @@ from vtlearn.losses.info_max import information_maximization
 from vtlearn.losses.mcc import MCC_TEMPERATURE, minimum_class_confusion
 from vtlearn.losses.mcd import mcd_adversarial_loss
 from vtlearn.losses.neighbourhood import attract_disperse, neighbour_probs
+from vtlearn.losses.pointdan import node_alignment_loss
 from vtlearn.losses.pseudo_labels import centroid_pseudo_labels, group_vote_pseudo_labels
 from vtlearn.losses.vtloss import VTLoss, check_kernel_weights, check_mmd_kernel
 from vtlearn.models.components.class_balance import align_distribution
@@ -145,6 +151,7 @@ from vtlearn.models.components.mean_teacher import ema_update, perturb_padded, s
 from vtlearn.models.components.pointnet_tnet import feature_transform_regularizer, lengths_to_mask
 from vtlearn.models.components.projection_head import ProjectionHead
 from vtlearn.models.components.rotation_task import RotationHead, random_quarter_turns
+from vtlearn.models.components.sa_nodes import NodeAttention
 from vtlearn.models.components.xavtnet_backbone import (
     DomainDiscriminator,
     PointNetEncoder,
@@ -342,6 +349,14 @@ class XAVTNet(L.LightningModule):
         mcd_weight: weight of MCD's adversarial classifier discrepancy on the target batch (module
             docstring; Saito et al. 2018, beyond the thesis), added to the loss of ``da_method`` with the
             second classifier's source cross-entropy. 0 (default): off, no second classifier.
+        sa_nodes: PointDAN's self-adaptive nodes per cloud in the encoder (Qin et al. 2019, beyond the
+            thesis; theirs: 64). 0 (default): none, the thesis's PointNet.
+        sa_group: the points in each node's group (theirs: 64).
+        sa_radius: each group's radius as a fraction of its cloud's radius (theirs: 0.3 in the unit ball);
+            > 0.
+        node_mmd_weight: weight of PointDAN's local alignment, the MK-MMD of the node features through
+            per-domain node attention (:func:`~vtlearn.losses.pointdan.node_alignment_loss`); it needs
+            ``sa_nodes > 0`` and two-stream batches. 0 (default): off.
         afn_weight: weight of the stepwise adaptive feature norm of the fc2 features, source and target
             (:func:`~vtlearn.losses.afn.adaptive_feature_norm`; Xu et al. 2019, beyond the thesis), added to
             the loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
@@ -488,6 +503,10 @@ class XAVTNet(L.LightningModule):
         mcc_weight: float = 0.0,
         mcc_temperature: float = MCC_TEMPERATURE,
         mcd_weight: float = 0.0,
+        sa_nodes: int = 0,
+        sa_group: int = 64,
+        sa_radius: float = 0.3,
+        node_mmd_weight: float = 0.0,
         afn_weight: float = 0.0,
         afn_step: float = AFN_STEP,
         pseudo_label_weight: float = 0.0,
@@ -543,6 +562,13 @@ class XAVTNet(L.LightningModule):
         as_real(mcc_weight, "mcc_weight", low=0.0)
         as_real(mcc_temperature, "mcc_temperature", low=0.0, open_low=True)
         as_real(mcd_weight, "mcd_weight", low=0.0)
+        as_int(sa_nodes, "sa_nodes", minimum=0)
+        as_int(sa_group, "sa_group")
+        as_real(sa_radius, "sa_radius", low=0.0, open_low=True)
+        as_real(node_mmd_weight, "node_mmd_weight", low=0.0)
+        if node_mmd_weight > 0 and sa_nodes == 0:
+            raise ValueError("node_mmd_weight: PointDAN's local alignment needs the self-adaptive nodes "
+                             "(sa_nodes > 0, theirs 64)")
         as_real(afn_weight, "afn_weight", low=0.0)
         as_real(afn_step, "afn_step", low=0.0, open_low=True)
         as_real(pseudo_label_weight, "pseudo_label_weight", low=0.0)
@@ -651,7 +677,8 @@ class XAVTNet(L.LightningModule):
             )
         fc_dims, da_layers = list(fc_dims), list(da_layers)
         self.save_hyperparameters()
-        self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform)
+        self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform, sa_nodes, sa_group,
+                                       sa_radius)
         self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
         self._bn_domain = "target"  # evaluation clouds are tactile unless bn_domain("source") says otherwise
         if domain_bn:
@@ -688,11 +715,14 @@ class XAVTNet(L.LightningModule):
             self.register_buffer("align_source_prior", torch.full((num_classes,), 1.0 / num_classes))
             self.register_buffer("align_target_mean", torch.full((num_classes,), 1.0 / num_classes))
         self.rotation_head = RotationHead(global_dim) if rotation_weight > 0 else None
-        self.defrec_head = (RegionDecoder(PointNetEncoder.point_dim, global_dim) if defrec_weight > 0
+        self.defrec_head = (RegionDecoder(self.encoder.point_dim, global_dim) if defrec_weight > 0
                             else None)
         self.projection_head = ProjectionHead(global_dim) if contrast_weight > 0 else None
         # MCD's second classifier F₂ on the fc2 feature, beside fc3 (F₁)
         self.mcd_head = torch.nn.Linear(fc_dims[1], num_classes) if mcd_weight > 0 else None
+        # PointDAN's node attention, one per domain, ahead of the local alignment's MMD
+        self.node_attention = (torch.nn.ModuleDict({d: NodeAttention(sa_nodes) for d in DOMAINS})
+                               if node_mmd_weight > 0 else None)
         self.train_loss = MeanMetric()
         self.train_acc = MulticlassAccuracy(num_classes, average="micro")
         self.val_loss, self.test_loss = MeanMetric(), MeanMetric()
@@ -755,9 +785,9 @@ class XAVTNet(L.LightningModule):
             "fc2": (B, fc_dims[1])}, trans_input (B, 3, 3) or None, trans_feat (B, 64, 64) or None
         """
         points, lengths = self._prepare(points, lengths)
-        g, trans_input, trans_feat = self.encoder(points, lengths)
+        g, trans_input, trans_feat, nodes = self.encoder.forward_nodes(points, lengths)
         logits, feats = self.head(g)
-        return XAVTNetOutput(logits, {"global": g, **feats}, trans_input, trans_feat)
+        return XAVTNetOutput(logits, {"global": g, **feats}, trans_input, trans_feat, nodes)
 
     @contextlib.contextmanager
     def bn_domain(self, domain: str):
@@ -960,7 +990,8 @@ class XAVTNet(L.LightningModule):
         adapts = (self.vtloss.adapts or self.discriminator is not None or im_weight > 0 or mcc_weight > 0
                   or afn_weight > 0 or pl_weight > 0 or nb_weight > 0 or self.teacher is not None
                   or self.rotation_head is not None or mix_weight > 0 or self.projection_head is not None
-                  or self.defrec_head is not None or self.mcd_head is not None)
+                  or self.defrec_head is not None or self.mcd_head is not None
+                  or self.node_attention is not None)
         use_target = adapts and tgt is not None and tgt["points"].shape[0] >= 2
         teacher_logits = teacher_feats = None
         unperturbed = tgt
@@ -1017,6 +1048,11 @@ class XAVTNet(L.LightningModule):
             mcd, mcd_parts = self._mcd_loss(out_s, out_t, y)
             loss = loss + mcd
             parts = {**parts, **mcd_parts}
+        if use_target and self.node_attention is not None:
+            att = self.node_attention
+            node = node_alignment_loss(out_s.nodes, out_t.nodes, att["source"], att["target"])
+            loss = loss + self.hparams.node_mmd_weight * node
+            parts = {**parts, "node_mmd": node.detach()}
         if use_target and self._pseudo_labels is not None:
             if "index" not in tgt:
                 raise ValueError("batch: pseudo_label_weight needs the target items' 'index' in the target "
@@ -1388,6 +1424,7 @@ class XAVTNet(L.LightningModule):
                 out.logits[sl], {k: v[sl] for k, v in out.features.items()},
                 None if out.trans_input is None else out.trans_input[sl],
                 None if out.trans_feat is None else out.trans_feat[sl],
+                None if out.nodes is None else out.nodes[sl],
             )
 
         return part(slice(0, b)), part(slice(b, None))

@@ -71,6 +71,12 @@ VARIANTS: dict[str, dict] = {
     # α = 10), alone and added to VTLoss.
     "mcd": {"da_method": "none", "mcd_weight": 10.0},
     "vtloss_mcd": {**_VTLOSS, "mcd_weight": 10.0},
+    # Beyond the thesis: PointDAN (Qin et al. 2019), MCD's global alignment plus the local alignment of 64
+    # self-adaptive nodes (models/components/sa_nodes.py, losses/pointdan.py); the node MMD's weight is
+    # PointDAN's 1 on a sum of five kernels (5 on eq. 7.6's mean) times α = 10, as the MCD terms are theirs
+    # times α. Alone, and added to VTLoss.
+    "pointdan": {"da_method": "none", "mcd_weight": 10.0, "sa_nodes": 64, "node_mmd_weight": 50.0},
+    "vtloss_pointdan": {**_VTLOSS, "mcd_weight": 10.0, "sa_nodes": 64, "node_mmd_weight": 50.0},
     # Beyond the thesis: Xu et al.'s stepwise adaptive feature norm of the fc2 features, source and target
     # (losses/afn.py, SAFN, Δr = 1), at their ratio to the cross-entropy (0.05 against 1: 0.5 against
     # α = 10), alone and added to VTLoss.

@@ -2,7 +2,9 @@
 ("Network Implementation"), plus the DANN domain discriminator used by the DANN baseline.
 
 Encoder (Qi et al. 2017): input T-net (3×3) → per-point MLP 64 → feature T-net (64×64) → per-point MLP
-(128, global_dim) → masked max-pool to the global feature (1024 in the thesis).
+(128, global_dim) → masked max-pool to the global feature (1024 in the thesis). Beyond the thesis,
+``sa_nodes > 0`` puts PointDAN's self-adaptive nodes after the feature T-net
+(:mod:`~vtlearn.models.components.sa_nodes`), so the per-point MLP reads 64 + 64 channels.
 Head: fc1 (512, BN, ReLU) → fc2 (256, BN, ReLU) → dropout 0.4 → fc3 (k). The activations after fc1 and
 fc2 (post-ReLU, before dropout) are the features that VTLoss adapts (Fig. 7.2b).
 """
@@ -16,6 +18,7 @@ import torch
 from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask, packed_max_pool
+from vtlearn.models.components.sa_nodes import SelfAdaptiveNodes
 from vtlearn.validation import as_int, as_real
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
@@ -52,35 +55,52 @@ class PointNetEncoder(nn.Module):
         global_dim: size of the max-pooled global feature (thesis: 1024).
         input_transform: use the 3×3 input T-net.
         feature_transform: use the 64×64 feature T-net.
+        sa_nodes: PointDAN's self-adaptive nodes per cloud after the feature T-net (PointDAN: 64); 0: none,
+            the thesis's encoder.
+        sa_group, sa_radius: each node's group size and radius (a fraction of the cloud's radius) for
+            :class:`~vtlearn.models.components.sa_nodes.SelfAdaptiveNodes`.
 
     Shapes:
         points (B, N, 3), lengths (B,) -> (global (B, global_dim), trans_input (B, 3, 3) or None,
         trans_feat (B, 64, 64) or None)
     """
 
-    point_dim = 64 + 128  # the width of :meth:`point_features`'s per-point features
-
-    def __init__(self, global_dim: int = 1024, input_transform: bool = True, feature_transform: bool = True):
+    def __init__(self, global_dim: int = 1024, input_transform: bool = True, feature_transform: bool = True,
+                 sa_nodes: int = 0, sa_group: int = 64, sa_radius: float = 0.3):
         super().__init__()
         self.input_tnet = TNet(3, global_dim) if input_transform else None
         self.mlp1 = MaskedPointMLP((3, 64))
         self.feature_tnet = TNet(64, global_dim) if feature_transform else None
-        self.mlp2 = MaskedPointMLP((64, 128, global_dim))
+        self.sa = SelfAdaptiveNodes(64, sa_nodes, sa_group, sa_radius) if sa_nodes > 0 else None
+        width = 64 if self.sa is None else self.sa.out_channels
+        self.mlp2 = MaskedPointMLP((width, 128, global_dim))
+        self.point_dim = width + 128  # the width of :meth:`point_features`'s per-point features
 
     def forward(self, points: torch.Tensor, lengths: torch.Tensor):
-        h, mask, trans_input, trans_feat = self._aligned(points, lengths)
-        return self.mlp2.pooled(h, mask), trans_input, trans_feat  # B x global_dim
+        g, trans_input, trans_feat, _ = self.forward_nodes(points, lengths)
+        return g, trans_input, trans_feat  # B x global_dim
+
+    def forward_nodes(self, points: torch.Tensor, lengths: torch.Tensor):
+        """:meth:`forward` plus the self-adaptive nodes' features (``None`` without ``sa_nodes``).
+
+        Shapes:
+            points (B, N, 3), lengths (B,) -> (global (B, global_dim), (B, 3, 3) or None,
+            (B, 64, 64) or None, nodes (B, sa_nodes, 64) or None)
+        """
+        h, mask, trans_input, trans_feat, nodes = self._aligned(points, lengths)
+        return self.mlp2.pooled(h, mask), trans_input, trans_feat, nodes
 
     def point_features(self, points: torch.Tensor, lengths: torch.Tensor
                        ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each point's features (the 64 after the feature T-net and the 128 of the next layer) and the
-        pooled feature, as DefRec's decoder reads them (Achituve et al. 2021 concatenate PointNet's
-        per-point layers; :mod:`~vtlearn.models.components.deformation_task`). Padded rows are 0.
+        """Each point's features (the 64 after the feature T-net, or 64 + 64 with the self-adaptive nodes,
+        and the 128 of the next layer) and the pooled feature, as DefRec's decoder reads them (Achituve et
+        al. 2021 concatenate PointNet's per-point layers; :mod:`~vtlearn.models.components.deformation_task`).
+        Padded rows are 0.
 
         Shapes:
-            points (B, N, 3), lengths (B,) -> (per-point (B, N, 64 + 128), global (B, global_dim))
+            points (B, N, 3), lengths (B,) -> (per-point (B, N, point_dim), global (B, global_dim))
         """
-        h, mask, _, _ = self._aligned(points, lengths)
+        h, mask, _, _, _ = self._aligned(points, lengths)
         packed = h[mask]
         stages = self.mlp2.packed_stages(packed)
         local = torch.cat([packed, stages[0]], 1)
@@ -89,11 +109,12 @@ class PointNetEncoder(nn.Module):
         return per_point, packed_max_pool(stages[-1], mask)
 
     def _aligned(self, points: torch.Tensor, lengths: torch.Tensor):
-        """The per-point 64-d features after both T-nets, the validity mask and the two T-net matrices.
+        """The per-point features after both T-nets (and the self-adaptive nodes), the validity mask, the
+        two T-net matrices and the node features.
 
         Shapes:
-            points (B, N, 3), lengths (B,) -> ((B, N, 64), (B, N) bool, (B, 3, 3) or None,
-            (B, 64, 64) or None)
+            points (B, N, 3), lengths (B,) -> ((B, N, 64) or (B, N, 128) with nodes, (B, N) bool,
+            (B, 3, 3) or None, (B, 64, 64) or None, (B, sa_nodes, 64) or None)
         """
         mask = lengths_to_mask(lengths, points.shape[1])
         x = points.masked_fill(~mask[..., None], 0.0)
@@ -105,7 +126,10 @@ class PointNetEncoder(nn.Module):
         if self.feature_tnet is not None:
             trans_feat = self.feature_tnet(h, mask)
             h = h @ trans_feat  # padded rows stay 0 (mlp1 zeroes them), and the pool reads valid rows only
-        return h, mask, trans_input, trans_feat
+        nodes = None
+        if self.sa is not None:  # PointDAN's nodes sit on the input points, before the input T-net
+            h, nodes, _ = self.sa(h, points.masked_fill(~mask[..., None], 0.0), mask)
+        return h, mask, trans_input, trans_feat, nodes
 
 
 @dataclass
@@ -116,6 +140,7 @@ class XAVTNetOutput:
     features: dict[str, torch.Tensor]  # "global": B x global_dim, "fc1": B x 512, "fc2": B x 256
     trans_input: torch.Tensor | None
     trans_feat: torch.Tensor | None
+    nodes: torch.Tensor | None = None  # B x M x 64, PointDAN's node features (sa_nodes > 0 only)
 
 
 class XAVTNetHead(nn.Module):
