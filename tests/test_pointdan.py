@@ -62,7 +62,7 @@ def test_self_adaptive_nodes_do_not_depend_on_padding():
 
 
 def test_node_offsets_stay_inside_the_group_ball_and_vanish_without_offset_weights():
-    """Eq. 3's offset averages tanh(·) ∈ (−1, 1) times each member's displacement, so it is shorter than the
+    """Step 3's offset averages tanh(·) ∈ (−1, 1) times each member's displacement, so it is shorter than the
     ball's radius (0.3 of the cloud's radius); with W = 0 the nodes stay on their sampled points, and a node's
     feature is the max of the residual features over its k nearest points."""
     sa = _sa(radius=0.3)

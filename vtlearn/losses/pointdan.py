@@ -1,4 +1,4 @@
-"""PointDAN's local alignment: MMD of the node features (Qin et al., NeurIPS 2019, eq. 4), beyond the thesis.
+"""PointDAN's local alignment: MMD of the node features (Qin et al., NeurIPS 2019), beyond the thesis.
 
 PointDAN aligns a cloud's local regions between the domains as well as its global feature. The
 self-adaptive nodes (:class:`~vtlearn.models.components.sa_nodes.SelfAdaptiveNodes`) give each cloud

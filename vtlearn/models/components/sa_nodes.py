@@ -12,19 +12,20 @@ after the feature T-net, for padded clouds:
    fraction of the cloud's own radius (the largest distance of a point from the centroid). PointDAN's
    clouds lie in the unit ball and its radius is 0.3, so the fraction 0.3 is PointDAN's ball here too, on
    clouds in metres;
-3. each node moves by a learned offset (PointDAN eq. 3): ``Δ = mean_j tanh(W·(h_j − h_node)) ⊙ (x_j −
-   x_node)`` over the group's points ``j``, with ``W`` a bias-free linear map of the 64-d point features to
-   3 (their ``pred_offset``);
+3. each node moves by a learned offset (their ``adapt_layer_off``),
+   ``Δ = mean_j tanh(W·(h_j − h_node)) ⊙ (x_j − x_node)`` over the group's points ``j``, with ``W`` a
+   bias-free linear map of the 64-d point features to 3 (their ``pred_offset``);
 4. each moved node's feature is the max, over its ``k`` nearest points, of a per-point ``Linear → BN →
    ReLU`` of the point features (their ``residual``): ``(B, M, node_dim)``;
 5. the node features are interpolated back to every point from its 3 nearest moved nodes, with weights
    ``1/d²`` normalised to 1, and concatenated to the point features, so the next layer reads
    ``64 + node_dim`` channels per point. The offsets get their gradient through these weights.
 
-Two departures from PointDAN's code, for padded clouds of 30-256 points. Step 3 averages over the group's
-members within the radius, where PointDAN fills a short group with copies of its first member and averages
-over all 64; so a cloud's output does not depend on how far it is padded. A cloud with fewer points than
-``M`` or ``k`` repeats nodes or neighbours, which leaves the maxima and the interpolation as they are.
+Departures from PointDAN's code besides step 1's first-point start, for padded clouds of 30-256 points:
+step 3 averages over the group's members within the radius, where PointDAN fills a short group with
+copies of its first member and averages over all 64, so a cloud's output does not depend on how far it is
+padded. A cloud with fewer points than ``M`` or ``k`` repeats nodes or neighbours, which leaves the maxima
+and the interpolation as they are.
 
 :class:`NodeAttention` is PointDAN's node attention ahead of the local MMD (their ``CALayer``): the
 flattened node features ``z`` of one domain are gated by a squeeze-and-excitation MLP, ``z ⊙ σ(W₂ ReLU(W₁
@@ -131,7 +132,7 @@ class SelfAdaptiveNodes(nn.Module):
             d2 = _squared_distances(node_xyz, xyz).masked_fill(~mask[:, None, :], far)
             dk, group = d2.topk(k, dim=-1, largest=False)  # nearest first; the node itself is first
         inside = (dk <= ball).to(xyz.dtype)  # (B, M, k): the group's members
-        # eq. 3: Δ = mean over members of tanh(W (h_j − h_node)) ⊙ (x_j − x_node); W is linear, so W h is
+        # step 3: Δ = mean over members of tanh(W (h_j − h_node)) ⊙ (x_j − x_node); W is linear, so W h is
         # taken per point first and the groups gather 3 channels instead of 64
         wh = self.offset(features)  # (B, N, 3)
         rel_x = _gather(xyz, group) - node_xyz[:, :, None]
