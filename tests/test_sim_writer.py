@@ -261,7 +261,11 @@ def test_ctrl_c_stops_a_multi_worker_run_at_once(tmp_path):
     while the interpreter still imports vtlearn it can land in a third-party import that catches
     ``BaseException`` (trimesh's optional imports do) and be lost, which is not what this test is about."""
     (tmp_path / "slow_worker.py").write_text(_SLOW_WORKER)
+    # The child starts as a shell starts a command: SIGINT unblocked and at Python's default handler, whatever
+    # the test process inherited or set (blocked signals and ignored dispositions survive exec).
     code = (
+        "import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
+        "signal.signal(signal.SIGINT, signal.default_int_handler); "
         "import sys; from pathlib import Path; import slow_worker; "
         "from vtlearn.sim_data.writer import run_shard_jobs; "
         "run_shard_jobs(Path(sys.argv[1]), [{'name': f'train-{i:05d}.npz'} for i in range(60)], "
