@@ -118,6 +118,7 @@ class PointNetEncoder(nn.Module):
         """
         mask = lengths_to_mask(lengths, points.shape[1])
         x = points.masked_fill(~mask[..., None], 0.0)
+        x_loc = x  # the input points, where PointDAN's nodes sit (before the input T-net)
         trans_input = trans_feat = None
         if self.input_tnet is not None:
             trans_input = self.input_tnet(x, mask)
@@ -127,8 +128,8 @@ class PointNetEncoder(nn.Module):
             trans_feat = self.feature_tnet(h, mask)
             h = h @ trans_feat  # padded rows stay 0 (mlp1 zeroes them), and the pool reads valid rows only
         nodes = None
-        if self.sa is not None:  # PointDAN's nodes sit on the input points, before the input T-net
-            h, nodes, _ = self.sa(h, points.masked_fill(~mask[..., None], 0.0), mask)
+        if self.sa is not None:
+            h, nodes, _ = self.sa(h, x_loc, mask)
         return h, mask, trans_input, trans_feat, nodes
 
 
