@@ -261,8 +261,11 @@ def test_ctrl_c_stops_a_multi_worker_run_at_once(tmp_path):
     while the interpreter still imports vtlearn it can land in a third-party import that catches
     ``BaseException`` (trimesh's optional imports do) and be lost, which is not what this test is about."""
     (tmp_path / "slow_worker.py").write_text(_SLOW_WORKER)
-    # The child starts as a shell starts a command: SIGINT unblocked and at Python's default handler, whatever
-    # the test process inherited or set (blocked signals and ignored dispositions survive exec).
+    # The child starts as an interactive shell starts a command: SIGINT unblocked and at Python's default
+    # handler, whatever the test process inherited (blocked signals and ignored dispositions survive exec).
+    # A test run started in the background by a non-interactive shell (`pytest ... &`, as CI runners and
+    # `nohup` scripts do) has SIGINT ignored from the start (POSIX, for asynchronous commands without job
+    # control), so without this the child ignored the interrupt: the full-suite failures of stops 69-70.
     code = (
         "import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
         "signal.signal(signal.SIGINT, signal.default_int_handler); "
