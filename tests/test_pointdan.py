@@ -88,6 +88,32 @@ def test_node_offsets_stay_inside_the_group_ball_and_vanish_without_offset_weigh
         torch.testing.assert_close(out[b, :, :8], feats[b])
 
 
+def test_feature_ball_makes_a_sparse_clouds_nodes_local():
+    """A cloud with no more points than the group size: PointDAN's nodes (max over the k nearest points) all
+    read the whole cloud's maximum, the same feature; with ``feature_ball`` each node reads the max over the
+    points within the ball of its (unmoved, W = 0) place only, which differ from node to node. On a cloud
+    whose ball holds every point the two agree."""
+    torch.manual_seed(4)
+    xyz, feats = torch.randn(1, 10, 3), torch.randn(1, 10, 8) * 5
+    mask = torch.ones(1, 10, dtype=torch.bool)
+    plain, ball = _sa(radius=0.3), _sa(radius=0.3, feature_ball=True)
+    with torch.no_grad():
+        plain.offset.weight.zero_()
+        ball.offset.weight.zero_()
+    residual = plain.residual(feats, mask)[0]
+    _, nodes, _ = plain(feats, xyz, mask)
+    torch.testing.assert_close(nodes[0], residual.amax(0).expand(6, -1))
+    _, local, _ = ball(feats, xyz, mask)
+    picks = farthest_point_indices(xyz, mask, 6)[0]
+    radius = 0.3 * (xyz[0] - xyz[0].mean(0)).norm(dim=-1).max()
+    for m in range(6):
+        inside = (xyz[0] - xyz[0, picks[m]]).norm(dim=-1) <= radius  # the node itself is always inside
+        torch.testing.assert_close(local[0, m], residual[inside].amax(0))
+    assert not torch.allclose(local[0], local[0, :1].expand(6, -1))
+    wide = _sa(radius=10.0, feature_ball=True)  # every point within 10 cloud radii of every moved node
+    torch.testing.assert_close(wide(feats, xyz, mask)[1], _sa(radius=10.0)(feats, xyz, mask)[1])
+
+
 def test_the_offsets_learn_through_the_interpolation():
     """The nodes' new places enter the output through the interpolation weights only: a loss on the
     per-point output reaches W, a loss on the node features alone does not (PointDAN's too)."""
@@ -110,6 +136,10 @@ def test_bad_node_inputs_are_value_errors():
         SelfAdaptiveNodes(radius=0.0)
     with pytest.raises(ValueError, match="nodes"):
         NodeAttention(4, 5)(torch.randn(3, 5, 4))
+    with pytest.raises(ValueError, match="feature_ball"):
+        SelfAdaptiveNodes(feature_ball="yes")
+    with pytest.raises(ValueError, match="sa_feature_ball"):
+        XAVTNet(**{**TINY, "sa_nodes": 4, "sa_feature_ball": 1})
 
 
 def test_node_alignment_is_zero_for_one_sample_and_grows_with_a_shift():

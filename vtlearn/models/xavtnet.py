@@ -354,6 +354,10 @@ class XAVTNet(L.LightningModule):
         sa_group: the points in each node's group (theirs: 64).
         sa_radius: each group's radius as a fraction of its cloud's radius (theirs: 0.3 in the unit ball);
             > 0.
+        sa_feature_ball: a node's feature reads only its group's points within that radius, instead of
+            all ``sa_group`` nearest (theirs), so a sparse tactile cloud's nodes are local as a dense
+            visual cloud's are (:mod:`~vtlearn.models.components.sa_nodes`, "Sparse clouds"). False
+            (default): theirs.
         node_mmd_weight: weight of PointDAN's local alignment, the MK-MMD of the node features through
             per-domain node attention (:func:`~vtlearn.losses.pointdan.node_alignment_loss`); it needs
             ``sa_nodes > 0`` and two-stream batches. 0 (default): off.
@@ -506,6 +510,7 @@ class XAVTNet(L.LightningModule):
         sa_nodes: int = 0,
         sa_group: int = 64,
         sa_radius: float = 0.3,
+        sa_feature_ball: bool = False,
         node_mmd_weight: float = 0.0,
         afn_weight: float = 0.0,
         afn_step: float = AFN_STEP,
@@ -565,6 +570,8 @@ class XAVTNet(L.LightningModule):
         as_int(sa_nodes, "sa_nodes", minimum=0)
         as_int(sa_group, "sa_group")
         as_real(sa_radius, "sa_radius", low=0.0, open_low=True)
+        if not isinstance(sa_feature_ball, bool):
+            raise ValueError(f"sa_feature_ball: expected True or False, got {sa_feature_ball!r}")
         as_real(node_mmd_weight, "node_mmd_weight", low=0.0)
         if node_mmd_weight > 0 and sa_nodes == 0:
             raise ValueError("node_mmd_weight: PointDAN's local alignment needs the self-adaptive nodes "
@@ -678,7 +685,7 @@ class XAVTNet(L.LightningModule):
         fc_dims, da_layers = list(fc_dims), list(da_layers)
         self.save_hyperparameters()
         self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform, sa_nodes, sa_group,
-                                       sa_radius)
+                                       sa_radius, sa_feature_ball)
         self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
         self._bn_domain = "target"  # evaluation clouds are tactile unless bn_domain("source") says otherwise
         if domain_bn:

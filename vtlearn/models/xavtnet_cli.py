@@ -77,6 +77,11 @@ VARIANTS: dict[str, dict] = {
     # times α. Alone, and added to VTLoss.
     "pointdan": {"da_method": "none", "mcd_weight": 10.0, "sa_nodes": 64, "node_mmd_weight": 50.0},
     "vtloss_pointdan": {**_VTLOSS, "mcd_weight": 10.0, "sa_nodes": 64, "node_mmd_weight": 50.0},
+    # PointDAN with each node's feature read within its ball (sa_feature_ball): on 30-120 tactile contacts
+    # the 64 nearest points of PointDAN's nodes are most of the cloud, so every tactile node reads about the
+    # same global maximum while a visual node reads a local region (sa_nodes.py, "Sparse clouds").
+    "pointdan_ball": {"da_method": "none", "mcd_weight": 10.0, "sa_nodes": 64, "sa_feature_ball": True,
+                      "node_mmd_weight": 50.0},
     # Beyond the thesis: Xu et al.'s stepwise adaptive feature norm of the fc2 features, source and target
     # (losses/afn.py, SAFN, Δr = 1), at their ratio to the cross-entropy (0.05 against 1: 0.5 against
     # α = 10), alone and added to VTLoss.

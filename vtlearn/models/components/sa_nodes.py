@@ -16,7 +16,9 @@ after the feature T-net, for padded clouds:
    ``Δ = mean_j tanh(W·(h_j − h_node)) ⊙ (x_j − x_node)`` over the group's points ``j``, with ``W`` a
    bias-free linear map of the 64-d point features to 3 (their ``pred_offset``);
 4. each moved node's feature is the max, over its ``k`` nearest points, of a per-point ``Linear → BN →
-   ReLU`` of the point features (their ``residual``): ``(B, M, node_dim)``;
+   ReLU`` of the point features (their ``residual``): ``(B, M, node_dim)``. With ``feature_ball`` (not
+   PointDAN's) only those of the ``k`` that lie within the radius of the moved node count, the nearest
+   always;
 5. the node features are interpolated back to every point from its 3 nearest moved nodes, with weights
    ``1/d²`` normalised to 1, and concatenated to the point features, so the next layer reads
    ``64 + node_dim`` channels per point. The offsets get their gradient through these weights.
@@ -26,6 +28,12 @@ step 3 averages over the group's members within the radius, where PointDAN fills
 copies of its first member and averages over all 64, so a cloud's output does not depend on how far it is
 padded. A cloud with fewer points than ``M`` or ``k`` repeats nodes or neighbours, which leaves the maxima
 and the interpolation as they are.
+
+Sparse clouds: step 4's ``k`` nearest points are PointDAN's fixed-size region, made for 1024-point clouds
+in both domains. A tactile cloud of 30-120 contacts has ``k`` = 64 nearest points that are most or all of
+the cloud, so its nodes read (nearly) the same global maximum, while a 256-point visual cloud's nodes read
+a quarter of it each. ``feature_ball`` bounds the region by the same fraction of each cloud's radius in
+both domains instead, so a tactile node reads the few contacts near it.
 
 :class:`NodeAttention` is PointDAN's node attention ahead of the local MMD (their ``CALayer``): the
 flattened node features ``z`` of one domain are gated by a squeeze-and-excitation MLP, ``z ⊙ σ(W₂ ReLU(W₁
@@ -95,6 +103,8 @@ class SelfAdaptiveNodes(nn.Module):
         group_size: ``k``, the points per node's group (PointDAN: 64).
         radius: the group radius as a fraction of each cloud's radius (PointDAN: 0.3 in the unit ball), > 0.
         node_dim: width of a node's feature (PointDAN: 64).
+        feature_ball: step 4's max over the ``k`` nearest points within ``radius`` of the moved node (the
+            nearest always) instead of over all ``k`` (PointDAN's); module docstring, "Sparse clouds".
 
     Shapes:
         features (B, N, channels), xyz (B, N, 3), mask (B, N) bool -> (per-point (B, N, channels + node_dim)
@@ -102,13 +112,16 @@ class SelfAdaptiveNodes(nn.Module):
     """
 
     def __init__(self, channels: int = 64, num_nodes: int = 64, group_size: int = 64, radius: float = 0.3,
-                 node_dim: int = 64) -> None:
+                 node_dim: int = 64, feature_ball: bool = False) -> None:
         super().__init__()
         self.channels = as_int(channels, "channels")
         self.num_nodes = as_int(num_nodes, "num_nodes")
         self.group_size = as_int(group_size, "group_size")
         self.radius = as_real(radius, "radius", low=0.0, open_low=True)
         self.node_dim = as_int(node_dim, "node_dim")
+        if not isinstance(feature_ball, bool):
+            raise ValueError(f"feature_ball: expected True or False, got {feature_ball!r}")
+        self.feature_ball = feature_ball
         self.offset = nn.Linear(self.channels, 3, bias=False)
         self.residual = MaskedPointMLP((self.channels, self.node_dim))
         self.out_channels = self.channels + self.node_dim
@@ -142,7 +155,11 @@ class SelfAdaptiveNodes(nn.Module):
         with torch.no_grad():
             d2 = _squared_distances(moved, xyz).masked_fill(~mask[:, None, :], far)
             dk, group = d2.topk(k, dim=-1, largest=False)
-            group = torch.where(dk < far, group, group[..., :1])  # short clouds: repeat the nearest point
+            member = dk < far
+            if self.feature_ball:
+                member &= dk <= ball
+                member[..., 0] = True
+            group = torch.where(member, group, group[..., :1])  # the others repeat the nearest point
         # max (with its argmax, whose backward is a scatter) rather than amax (whose backward splits ties)
         nodes = _gather(self.residual(features, mask), group).max(2).values  # (B, M, node_dim)
         # back to the points: 1/d² weights of each point's 3 nearest moved nodes

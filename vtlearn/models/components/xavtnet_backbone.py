@@ -57,7 +57,8 @@ class PointNetEncoder(nn.Module):
         feature_transform: use the 64×64 feature T-net.
         sa_nodes: PointDAN's self-adaptive nodes per cloud after the feature T-net (PointDAN: 64); 0: none,
             the thesis's encoder.
-        sa_group, sa_radius: each node's group size and radius (a fraction of the cloud's radius) for
+        sa_group, sa_radius, sa_feature_ball: each node's group size and radius (a fraction of the cloud's
+            radius), and whether its feature reads only the group's points within the radius, for
             :class:`~vtlearn.models.components.sa_nodes.SelfAdaptiveNodes`.
 
     Shapes:
@@ -66,12 +67,14 @@ class PointNetEncoder(nn.Module):
     """
 
     def __init__(self, global_dim: int = 1024, input_transform: bool = True, feature_transform: bool = True,
-                 sa_nodes: int = 0, sa_group: int = 64, sa_radius: float = 0.3):
+                 sa_nodes: int = 0, sa_group: int = 64, sa_radius: float = 0.3,
+                 sa_feature_ball: bool = False):
         super().__init__()
         self.input_tnet = TNet(3, global_dim) if input_transform else None
         self.mlp1 = MaskedPointMLP((3, 64))
         self.feature_tnet = TNet(64, global_dim) if feature_transform else None
-        self.sa = SelfAdaptiveNodes(64, sa_nodes, sa_group, sa_radius) if sa_nodes > 0 else None
+        self.sa = (SelfAdaptiveNodes(64, sa_nodes, sa_group, sa_radius, feature_ball=sa_feature_ball)
+                   if sa_nodes > 0 else None)
         width = 64 if self.sa is None else self.sa.out_channels
         self.mlp2 = MaskedPointMLP((width, 128, global_dim))
         self.point_dim = width + 128  # the width of :meth:`point_features`'s per-point features
