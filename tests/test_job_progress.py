@@ -59,3 +59,27 @@ def test_map_jobs_in_this_process_passes_the_sink_and_keeps_the_order():
     out = list(map_jobs(_job, [(2,), (1,), (3,)], 1, tick=ticks.append))
     assert [e for _, e in out] == [2, 1, 3] and sum(ticks) == 6
     assert list(map_jobs(_job, [(2,)], 1)) == [out[0]]  # no tick: no sink
+
+
+def _threads_job(threads, fail=False, progress=None):
+    torch.set_num_threads(threads)
+    if fail:
+        raise RuntimeError("the job failed")
+    return torch.get_num_threads()
+
+
+def test_map_jobs_in_this_process_gives_the_callers_thread_count_back():
+    """A job that sets torch's thread count (the benches' --threads) runs with it, and the caller has its own
+    back after each job, also after a job that raised (run in-process, a bench used to leave the caller
+    on its jobs' count)."""
+    before = torch.get_num_threads()
+    other = 1 if before > 1 else 2
+    try:
+        jobs = map_jobs(_threads_job, [(other,), (other,)], 1)
+        assert next(jobs) == other and torch.get_num_threads() == before
+        assert next(jobs) == other and torch.get_num_threads() == before
+        with pytest.raises(RuntimeError, match="the job failed"):
+            list(map_jobs(_threads_job, [(other, True)], 1))
+        assert torch.get_num_threads() == before
+    finally:
+        torch.set_num_threads(before)

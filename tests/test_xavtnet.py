@@ -324,10 +324,10 @@ def test_vtloss_training_lowers_domain_discrepancy_vs_no_da():
     assert results["vtloss"] < results["none"], results
 
 
-def _trained_joint_outputs(batch, steps=10, **kwargs):
-    """Train a tiny XAVTNet (seed 0, no dropout) for ``steps`` steps on one two-stream batch; return the
+def _trained_joint_outputs(batch, steps=10, seed=0, **kwargs):
+    """Train a tiny XAVTNet (``seed``, no dropout) for ``steps`` steps on one two-stream batch; return the
     joint forward's (source, target) outputs on that batch, without gradient."""
-    torch.manual_seed(0)
+    torch.manual_seed(seed)
     model = XAVTNet(**TINY, dropout=0.0, **kwargs).train()
     model._log_train = lambda *a, **k: None  # no trainer attached: skip self.log
     opt = model.configure_optimizers()
@@ -442,7 +442,8 @@ def test_mcd_weight_adds_the_second_classifier_and_the_reversed_discrepancy():
 def test_afn_weight_adds_the_feature_norm_of_both_domains_and_lengthens_the_target_features():
     """``afn_weight``: the step's loss is no-DA's plus w·(L_SAFN(source fc2) + L_SAFN(target fc2)) = no-DA's +
     2·w·Δr², and training with it leaves the target fc2 features with larger norms than no-DA's after the
-    same steps."""
+    same steps: by 22-26 % on average over four seeds (on 1 and 2 threads), where one seed's ratio runs
+    from 1.04 to 1.41 (ten steps of a tiny model follow the float rounding of the thread count)."""
     from vtlearn.losses import adaptive_feature_norm
 
     batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
@@ -450,11 +451,12 @@ def test_afn_weight_adds_the_feature_norm_of_both_domains_and_lengthens_the_targ
     terms = sum(adaptive_feature_norm(o.features["fc2"], 0.5)[0] for o in (out_s, out_t))
     assert loss == pytest.approx((base + 0.7 * terms).item(), rel=1e-5)
     assert terms.item() == pytest.approx(2 * 0.5**2)
-    norms = {}
-    for weight in (0.0, 10.0):
-        _, out_t = _trained_joint_outputs(batch, da_method="none", afn_weight=weight)
-        norms[weight] = out_t.features["fc2"].norm(dim=1).mean().item()
-    assert norms[10.0] > 1.1 * norms[0.0], norms
+    ratios = []
+    for seed in range(4):
+        norms = [_trained_joint_outputs(batch, seed=seed, da_method="none", afn_weight=weight)[1]
+                 .features["fc2"].norm(dim=1).mean().item() for weight in (0.0, 10.0)]
+        ratios.append(norms[1] / norms[0])
+    assert sum(ratios) / 4 > 1.1, ratios
     for bad in (dict(afn_weight=-1.0), dict(afn_step=0.0)):
         with pytest.raises(ValueError, match=next(iter(bad))):
             XAVTNet(**TINY, **bad)

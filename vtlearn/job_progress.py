@@ -70,13 +70,26 @@ def map_jobs(fn: Callable, job_args: list[tuple], workers: int,
     order, or in ``workers`` spawned processes, in completion order (``fn`` must then be a module-level
     function). ``sink`` is ``None`` without ``tick``; with it, every ``sink.put(n)`` of a job reaches
     ``tick(n)`` in this process while the job runs. ``workers`` is checked here, before any job runs.
+    A job may set torch's thread count for itself (the benches' ``--threads``); in this process it is put
+    back after each job, so the caller keeps its own.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers: need >= 1, got {workers}")
     if workers == 1:
-        sink = LocalSink(tick) if tick is not None else None
-        return (fn(*a, progress=sink) for a in job_args)
+        return _map_here(fn, job_args, LocalSink(tick) if tick is not None else None)
     return _map_in_processes(fn, job_args, workers, tick)
+
+
+def _map_here(fn: Callable, job_args: list[tuple], sink) -> Iterator:
+    import torch
+
+    for a in job_args:
+        threads = torch.get_num_threads()
+        try:
+            result = fn(*a, progress=sink)
+        finally:
+            torch.set_num_threads(threads)
+        yield result
 
 
 def _map_in_processes(fn: Callable, job_args: list[tuple], workers: int,
