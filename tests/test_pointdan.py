@@ -41,11 +41,12 @@ def _sa(**kwargs):
     return SelfAdaptiveNodes(channels=8, node_dim=5, **{"num_nodes": 6, "group_size": 10, **kwargs}).eval()
 
 
-def test_self_adaptive_nodes_do_not_depend_on_padding():
+@pytest.mark.parametrize("feature_ball", [False, True])
+def test_self_adaptive_nodes_do_not_depend_on_padding(feature_ball):
     """Each cloud of a padded batch gets the nodes, offsets and per-point features it gets alone (evaluation
     mode: batch norm with running statistics), clouds shorter than the node count and group size included;
-    the ball spans the whole cloud, so every group's offset has members besides its node."""
-    sa = _sa(radius=1.0)
+    the ball spans most of the cloud, so every group's offset has members besides its node."""
+    sa = _sa(radius=1.0, feature_ball=feature_ball)
     torch.manual_seed(1)
     lengths = torch.tensor([30, 4, 7])
     xyz, feats = torch.randn(3, 30, 3), torch.randn(3, 30, 8)
