@@ -232,6 +232,15 @@ def test_sensor_frame_takes_a_horizontal_direction_of_two_or_three_components():
             sensor_frame([0.0, 0.0, 0.0], bad)
 
 
+def test_as_bool_takes_only_true_and_false():
+    from vtlearn.validation import as_bool
+
+    assert as_bool(True, "flag") is True and as_bool(False, "flag") is False
+    for bad in (1, 0, np.bool_(True), "true", None):
+        with pytest.raises(ValueError, match="flag: expected True or False"):
+            as_bool(bad, "flag")
+
+
 def test_as_real_and_as_vector_state_the_bound_and_refuse_strings_bools_and_nan():
     from vtlearn.validation import as_real, as_vector
 

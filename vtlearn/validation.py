@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigMismatchError", "as_int", "as_pair", "as_points", "as_real", "as_stored_transform",
-           "as_surface_mesh", "as_transform", "as_vector", "check_class_scores", "check_not_collinear",
-           "load_named", "to_numpy"]
+__all__ = ["ConfigMismatchError", "as_bool", "as_int", "as_pair", "as_points", "as_real",
+           "as_stored_transform", "as_surface_mesh", "as_transform", "as_vector", "check_class_scores",
+           "check_not_collinear", "load_named", "to_numpy"]
 
 
 class ConfigMismatchError(ValueError):
@@ -30,6 +30,14 @@ def as_int(value: Any, name: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"{name}: need an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def as_bool(value: Any, name: str) -> bool:
+    """``value`` if it is ``True`` or ``False``; a ``ValueError`` naming ``name`` otherwise (also for 0 / 1,
+    numpy bools and strings, which a config could mean as a number or a word)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}: expected True or False, got {value!r}")
+    return value
 
 
 def as_real(value: Any, name: str, *, low: float = -math.inf, high: float = math.inf,

@@ -159,7 +159,7 @@ from vtlearn.models.components.xavtnet_backbone import (
     XAVTNetOutput,
     check_cloud_batch,
 )
-from vtlearn.validation import ConfigMismatchError, as_int, as_real
+from vtlearn.validation import ConfigMismatchError, as_bool, as_int, as_real
 
 __all__ = ["XAVTNet", "load_xavtnet", "subsample_padded", "normalize_padded"]
 
@@ -570,8 +570,7 @@ class XAVTNet(L.LightningModule):
         as_int(sa_nodes, "sa_nodes", minimum=0)
         as_int(sa_group, "sa_group")
         as_real(sa_radius, "sa_radius", low=0.0, open_low=True)
-        if not isinstance(sa_feature_ball, bool):
-            raise ValueError(f"sa_feature_ball: expected True or False, got {sa_feature_ball!r}")
+        as_bool(sa_feature_ball, "sa_feature_ball")
         as_real(node_mmd_weight, "node_mmd_weight", low=0.0)
         if node_mmd_weight > 0 and sa_nodes == 0:
             raise ValueError("node_mmd_weight: PointDAN's local alignment needs the self-adaptive nodes "

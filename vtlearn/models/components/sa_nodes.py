@@ -46,7 +46,7 @@ import torch
 from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import MaskedPointMLP
-from vtlearn.validation import as_int, as_real
+from vtlearn.validation import as_bool, as_int, as_real
 
 __all__ = ["farthest_point_indices", "SelfAdaptiveNodes", "NodeAttention"]
 
@@ -119,9 +119,7 @@ class SelfAdaptiveNodes(nn.Module):
         self.group_size = as_int(group_size, "group_size")
         self.radius = as_real(radius, "radius", low=0.0, open_low=True)
         self.node_dim = as_int(node_dim, "node_dim")
-        if not isinstance(feature_ball, bool):
-            raise ValueError(f"feature_ball: expected True or False, got {feature_ball!r}")
-        self.feature_ball = feature_ball
+        self.feature_ball = as_bool(feature_ball, "feature_ball")
         self.offset = nn.Linear(self.channels, 3, bias=False)
         self.residual = MaskedPointMLP((self.channels, self.node_dim))
         self.out_channels = self.channels + self.node_dim
