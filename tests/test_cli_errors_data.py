@@ -183,6 +183,17 @@ def test_gen_data_errors_name_the_flag(tmp_path, capsys):
     assert err.startswith("vtlearn: error: --out: ")
 
 
+def test_gen_data_tactile_points_errors_name_the_flag(tmp_path, capsys):
+    out = tmp_path / "cm"
+    err = _error(capsys, ["gen-data", "crossmodal", "--out", str(out), "--tactile-points", "80", "30"])
+    assert err.startswith("vtlearn: error: --tactile-points: need 1 <= min <= max, got 80, 30")
+    with pytest.raises(SystemExit) as exc:  # refused by argparse, before the config is built
+        main(["gen-data", "crossmodal", "--out", str(out), "--tactile-points", "0", "30"])
+    assert exc.value.code == 2
+    assert "argument --tactile-points: must be >= 1, got 0" in capsys.readouterr().err
+    assert not out.exists()
+
+
 # ------------------------------------------------------------------ 2: a dataset of another kind
 @pytest.fixture(scope="module")
 def episodes(recon_dir, tmp_path_factory):

@@ -209,6 +209,23 @@ def test_crossmodal_shard_contents(tmp_path):
     assert json.loads((tmp_path / "manifest.json").read_text())["kind"] == "crossmodal"
 
 
+def test_gen_data_tactile_points_bounds_every_cloud(tmp_path):
+    """``gen-data --tactile-points 30 40`` (thesis 7.2.3's tactile clouds "usually contain 30-80 points"):
+    every stored tactile cloud has 30-40 contacts, and the manifest records the range, so that a resume with
+    another range is refused."""
+    from vtlearn.cli import main
+
+    out = tmp_path / "cm"
+    assert main(["gen-data", "crossmodal", "--out", str(out), "--categories", "can", "--per-category", "1",
+                 "--splits", "1,0,0", "--views", "1", "--tactile-clouds", "4", "--width", "160", "--height",
+                 "120", "--tactile-points", "30", "40"]) == 0
+    m = json.loads((out / "manifest.json").read_text())
+    assert (m["config"]["tactile_min_points"], m["config"]["tactile_max_points"]) == (30, 40)
+    with np.load(out / m["shards"][0]["file"], allow_pickle=False) as z:
+        sizes = np.diff(z["tactile_offsets"])
+    assert len(sizes) == 4 and np.all((sizes >= 30) & (sizes <= 40))
+
+
 def test_crossmodal_visual_crop_drops_see_through_returns(tmp_path):
     """A glass's visual cloud is segmented by its box: the see-through returns (2-30 cm too deep, on or
     under the table) are dropped, which the uncropped mask keeps."""

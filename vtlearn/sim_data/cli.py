@@ -23,6 +23,8 @@ _GEN_DATA_FLAGS = {
     "shard_size": "--shard-size", "sections": "--sections", "sensor": "--sensor", "touches": "--touches",
     "pinches": "--pinches", "views": "--views", "image_width": "--width", "image_height": "--height",
     "visual_crop_margin": "--visual-crop-margin", "tactile_clouds": "--tactile-clouds",
+    "tactile_min_points": "--tactile-points", "tactile_max_points": "--tactile-points",
+    "tactile_min_points/tactile_max_points": "--tactile-points",
     "mesh_source": "--meshes", "keep_split": "--keep-split", "out_dir": "--out", "workers": "--workers",
 }
 
@@ -56,6 +58,8 @@ def _gen_data(args: argparse.Namespace) -> int:
         depth_noise=not args.no_depth_noise,
         visual_crop_margin=None if args.no_visual_crop else args.visual_crop_margin,
         tactile_clouds=args.tactile_clouds,
+        tactile_min_points=args.tactile_points[0],
+        tactile_max_points=args.tactile_points[1],
         mesh_source=args.meshes or "procedural",
         keep_split=args.keep_split,
     )
@@ -133,6 +137,9 @@ def register(sub) -> None:
                    help="crossmodal: visual clouds per instance (default: %(default)s)")
     p.add_argument("--tactile-clouds", type=count(1), default=4,
                    help="crossmodal: tactile clouds per instance (default: %(default)s)")
+    p.add_argument("--tactile-points", type=count(1), nargs=2, metavar=("MIN", "MAX"), default=[30, 120],
+                   help="crossmodal: contacts per tactile cloud, drawn uniformly in [MIN, MAX]; each cloud's "
+                   "touches stop once it has that many (thesis 7.2.3: 'usually 30-80'; default: 30 120)")
     p.add_argument("--width", type=count(1), default=320,
                    help="crossmodal: depth-camera image width in pixels (default: %(default)s)")
     p.add_argument("--height", type=count(1), default=240,
