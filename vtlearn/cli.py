@@ -14,6 +14,7 @@ import sys
 
 from vtlearn import __version__
 from vtlearn.cli_args import count
+from vtlearn.torch_threads import keep_torch_threads
 
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
 COMMAND_MODULES: tuple[str, ...] = (
@@ -185,8 +186,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        _check_output_options(args)
-        return int(args.func(args) or 0)
+        # a command's --threads sets torch's thread count for itself; a Python caller gets its own back
+        with keep_torch_threads():
+            _check_output_options(args)
+            return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:
         print(f"vtlearn: error: {exc}", file=sys.stderr)
         return 2

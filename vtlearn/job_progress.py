@@ -81,14 +81,11 @@ def map_jobs(fn: Callable, job_args: list[tuple], workers: int,
 
 
 def _map_here(fn: Callable, job_args: list[tuple], sink) -> Iterator:
-    import torch
+    from vtlearn.torch_threads import keep_torch_threads
 
     for a in job_args:
-        threads = torch.get_num_threads()
-        try:
+        with keep_torch_threads():
             result = fn(*a, progress=sink)
-        finally:
-            torch.set_num_threads(threads)
         yield result
 
 

@@ -436,6 +436,8 @@ def run_quickstart(
     """
     import torch
 
+    from vtlearn.torch_threads import keep_torch_threads
+
     cfg = cfg or QuickstartConfig()
     cfg.validate()
     steps = ("data", "train", "explore", "perceive")
@@ -453,25 +455,26 @@ def run_quickstart(
         )
     cfg_path.write_text(json.dumps(cfg_json, indent=2))
     os.environ.setdefault("WANDB_MODE", "offline")
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
     timings, status = {}, {}
     result: dict = {}
-    for name, fn in (
-        ("data", step_data),
-        ("train", step_train),
-        ("explore", step_explore),
-        ("perceive", step_perceive),
-    ):
-        t0 = time.perf_counter()
-        r = fn(cfg, out)
-        timings[name] = round(time.perf_counter() - t0, 1)
-        log.info("quickstart %s: %.1f s %s", name, timings[name], r if name != "perceive" else "")
-        if name == "perceive":
-            result = r
-        else:
-            status[name] = r
-        if stop_after == name:
-            break
+    with keep_torch_threads():  # the caller gets its own thread count back
+        torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+        for name, fn in (
+            ("data", step_data),
+            ("train", step_train),
+            ("explore", step_explore),
+            ("perceive", step_perceive),
+        ):
+            t0 = time.perf_counter()
+            r = fn(cfg, out)
+            timings[name] = round(time.perf_counter() - t0, 1)
+            log.info("quickstart %s: %.1f s %s", name, timings[name], r if name != "perceive" else "")
+            if name == "perceive":
+                result = r
+            else:
+                status[name] = r
+            if stop_after == name:
+                break
     result = dict(result, steps=status, seconds=timings)
     if "chamfer_mm" in result:
         (out / "summary.json").write_text(json.dumps(result, indent=2))
