@@ -209,7 +209,7 @@ def test_crossmodal_shard_contents(tmp_path):
     assert json.loads((tmp_path / "manifest.json").read_text())["kind"] == "crossmodal"
 
 
-def test_gen_data_tactile_points_bounds_every_cloud(tmp_path):
+def test_gen_data_tactile_points_bounds_every_cloud(tmp_path, capsys):
     """``gen-data --tactile-points 30 40`` (thesis 7.2.3's tactile clouds "usually contain 30-80 points"):
     every stored tactile cloud has 30-40 contacts, and the manifest records the range, so that a resume with
     another range is refused."""
@@ -224,6 +224,11 @@ def test_gen_data_tactile_points_bounds_every_cloud(tmp_path):
     with np.load(out / m["shards"][0]["file"], allow_pickle=False) as z:
         sizes = np.diff(z["tactile_offsets"])
     assert len(sizes) == 4 and np.all((sizes >= 30) & (sizes <= 40))
+    argv = ["gen-data", "crossmodal", "--out", str(out), "--categories", "can", "--per-category", "1",
+            "--splits", "1,0,0", "--views", "1", "--tactile-clouds", "4", "--width", "160", "--height", "120"]
+    assert main(argv) == 2  # the default 30 120 into the 30-40 folder: refused, nothing rewritten
+    assert "tactile_max_points: 40 in the folder, 120 asked" in capsys.readouterr().err
+    assert json.loads((out / "manifest.json").read_text()) == m
 
 
 def test_crossmodal_visual_crop_drops_see_through_returns(tmp_path):
