@@ -218,6 +218,7 @@ def test_crop_to_box_checks():
         ("image_width", 0),
         ("image_height", 2.5),
         ("seed", -1),
+        ("keep_split", 1),
     ],
 )
 def test_genconfig_names_field(field, value):

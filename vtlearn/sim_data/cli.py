@@ -23,7 +23,6 @@ _GEN_DATA_FLAGS = {
     "shard_size": "--shard-size", "sections": "--sections", "sensor": "--sensor", "touches": "--touches",
     "pinches": "--pinches", "views": "--views", "image_width": "--width", "image_height": "--height",
     "visual_crop_margin": "--visual-crop-margin", "tactile_clouds": "--tactile-clouds",
-    "tactile_min_points": "--tactile-points", "tactile_max_points": "--tactile-points",
     "tactile_min_points/tactile_max_points": "--tactile-points",
     "mesh_source": "--meshes", "keep_split": "--keep-split", "out_dir": "--out", "workers": "--workers",
 }

@@ -42,7 +42,7 @@ import numpy as np
 from vtlearn.bench_utils import host_info
 from vtlearn.io import atomic_path, atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
-from vtlearn.validation import as_int, as_real
+from vtlearn.validation import as_bool, as_int, as_real
 
 log = logging.getLogger(__name__)
 
@@ -146,8 +146,7 @@ class GenConfig:
         f = np.asarray(self.split_fractions, dtype=float)
         if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
-        if not isinstance(self.keep_split, bool):
-            raise ValueError(f"keep_split: need True or False, got {self.keep_split!r}")
+        as_bool(self.keep_split, "keep_split")
         if self.keep_split and self.mesh_source == "procedural":
             raise ValueError("keep_split: keeps a mesh dataset's own train/test split, but procedural shapes "
                              "have none; use it with mesh_source (--meshes) a ModelNet40/10 tree")
