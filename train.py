@@ -48,6 +48,7 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger, WandbLogger
 
+from vtlearn.interrupts import import_trimesh
 from vtlearn.validation import ConfigMismatchError
 
 
@@ -465,6 +466,11 @@ def cli_main(args=None) -> LightningCLI:
 
 
 def main(args=None) -> int:
+    try:
+        import_trimesh()  # before the config names the modules that import it
+    except KeyboardInterrupt:
+        print("train.py: interrupted", file=sys.stderr)
+        return 130
     try:
         cli_main(args)
     except (ConfigError, ConfigMismatchError) as exc:

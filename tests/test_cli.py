@@ -1,6 +1,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -253,6 +254,68 @@ def test_ctrl_c_in_a_bench_names_the_benchmark(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sim_bench, "run", _interrupt)
     assert main(["bench", "sim", "--json", str(tmp_path / "sim.json")]) == 130
     assert capsys.readouterr().err == "vtlearn bench sim: interrupted\n"
+
+
+# a child interpreter that sends itself a Ctrl-C the moment trimesh imports its path module, i.e. inside one
+# of the `except BaseException` blocks around trimesh's optional imports, runs an entry point's main, and
+# prints its exit code and the names in trimesh's modules that hold the KeyboardInterrupt in place of what
+# they import
+_CTRL_C_IN_TRIMESH_IMPORT = """
+import os, signal, sys
+
+class Interrupter:
+    def find_spec(self, name, path=None, target=None):
+        if name == "trimesh.path":
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.path.insert(0, {root!r})
+sys.meta_path.insert(0, Interrupter())
+from {module} import main
+rc = main({argv!r})
+from trimesh.exceptions import ExceptionWrapper
+held = [f"{{name}}.{{key}}" for name, mod in list(sys.modules.items()) if name.startswith("trimesh")
+        for key, value in vars(mod).items()
+        if type(value) is ExceptionWrapper
+        and object.__getattribute__(value, "exception")[0] is KeyboardInterrupt]
+print(rc, held)
+"""
+
+
+@pytest.mark.parametrize("module, argv, line", [
+    ("vtlearn.cli", ["metrics", "missing_a.ply", "missing_b.ply"], "vtlearn: interrupted"),
+    ("train", ["fit", "--config", "missing.yaml"], "train.py: interrupted"),  # imports lightning: ~5 s
+])
+def test_ctrl_c_during_the_trimesh_import_stops_the_command_and_leaves_trimesh_whole(module, argv, line,
+                                                                                      tmp_path):
+    # without the hold, trimesh stored the KeyboardInterrupt in place of faces_to_path and the command ran on
+    root = str(Path(__file__).resolve().parents[1])
+    code = _CTRL_C_IN_TRIMESH_IMPORT.format(root=root, module=module, argv=argv)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert out.stdout.strip() == "130 []", out.stderr
+    assert out.stderr.strip().splitlines()[-1] == line
+
+
+def test_sigint_held_delivers_a_ctrl_c_after_the_block_to_the_handler_before_it():
+    import os
+    import signal
+
+    from vtlearn.interrupts import sigint_held
+
+    reached_the_end = False
+    with pytest.raises(KeyboardInterrupt):
+        with sigint_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            reached_the_end = True
+    assert reached_the_end and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with sigint_held():  # an ignored Ctrl-C stays ignored
+            os.kill(os.getpid(), signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_gen_data_help_explains_every_option_and_states_its_default(capsys):

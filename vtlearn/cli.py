@@ -14,6 +14,7 @@ import sys
 
 from vtlearn import __version__
 from vtlearn.cli_args import count
+from vtlearn.interrupts import import_trimesh
 from vtlearn.torch_threads import keep_torch_threads
 
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
@@ -174,7 +175,13 @@ def _interrupted_message(args: argparse.Namespace) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        # first, so that building the parser (which imports every command module) finds it imported
+        import_trimesh()
+        parser = build_parser()
+    except KeyboardInterrupt:
+        print("vtlearn: interrupted", file=sys.stderr)
+        return 130
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
