@@ -22,9 +22,10 @@ def sigint_held() -> Iterator[None]:
     """Hold a Ctrl-C back until the block ends, then deliver it to the handler in place before.
 
     Python's default handler then raises KeyboardInterrupt; an ignored SIGINT stays ignored. Only the main
-    thread can set a signal handler; in another thread the block runs as it is.
+    thread can set a signal handler, and a handler not installed from Python (an embedding program's) could
+    not be put back; in either case the block runs as it is.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
         yield
         return
     pending: list[int] = []
