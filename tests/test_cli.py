@@ -1,3 +1,4 @@
+import importlib
 import json
 import subprocess
 import sys
@@ -246,6 +247,43 @@ def test_ctrl_c_prints_one_line_and_exits_130(argv, handler, expected, capsys, m
     assert main(argv) == 130
     captured = capsys.readouterr()
     assert captured.err == expected + "\n" and "Traceback" not in captured.out + captured.err
+
+
+def _train_until_interrupted(args):
+    import lightning as L
+    from lightning.pytorch.demos.boring_classes import BoringModel
+
+    class CtrlC(L.Callback):  # what the default SIGINT handler raises, two steps in
+        def on_train_batch_end(self, trainer, *_):
+            if trainer.global_step == 2:
+                raise KeyboardInterrupt
+
+    L.Trainer(max_epochs=1, callbacks=[CtrlC()], logger=False, enable_checkpointing=False,
+              enable_progress_bar=False, enable_model_summary=False).fit(BoringModel())
+    return 0
+
+
+def test_ctrl_c_in_a_lightning_training_ends_as_any_other_interrupted_command(capsys, monkeypatch):
+    # Lightning shuts the training down and calls sys.exit(1); main used to pass that exit on
+    monkeypatch.setattr(importlib.import_module("vtlearn.cli"), "_cmd_info", _train_until_interrupted)
+    assert main(["info"]) == 130
+    assert capsys.readouterr().err.endswith("vtlearn info: interrupted\n")
+
+
+def _interrupt_in_a_progress_bar(args):
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=5, desc="work")
+    bar.update(2)
+    raise KeyboardInterrupt
+
+
+def test_ctrl_c_closes_the_open_progress_bars_before_its_line(capsys, monkeypatch):
+    # the bar's line ended without a newline, and the "interrupted" line was printed on the end of it
+    monkeypatch.setattr(importlib.import_module("vtlearn.cli"), "_cmd_info", _interrupt_in_a_progress_bar)
+    assert main(["info"]) == 130
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[-1] == "vtlearn info: interrupted" and "2/5" in lines[-2]
 
 
 def test_ctrl_c_in_a_bench_names_the_benchmark(tmp_path, capsys, monkeypatch):

@@ -3,6 +3,7 @@
 import lightning as L
 import pytest
 import torch
+from _interrupt import interrupt_once_started
 from torch.utils.data import DataLoader, TensorDataset
 
 from vtlearn.job_progress import LocalSink, TickCallback, map_jobs
@@ -83,3 +84,28 @@ def test_map_jobs_in_this_process_gives_the_callers_thread_count_back():
         assert torch.get_num_threads() == before
     finally:
         torch.set_num_threads(before)
+
+
+_SLOW_JOB = """
+import time
+from pathlib import Path
+
+
+def job(i, folder, progress=None):
+    (Path(folder) / f"started-{i}").touch()
+    time.sleep(60.0)
+    return i
+"""
+
+
+def test_ctrl_c_stops_the_workers_at_once_and_drops_the_queued_jobs(tmp_path):
+    # a worker took whatever its job raised, KeyboardInterrupt and Lightning's exit after one included, and
+    # went on with the next job, and leaving the pool waited for them all: a bench's Ctrl-C hung for every
+    # remaining training. The tick makes a manager process run beside the workers, as in the benches.
+    (tmp_path / "slow_job.py").write_text(_SLOW_JOB)
+    code = ("import sys; import slow_job; from vtlearn.job_progress import map_jobs; "
+            "list(map_jobs(slow_job.job, [(i, sys.argv[1]) for i in range(6)], 2, tick=print))")
+    returncode, err, seconds = interrupt_once_started(code, tmp_path, workers=2)
+    assert seconds < 10  # each job sleeps 60 s
+    assert returncode != 0 and err.count("KeyboardInterrupt") == 1, err
+    assert len(list(tmp_path.glob("started-*"))) == 2  # the queued jobs never started

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from _interrupt import interrupt_once_started
 
 from vtlearn.sim_data.writer import GenConfig, _split_counts, generate_dataset, sha256_file
 
@@ -279,37 +280,14 @@ def work(job, out):
 def test_ctrl_c_stops_a_multi_worker_run_at_once(tmp_path):
     """Ctrl-C (SIGINT to the whole process group) during ``--workers 2``: the run stops within seconds
     with one KeyboardInterrupt (leaving the pool used to wait for every queued shard, or hang), and the
-    workers print no traceback of their own. The interrupt is sent once a worker has started a job: sent
-    while the interpreter still imports vtlearn it can land in a third-party import that catches
-    ``BaseException`` (trimesh's optional imports do) and be lost, which is not what this test is about."""
+    workers print no traceback of their own."""
     (tmp_path / "slow_worker.py").write_text(_SLOW_WORKER)
-    # The child starts as an interactive shell starts a command: SIGINT unblocked and at Python's default
-    # handler, whatever the test process inherited (blocked signals and ignored dispositions survive exec).
-    # A test run started in the background by a non-interactive shell (`pytest ... &`, as CI runners and
-    # `nohup` scripts do) has SIGINT ignored from the start (POSIX, for asynchronous commands without job
-    # control), so without this the child ignored the interrupt: the full-suite failures of stops 69-70.
     code = (
-        "import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
-        "signal.signal(signal.SIGINT, signal.default_int_handler); "
         "import sys; from pathlib import Path; import slow_worker; "
         "from vtlearn.sim_data.writer import run_shard_jobs; "
         "run_shard_jobs(Path(sys.argv[1]), [{'name': f'train-{i:05d}.npz'} for i in range(60)], "
         "slow_worker.work, (), workers=2, progress=False)"
     )
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 60.0  # the workers start and take their first jobs
-        while not any(tmp_path.glob("started-*")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert any(tmp_path.glob("started-*")) and proc.poll() is None
-        os.killpg(proc.pid, signal.SIGINT)
-        start = time.monotonic()
-        _, err = proc.communicate(timeout=15)
-        assert time.monotonic() - start < 10
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    assert proc.returncode != 0 and err.count("KeyboardInterrupt") == 1, err
+    returncode, err, seconds = interrupt_once_started(code, tmp_path, workers=2)
+    assert seconds < 10
+    assert returncode != 0 and err.count("KeyboardInterrupt") == 1, err

@@ -14,7 +14,7 @@ import sys
 
 from vtlearn import __version__
 from vtlearn.cli_args import count
-from vtlearn.interrupts import import_trimesh
+from vtlearn.interrupts import import_trimesh, lightning_interrupt_as_keyboard_interrupt
 from vtlearn.torch_threads import keep_torch_threads
 
 # one line per feature package; each module defines register(subparsers) and/or register_bench(subparsers)
@@ -174,6 +174,16 @@ def _interrupted_message(args: argparse.Namespace) -> str:
     return f"{name}: interrupted"
 
 
+def _close_progress_bars() -> None:
+    """Close the progress bars a Ctrl-C left open (most commands' bars are closed after their loop), so that
+    the "interrupted" line starts a line of its own. It imports nothing: with tqdm not loaded, no bar is
+    open."""
+    std = sys.modules.get("tqdm.std")
+    if std is not None:
+        for bar in list(getattr(std.tqdm, "_instances", ())):
+            bar.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         # first, so that building the parser (which imports every command module) finds it imported
@@ -193,8 +203,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        # a command's --threads sets torch's thread count for itself; a Python caller gets its own back
-        with keep_torch_threads():
+        # a command's --threads sets torch's thread count for itself; a Python caller gets its own back. A
+        # Ctrl-C during a Lightning training in this process ends as KeyboardInterrupt, not Lightning's exit 1
+        with keep_torch_threads(), lightning_interrupt_as_keyboard_interrupt():
             _check_output_options(args)
             return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:
@@ -207,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         # Ctrl-C: one line, not a traceback; 130 = 128 + SIGINT, as a shell reports it
+        _close_progress_bars()
         print(_interrupted_message(args), file=sys.stderr)
         return 130
 

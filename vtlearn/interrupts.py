@@ -1,10 +1,14 @@
-"""Ctrl-C held back while trimesh imports, so that it is not swallowed.
+"""Ctrl-C where third-party code would swallow it or turn it into another exit.
 
-trimesh wraps its optional imports (scipy, networkx, PIL, rtree, its path module) in ``except BaseException``
-and stores the exception in their place. A Ctrl-C in the second its import takes is swallowed there: the
-command runs on, and the names it replaced raise KeyboardInterrupt whenever they are used later.
-:func:`import_trimesh` imports it with Ctrl-C held back, so a Ctrl-C arrives once the import is done and
-stops the command as any other would. The ``vtlearn`` command and ``train.py`` call it first.
+- trimesh wraps its optional imports (scipy, networkx, PIL, rtree, its path module) in ``except
+  BaseException`` and stores the exception in their place. A Ctrl-C in the second its import takes is
+  swallowed there: the command runs on, and the names it replaced raise KeyboardInterrupt whenever they are
+  used later. :func:`import_trimesh` imports it with Ctrl-C held back, so a Ctrl-C arrives once the import is
+  done and stops the command as any other would. The ``vtlearn`` command and ``train.py`` call it first.
+- Lightning's Trainer answers a Ctrl-C with a graceful shutdown and then calls ``sys.exit(1)``.
+  :func:`lightning_interrupt_as_keyboard_interrupt` turns that exit back into KeyboardInterrupt, so a
+  ``vtlearn`` command that trains in its own process ends as any other interrupted command does (one line,
+  exit code 130), and ``vtlearn.cli.main`` returns 130 to a Python caller instead of raising SystemExit.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import signal
 import threading
 from collections.abc import Iterator
 
-__all__ = ["import_trimesh", "sigint_held"]
+__all__ = ["import_trimesh", "lightning_interrupt_as_keyboard_interrupt", "sigint_held"]
 
 
 @contextlib.contextmanager
@@ -42,3 +46,18 @@ def import_trimesh() -> None:
     """Import trimesh with Ctrl-C held back (a no-op once it is imported)."""
     with sigint_held():
         import trimesh  # noqa: F401
+
+
+@contextlib.contextmanager
+def lightning_interrupt_as_keyboard_interrupt() -> Iterator[None]:
+    """Raise KeyboardInterrupt where a Lightning training in the block exits after a Ctrl-C.
+
+    Lightning calls ``sys.exit(1)`` in its ``except KeyboardInterrupt`` block, so that exit is the
+    SystemExit whose context is a KeyboardInterrupt; any other exit passes as it is.
+    """
+    try:
+        yield
+    except SystemExit as exc:
+        if isinstance(exc.__context__, KeyboardInterrupt):
+            raise KeyboardInterrupt from None
+        raise

@@ -92,13 +92,15 @@ def _map_here(fn: Callable, job_args: list[tuple], sink) -> Iterator:
 def _map_in_processes(fn: Callable, job_args: list[tuple], workers: int,
                       tick: Callable[[int], object] | None) -> Iterator:
     import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
 
-    ctx = mp.get_context("spawn")
-    manager = ctx.Manager() if tick is not None else None
+    from vtlearn.worker_pool import worker_pool
+
+    manager = mp.get_context("spawn").Manager() if tick is not None else None
     try:
         sink = manager.Queue() if manager is not None else None
-        with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+        # Ctrl-C stops the workers at once; a failed job drops the queued ones (worker_pool)
+        with worker_pool(workers) as ex:
             pending = {ex.submit(fn, *a, progress=sink) for a in job_args}
             while pending:
                 done, pending = wait(pending, timeout=POLL_S if sink is not None else None,

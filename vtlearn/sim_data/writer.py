@@ -33,7 +33,7 @@ import hashlib
 import json
 import logging
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -43,6 +43,7 @@ from vtlearn.bench_utils import host_info
 from vtlearn.io import atomic_path, atomic_write_npz
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
 from vtlearn.validation import as_bool, as_int, as_real
+from vtlearn.worker_pool import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -388,58 +389,22 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
         stale.unlink()
 
 
-def _ignore_sigint() -> None:
-    """Shard-worker initializer: Ctrl-C reaches the whole process group, and only the parent handles it
-    (it stops the workers), so a worker prints no KeyboardInterrupt traceback of its own."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _stop_pool(ex, workers_before: set[int]) -> None:
-    """Stop ``ex`` now: its worker processes are terminated and its queued jobs cancelled. The shards they
-    were writing leave only ``*.tmp*`` files, which a rerun removes and redoes; finished shards are kept.
-
-    The workers are this process's children that were not running before the pool was made
-    (``workers_before``, pids from ``multiprocessing.active_children()``): Python < 3.14 has no public call
-    that terminates an executor's workers, and ``shutdown`` alone waits for the running shards.
-    """
-    import multiprocessing as mp
-
-    for proc in mp.active_children():
-        if proc.pid not in workers_before:
-            proc.terminate()
-    ex.shutdown(wait=True, cancel_futures=True)
-
-
 def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, workers: int, done: dict,
                  bar) -> None:
     """:func:`run_shard_jobs`'s jobs in ``workers`` spawned processes, filling ``done``. A failed shard
-    cancels the queued ones and is raised once the running ones are written; Ctrl-C, then or at any time,
-    stops the workers at once (leaving the pool normally waited for every queued shard)."""
-    import multiprocessing as mp
-
-    before = {p.pid for p in mp.active_children()}
-    ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
-    try:
-        futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
-        for f in as_completed(futs):
-            meta = f.result()
-            done[meta["file"]] = meta
-            bar.update()
-    except KeyboardInterrupt:
-        _stop_pool(ex, before)
-        raise
-    except BaseException as exc:
-        log.error("a shard failed (%s: %s); waiting for the running shards, the queued ones are dropped",
-                  type(exc).__name__, exc)
+    drops the queued ones and is raised once the running ones are written; Ctrl-C, then or at any time,
+    stops the workers at once (:func:`~vtlearn.worker_pool.worker_pool`)."""
+    with worker_pool(workers) as ex:
         try:
-            ex.shutdown(wait=True, cancel_futures=True)
-        except KeyboardInterrupt:
-            _stop_pool(ex, before)
-            raise exc from None  # the shard's error, not the interrupt, is what the user must see
-        raise
-    ex.shutdown(wait=True)
+            futs = [ex.submit(worker, *worker_args, j, str(out)) for j in todo]
+            for f in as_completed(futs):
+                meta = f.result()
+                done[meta["file"]] = meta
+                bar.update()
+        except Exception as exc:
+            log.error("a shard failed (%s: %s); waiting for the running shards, the queued ones are dropped",
+                      type(exc).__name__, exc)
+            raise
 
 
 def _warn_other_hosts(done: dict, todo: list[dict], desc: str) -> None:

@@ -1,0 +1,45 @@
+"""Ctrl-C sent to a child Python process once its workers have started a job (for the worker-pool tests)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+# The child starts as an interactive shell starts a command: SIGINT unblocked and at Python's default
+# handler, whatever the test process inherited (blocked signals and ignored dispositions survive exec). A
+# test run started in the background by a non-interactive shell (`pytest ... &`, as CI runners and `nohup`
+# scripts do) has SIGINT ignored from the start (POSIX, for asynchronous commands without job control), so
+# without this the child ignored the interrupt: the full-suite failures of stops 69-70.
+_PRELUDE = ("import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
+            "signal.signal(signal.SIGINT, signal.default_int_handler); ")
+
+
+def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, str, float]:
+    """Run ``code`` in a child interpreter (``folder`` on its path and as its ``sys.argv[1]``) in a process
+    group of its own, send the group SIGINT once ``workers`` ``started-*`` files are in ``folder``, and return
+    the child's exit code, its stderr and the seconds it took to end after the interrupt.
+
+    The interrupt waits until every worker has taken a job. Sent while the parent still imports, it would test
+    the imports (tests/test_cli.py has those cases); sent while a worker still starts, before the pool's
+    initializer has it ignore Ctrl-C, that worker prints a traceback of its own."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-c", _PRELUDE + code, str(folder)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60.0  # the workers start and take their first jobs
+        def started() -> int:
+            return len(list(folder.glob("started-*")))
+
+        while started() < workers and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert started() >= workers and proc.poll() is None, f"{started()} jobs started"
+        os.killpg(proc.pid, signal.SIGINT)
+        start = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        return proc.returncode, err, time.monotonic() - start
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
