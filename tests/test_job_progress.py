@@ -1,5 +1,7 @@
 """Tests for vtlearn.job_progress: the benches' jobs tick a progress bar while they train."""
 
+import time
+
 import lightning as L
 import pytest
 import torch
@@ -109,3 +111,28 @@ def test_ctrl_c_stops_the_workers_at_once_and_drops_the_queued_jobs(tmp_path):
     assert seconds < 10  # each job sleeps 60 s
     assert returncode != 0 and err.count("KeyboardInterrupt") == 1, err
     assert len(list(tmp_path.glob("started-*"))) == 2  # the queued jobs never started
+
+
+_FIRST_JOB_QUICK = """
+import time
+
+
+def job(i, progress=None):
+    if i > 0:
+        time.sleep(60.0)
+    return i
+"""
+
+
+def test_a_consumer_that_stops_early_stops_the_workers_at_once(tmp_path, monkeypatch):
+    # the bench's loop over the results ended (an error, or a Ctrl-C outside the pool's wait): closing the
+    # iterator waited for the running jobs, whose workers ignore Ctrl-C
+    (tmp_path / "first_job_quick.py").write_text(_FIRST_JOB_QUICK)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import first_job_quick
+
+    results = map_jobs(first_job_quick.job, [(i,) for i in range(4)], 2)
+    assert next(results) == 0
+    start = time.monotonic()
+    results.close()
+    assert time.monotonic() - start < 10  # the running job sleeps 60 s

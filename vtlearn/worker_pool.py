@@ -46,7 +46,9 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     On leaving the block:
 
     - normally, it waits for every job;
-    - on Ctrl-C, it terminates the workers at once and drops the queued jobs;
+    - on Ctrl-C, or when a generator that yields from the block is closed before its end (its consumer
+      stopped, on an error or a Ctrl-C of its own), it terminates the workers at once and drops the queued
+      jobs;
     - on another error, it drops the queued jobs and waits for the running ones (they may be writing files),
       unless a Ctrl-C comes meanwhile; the error is raised either way.
 
@@ -59,7 +61,7 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
     try:
         yield ex
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, GeneratorExit):
         _stop_pool(ex, before)
         raise
     except BaseException as exc:
