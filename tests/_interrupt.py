@@ -12,8 +12,8 @@ from pathlib import Path
 # test run started in the background by a non-interactive shell (`pytest ... &`, as CI runners and `nohup`
 # scripts do) has SIGINT ignored from the start (POSIX, for asynchronous commands without job control), so
 # without this the child ignored the interrupt: the full-suite failures of stops 69-70.
-_PRELUDE = ("import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
-            "signal.signal(signal.SIGINT, signal.default_int_handler); ")
+SIGINT_AS_IN_A_TERMINAL = ("import signal; signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
+                           "signal.signal(signal.SIGINT, signal.default_int_handler); ")
 
 
 def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, str, float]:
@@ -25,7 +25,7 @@ def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, 
     the imports (tests/test_cli.py has those cases); sent while a worker still starts, before the pool's
     initializer has it ignore Ctrl-C, that worker prints a traceback of its own."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.Popen([sys.executable, "-c", _PRELUDE + code, str(folder)], env=env,
+    proc = subprocess.Popen([sys.executable, "-c", SIGINT_AS_IN_A_TERMINAL + code, str(folder)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60.0  # the workers start and take their first jobs

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _interrupt import SIGINT_AS_IN_A_TERMINAL
 
 from vtlearn import __version__
 from vtlearn.cli import build_parser, main
@@ -329,7 +330,7 @@ def test_ctrl_c_during_the_trimesh_import_stops_the_command_and_leaves_trimesh_w
                                                                                       tmp_path):
     # without the hold, trimesh stored the KeyboardInterrupt in place of faces_to_path and the command ran on
     root = str(Path(__file__).resolve().parents[1])
-    code = _CTRL_C_IN_TRIMESH_IMPORT.format(root=root, module=module, argv=argv)
+    code = SIGINT_AS_IN_A_TERMINAL + _CTRL_C_IN_TRIMESH_IMPORT.format(root=root, module=module, argv=argv)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
     assert out.stdout.strip() == "130 []", out.stderr
     assert out.stderr.strip().splitlines()[-1] == line
@@ -341,19 +342,23 @@ def test_sigint_held_delivers_a_ctrl_c_after_the_block_to_the_handler_before_it(
 
     from vtlearn.interrupts import sigint_held
 
-    reached_the_end = False
-    with pytest.raises(KeyboardInterrupt):
-        with sigint_held():
-            os.kill(os.getpid(), signal.SIGINT)
-            reached_the_end = True
-    assert reached_the_end and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # as in a terminal, whatever this test run inherited (a run started in the background ignores SIGINT)
+    mask = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
+        reached_the_end = False
+        with pytest.raises(KeyboardInterrupt):
+            with sigint_held():
+                os.kill(os.getpid(), signal.SIGINT)
+                reached_the_end = True
+        assert reached_the_end and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         with sigint_held():  # an ignored Ctrl-C stays ignored
             os.kill(os.getpid(), signal.SIGINT)
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def test_sigint_held_off_the_main_thread_runs_the_block_as_it_is():
