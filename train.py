@@ -467,7 +467,9 @@ def cli_main(args=None) -> LightningCLI:
 
 def main(args=None) -> int:
     try:
-        import_trimesh()  # before the config names the modules that import it
+        # every training reads its shards through vtlearn.sim_data.writer (checksums), which imports trimesh;
+        # imported here first, a Ctrl-C meanwhile is held back instead of swallowed
+        import_trimesh()
     except KeyboardInterrupt:
         print("train.py: interrupted", file=sys.stderr)
         return 130
