@@ -467,8 +467,8 @@ def cli_main(args=None) -> LightningCLI:
 
 def main(args=None) -> int:
     try:
-        # every training reads its shards through vtlearn.sim_data.writer (checksums), which imports trimesh;
-        # imported here first, a Ctrl-C meanwhile is held back instead of swallowed
+        # a config's class_path may name any module, and trimesh swallows a Ctrl-C during its import
+        # (vtlearn.interrupts); imported here first, with Ctrl-C held back, it cannot be imported later
         import_trimesh()
     except KeyboardInterrupt:
         print("train.py: interrupted", file=sys.stderr)

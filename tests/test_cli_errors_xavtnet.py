@@ -27,12 +27,12 @@ def qs(tmp_path_factory):
 @pytest.fixture
 def no_training(monkeypatch):
     """Fail the test if a bench starts a training job."""
-    import vtlearn.models.xavtnet_cli as xc
+    import vtlearn.job_progress as jp
 
     def refuse(*args, **kwargs):
         raise AssertionError("a training started before the bad argument was refused")
 
-    monkeypatch.setattr(xc, "_map_jobs", refuse)
+    monkeypatch.setattr(jp, "map_jobs", refuse)
 
 
 def _error(capsys, argv) -> str:

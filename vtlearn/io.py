@@ -14,6 +14,7 @@ unreadable, empty or malformed one.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -34,6 +35,7 @@ __all__ = [
     "read_geometry",
     "read_poses",
     "atomic_write_npz",
+    "sha256_file",
 ]
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz")
@@ -350,3 +352,13 @@ def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
         fh.flush()
         os.fsync(fh.fileno())
     return p
+
+
+def sha256_file(path) -> str:
+    """The SHA-256 (hex) of the file at ``path``, read in 1 MiB chunks: the checksums of the dataset manifests
+    and of the benches' journals (:mod:`vtlearn.bench_journal`)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

@@ -206,7 +206,7 @@ def load_split(
     under a progress bar. ``manifest``: the folder's manifest, when the caller has already read it with
     :func:`load_manifest` (it is not read again; the kind and split checks still run).
     """
-    from vtlearn.sim_data.writer import sha256_file
+    from vtlearn.io import sha256_file
 
     if manifest is None:
         manifest = load_manifest(data_dir, name)

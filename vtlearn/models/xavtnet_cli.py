@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder
 from vtlearn.bench_utils import csv_list, sample_std, save_figure
 from vtlearn.classical import crossmodal_baseline
 from vtlearn.classical.crossmodal_baseline import CLASSICAL_ROWS, THESIS_TABLE_7_4
@@ -702,13 +703,55 @@ def _readout_scores(model, dm, prior=None, probe: bool = False, centroid: bool =
     return out
 
 
-def _map_jobs(fn, job_args: list[tuple], workers: int, tick=None):
-    """An iterator of ``fn(*a, progress=sink)`` for every tuple in ``job_args``, in this process or in
-    ``workers`` spawned ones (results then arrive in completion order); the jobs' ticks reach ``tick``
-    while they train (:func:`vtlearn.job_progress.map_jobs`). ``workers`` is checked before any job runs."""
-    from vtlearn.job_progress import map_jobs
+def _run_line(row: dict, adabn: bool, balanced: bool) -> str:
+    """The line ``bench crossmodal`` prints as a training comes back: its tactile and visual accuracy, and the
+    further scores the row has (after AdaBN, the teacher's, the balanced, centroid and probe readings)."""
+    extra = f"  tactile after AdaBN {row['tactile_acc_adabn']:.1f}%" if adabn else ""
+    if "tactile_acc_teacher" in row:
+        extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
+                  f"{row['tactile_acc_teacher']:.1f}% (visual {row['visual_acc_teacher']:.1f}%)")
+        if "tactile_acc_teacher_adabn" in row:
+            extra += f"  teacher after AdaBN {row['tactile_acc_teacher_adabn']:.1f}%"
+    if balanced:
+        extra += f"  balanced {row['tactile_acc_balanced']:.1f}%"
+        if "tactile_acc_teacher_balanced" in row:
+            extra += f"  teacher balanced {row['tactile_acc_teacher_balanced']:.1f}%"
+    for who, prefix in (("", "tactile_acc"), ("teacher ", "tactile_acc_teacher")):
+        for what in ("centroid", "probe"):
+            if f"{prefix}_{what}" in row:
+                extra += f"  {who}{what} {row[f'{prefix}_{what}']:.1f}%"
+    return (f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
+            f"visual {row['visual_acc']:.1f}%{extra}  ({row['fit_s']:.0f} s)")
 
-    return map_jobs(fn, job_args, workers, tick)
+
+def _job_environment() -> dict[str, str]:
+    """The versions of vtlearn and torch and the vector capability torch's CPU kernels use (AVX2, AVX512,
+    ...), part of every bench job's journal key (:mod:`vtlearn.bench_journal`): a job kept by another
+    version, or on a CPU whose sums may round differently, is trained again instead of mixed in."""
+    import torch
+
+    import vtlearn
+
+    return {"vtlearn": vtlearn.__version__, "torch": torch.__version__,
+            "cpu_capability": torch.backends.cpu.get_cpu_capability()}
+
+
+def _encode_crossmodal(result: tuple) -> tuple[dict, dict | None]:
+    """A crossmodal job's ``(row or classical rows, features or None, class names)`` as the journal keeps it
+    (:class:`~vtlearn.bench_journal.JobJournal`): the JSON part, and the figure's features as arrays."""
+    out, feats, names = result
+    arrays = None if feats is None else dict(zip(_FEATURE_KEYS, feats, strict=True))
+    return {"out": out, "names": names}, arrays
+
+
+def _decode_crossmodal(stored: dict, arrays: dict | None) -> tuple:
+    """:func:`_encode_crossmodal` undone: the job's result as :func:`_crossmodal_job` returned it."""
+    feats = None if arrays is None else tuple(arrays[k] for k in _FEATURE_KEYS)
+    return stored["out"], feats, stored["names"]
+
+
+#: the t-SNE figure's features of a crossmodal job, as :func:`_crossmodal_job` returns them
+_FEATURE_KEYS = ("source", "source_labels", "target", "target_labels")
 
 
 def run_crossmodal_bench(args: argparse.Namespace) -> int:
@@ -795,38 +838,31 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     # the bar counts epochs, ticked by the trainings while they run; a seed's classical rows count as one
     # training's epochs, spread over their descriptors
     bar = tqdm(total=(len(job_args) * max_epochs), desc="bench crossmodal", unit="epoch")
-    results = _map_jobs(_call, job_args, args.workers, tick=bar.update)
+    fingerprint = _data_fingerprints(data_kwargs)
+    # finished trainings are kept as they end, so that the same command, stopped, goes on where it stopped
+    journal = JobJournal(journal_folder(args.json), fresh=bool(getattr(args, "fresh", False)))
+    keys = [job_key("bench crossmodal", a[0].__name__, a[1:], fingerprint, _job_environment(),
+                    _variant_settings([a[1]]) if a[0] is _crossmodal_job else None) for a in job_args]
+    jobs_run = JournalledJobs("bench crossmodal", journal, keys, _call, job_args, args.workers,
+                              _encode_crossmodal, _decode_crossmodal, tick=bar.update,
+                              on_reused=lambda _: bar.update(max_epochs))
     per_run: list[dict] = []
     keep: dict = {}
     class_names: list[str] = []
-    for out, feats, names in results:
-        class_names = names
-        if isinstance(out, list):  # a seed's classical rows
-            for row in out:
-                per_run.append(row)
-                tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  visual "
-                           f"{row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, shared)")
-            continue
-        row = out
-        per_run.append(row)
-        if feats is not None:
-            keep[row["variant"]] = feats
-        extra = f"  tactile after AdaBN {row['tactile_acc_adabn']:.1f}%" if adabn else ""
-        if "tactile_acc_teacher" in row:
-            extra += (f"  re-estimated BN {row['tactile_acc_bn']:.1f}%  teacher "
-                      f"{row['tactile_acc_teacher']:.1f}% (visual {row['visual_acc_teacher']:.1f}%)")
-            if "tactile_acc_teacher_adabn" in row:
-                extra += f"  teacher after AdaBN {row['tactile_acc_teacher_adabn']:.1f}%"
-        if balanced:
-            extra += f"  balanced {row['tactile_acc_balanced']:.1f}%"
-            if "tactile_acc_teacher_balanced" in row:
-                extra += f"  teacher balanced {row['tactile_acc_teacher_balanced']:.1f}%"
-        for who, prefix in (("", "tactile_acc"), ("teacher ", "tactile_acc_teacher")):
-            for what in ("centroid", "probe"):
-                if f"{prefix}_{what}" in row:
-                    extra += f"  {who}{what} {row[f'{prefix}_{what}']:.1f}%"
-        tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
-                   f"visual {row['visual_acc']:.1f}%{extra}  ({row['fit_s']:.0f} s)")
+    with jobs_run:
+        for out, feats, names in jobs_run:
+            class_names = names
+            if isinstance(out, list):  # a seed's classical rows
+                per_run.extend(out)
+                for row in out:
+                    tqdm.write(f"{row['variant']} seed {row['seed']}: tactile {row['tactile_acc']:.1f}%  "
+                               f"visual {row['visual_acc']:.1f}%  ({row['descriptor_s']:.0f} s descriptors, "
+                               "shared)")
+                continue
+            per_run.append(out)
+            if feats is not None:
+                keep[out["variant"]] = feats
+            tqdm.write(_run_line(out, adabn, balanced))
     bar.close()
     order = {job: i for i, job in enumerate(jobs)}
     per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
@@ -836,7 +872,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs,
-        "data_fingerprint": _data_fingerprints(data_kwargs), "max_epochs": max_epochs,
+        "data_fingerprint": fingerprint, "max_epochs": max_epochs,
         "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
         "rows": rows, "runs": per_run, "checks": checks,
         **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
@@ -870,6 +906,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
             print(f"{name}: {path}")
     if figures:
         write_json(args.json, result)
+    journal.discard()  # kept until now: a rerun after a failed figure trains nothing again
     print(f"wrote {args.json}")
     return 0
 
@@ -1299,28 +1336,42 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     # pool used up early ends its run sooner, and the bar jumps its missing rounds when the run comes back)
     trainings = {s: 1 if s == "full" else al["rounds"] + 1 for s in ["full", *strategies]}
     bar = tqdm(total=sum(trainings[s] for s, _ in jobs), desc="bench active-learning", unit="training")
-    outputs = _map_jobs(_active_learning_job, [
-        (s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps, args.accelerator)
-        for s, seed in jobs], args.workers, tick=bar.update)
+    job_args = [(s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps,
+                 args.accelerator) for s, seed in jobs]
+    fingerprint = _data_fingerprints(data_kwargs)
+    # finished runs are kept as they end, so that the same command, stopped, goes on where it stopped
+    journal = JobJournal(journal_folder(args.json), fresh=bool(getattr(args, "fresh", False)))
+    keys = [job_key("bench active-learning", a, fingerprint, _job_environment()) for a in job_args]
+    jobs_run = JournalledJobs("bench active-learning", journal, keys, _active_learning_job, job_args,
+                              args.workers, lambda r: (list(r), None), lambda stored, _: tuple(stored),
+                              tick=bar.update, on_reused=lambda r: bar.update(_trainings_done(r)))
     results: dict = {}
-    for strategy, seed, res in outputs:
-        results[strategy, seed] = res
-        done = 1 if strategy == "full" else len(res)
-        if done < trainings[strategy]:
-            bar.update(trainings[strategy] - done)
-        if strategy == "full":
-            tqdm.write(f"full pool ({pool} labels) seed {seed}: acc {100 * res:.1f}%")
-        elif res:
-            tqdm.write(f"{strategy} seed {seed}: " + ", ".join(
-                f"{h['n_labels']}: {100 * h['accuracy']:.1f}%" for h in res))
+    with jobs_run:
+        for strategy, seed, res in jobs_run:
+            results[strategy, seed] = res
+            done = _trainings_done((strategy, seed, res))
+            if done < trainings[strategy]:
+                bar.update(trainings[strategy] - done)
+            if strategy == "full":
+                tqdm.write(f"full pool ({pool} labels) seed {seed}: acc {100 * res:.1f}%")
+            elif res:
+                tqdm.write(f"{strategy} seed {seed}: " + ", ".join(
+                    f"{h['n_labels']}: {100 * h['accuracy']:.1f}%" for h in res))
     bar.close()
     full = [results["full", seed] for seed in seeds]
     runs = {strategy: [results[strategy, seed] for seed in seeds] for strategy in strategies}
     meta = {"config": args.config, "model": base, "data": data_kwargs,
-            "data_fingerprint": _data_fingerprints(data_kwargs), "pool_size": pool, "active": al,
+            "data_fingerprint": fingerprint, "pool_size": pool, "active": al,
             "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds, "full_acc": full,
             "accelerator": args.accelerator}
-    return _summarize_active_learning(args, meta, runs)
+    return _summarize_active_learning(args, meta, runs, journal)
+
+
+def _trainings_done(result: tuple) -> int:
+    """The trainings an active-learning job ran: 1 for a full-pool reference, one per round otherwise (a
+    pool used up early ends the run sooner)."""
+    strategy, _, res = result
+    return 1 if strategy == "full" else len(res)
 
 
 # The keys two bench JSONs must share for their seeds to be pooled (`--merge`).
@@ -1409,8 +1460,11 @@ def _ratio_text(labels: int | None, random_labels: int | None, max_labels: int,
     return f"n/a (neither reaches it by {max_labels} labels)"
 
 
-def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[str, list]) -> int:
-    """Table 7.1 analogue (first reached and sustained), ratios to random, paired comparison, plot, JSON."""
+def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[str, list],
+                               journal=None) -> int:
+    """Table 7.1 analogue (first reached and sustained), ratios to random, paired comparison, plot, JSON.
+    ``journal``: the trained runs' :class:`~vtlearn.bench_journal.JobJournal`, removed once both are
+    written."""
     from vtlearn.active.learning_loop import bootstrap_label_ratio, labels_to_reach, paired_advantage
     from vtlearn.bench_utils import machine_info, print_table, write_json_and_figure
 
@@ -1499,6 +1553,8 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
         "paired_vs_random": paired, "bootstrap_2pct": boot,
         "machine": machine_info(),
     }, plot, active_learning_figure)
+    if journal is not None:  # kept until now: a rerun after a failed plot trains nothing again
+        journal.discard()
     print(f"wrote {args.json}\nplot: {plot}")
     return 0
 
@@ -1769,6 +1825,10 @@ def register(sub) -> None:
     p.set_defaults(func=run_adapt_bn)
 
 
+_FRESH_HELP = ("train every job again: discard the finished jobs that a stopped run with this --json kept "
+               "beside it (in JSON_STEM.jobs/; by default the same command goes on from them)")
+
+
 def register_bench(sub) -> None:
     p = sub.add_parser("crossmodal", help="Table 7.2/7.4 analogue: V->T accuracy of each DA variant")
     p.add_argument("--config", default=None, help="LightningCLI YAML (e.g. configs/quick/xavtnet.yaml)")
@@ -1865,6 +1925,8 @@ def register_bench(sub) -> None:
                    help="skip the confusion matrix, t-SNE and paired-difference figures")
     p.add_argument("--out-dir", default=None,
                    help="figure folder (default: beside --json, named after it without .json)")
+    p.add_argument("--fresh", action="store_true",
+                   help=_FRESH_HELP)
     p.add_argument("--json", default="runs/bench/crossmodal.json")
     p.set_defaults(func=run_crossmodal_bench)
 
@@ -1907,5 +1969,7 @@ def register_bench(sub) -> None:
     q.add_argument("--n-boot", dest="n_boot", type=count(1), default=2000,
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default=None, help="PNG of accuracy against labels (default: beside --json)")
+    q.add_argument("--fresh", action="store_true",
+                   help=_FRESH_HELP)
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)

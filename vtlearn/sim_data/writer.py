@@ -29,7 +29,6 @@ Variable-size clouds are stored flat with offsets: ``tactile_points (T, 3)`` and
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 from collections import Counter
@@ -40,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import host_info
-from vtlearn.io import atomic_path, atomic_write_npz
+from vtlearn.io import atomic_path, atomic_write_npz, sha256_file
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
 from vtlearn.validation import as_bool, as_int, as_real
 from vtlearn.worker_pool import worker_pool
@@ -306,14 +305,6 @@ def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> str:
 def write_json_atomic(path: Path, obj) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=1, sort_keys=True))
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _shard_done(out: Path, name: str) -> dict | None:

@@ -1,0 +1,196 @@
+"""The benches' journal of finished jobs (vtlearn.bench_journal): a bench stopped part-way goes on from the
+jobs it finished when the same command runs again."""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from tests._tiny_models import tiny_xavtnet_config
+from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder
+
+
+def test_journal_folder_sits_beside_the_json():
+    assert journal_folder("runs/bench/cm.json").as_posix() == "runs/bench/cm.jobs"
+    assert journal_folder("out/result").as_posix() == "out/result.jobs"
+
+
+def test_job_key_is_canonical_and_tells_settings_apart():
+    a = job_key("bench", ("noda", 0), {"lr": 1e-3, "layers": ("fc1", "fc2")})
+    # dict order, tuples against lists and numpy scalars do not change the key
+    assert a == job_key("bench", ["noda", np.int64(0)], {"layers": ["fc1", "fc2"], "lr": 1e-3})
+    assert a != job_key("bench", ("noda", 1), {"lr": 1e-3, "layers": ("fc1", "fc2")})
+    assert a != job_key("bench", ("noda", 0), {"lr": 2e-3, "layers": ("fc1", "fc2")})
+    assert len(a) == 64 and int(a, 16) >= 0
+
+
+def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):
+    journal = JobJournal(tmp_path / "j")
+    feats = np.arange(12, dtype=np.float32).reshape(3, 4)
+    journal.add("k1", {"acc": np.float64(71.25), "ratio": float("nan"), "conf": np.eye(2, dtype=int)},
+                {"features": feats, "labels": np.array([0, 1, 1])})
+    journal.add("k2", [("full", 3), 0.5])
+    done = JobJournal(tmp_path / "j").finished()
+    assert set(done) == {"k1", "k2"}
+    result, arrays = done["k1"]
+    assert result["acc"] == 71.25 and math.isnan(result["ratio"]) and result["conf"] == [[1, 0], [0, 1]]
+    assert arrays["features"].dtype == np.float32 and np.array_equal(arrays["features"], feats)
+    assert arrays["labels"].tolist() == [0, 1, 1]
+    assert done["k2"] == ([["full", 3], 0.5], None)
+    with pytest.raises(ValueError, match="object arrays"):  # files load with allow_pickle=False
+        journal.add("k3", {}, {"bad": np.array([{"a": 1}], dtype=object)})
+
+
+def test_journal_leaves_out_cut_lines_and_changed_arrays(tmp_path):
+    folder = tmp_path / "j"
+    journal = JobJournal(folder)
+    journal.add("whole", {"acc": 1.0})
+    journal.add("arrays", {"acc": 2.0}, {"x": np.ones(3)})
+    assert set(journal.finished()) == {"whole", "arrays"}
+    with open(folder / "jobs.jsonl", "a") as fh:  # a kill in the middle of a line
+        fh.write('{"key": "cut", "result": {"acc"')
+    assert set(journal.finished()) == {"whole", "arrays"}
+    data = bytearray((folder / "arrays.npz").read_bytes())  # the arrays changed after their line was written
+    data[-30] ^= 0xFF
+    (folder / "arrays.npz").write_bytes(bytes(data))
+    assert set(journal.finished()) == {"whole"}
+    (folder / "arrays.npz").unlink()
+    assert set(journal.finished()) == {"whole"}
+    # a line appended after a cut one is read: the next run's jobs are not lost behind it
+    journal.add("after", {"acc": 3.0})
+    assert set(JobJournal(folder).finished()) == {"whole", "after"}
+    assert JobJournal(folder, fresh=True).finished() == {} and not folder.exists()
+
+
+def test_journal_folder_that_is_a_file_is_refused(tmp_path):
+    (tmp_path / "cm.jobs").write_text("x")
+    with pytest.raises(ValueError, match=r"--json: .*cm.jobs, which is a file"):
+        JobJournal(journal_folder(tmp_path / "cm.json"))
+
+
+def _job(x, progress=None, calls=None):
+    calls.append(x)
+    if x == "stop":
+        raise KeyboardInterrupt
+    return {"x": x, "square": len(x) ** 2}
+
+
+def test_journalled_jobs_keep_what_finished_and_run_only_the_rest(tmp_path, capsys):
+    folder = tmp_path / "j"
+    keys = [job_key(x) for x in ("a", "bb", "ccc")]
+    encode, decode = (lambda r: (r, None)), (lambda stored, arrays: stored)
+
+    calls: list[str] = []
+    fn = functools.partial(_job, calls=calls)
+    with pytest.raises(KeyboardInterrupt):  # the Ctrl-C reaches the third job
+        with JournalledJobs("bench toy", JobJournal(folder), keys, fn, [("a",), ("bb",), ("stop",)], 1,
+                            encode, decode) as jobs:
+            seen = [r["x"] for r in jobs]
+    assert calls == ["a", "bb", "stop"]
+    assert capsys.readouterr().err == ("bench toy: 2 of 3 jobs are kept in "
+                                       f"{folder}; the same command goes on from there\n")
+
+    calls.clear()
+    reused: list[dict] = []
+    with JournalledJobs("bench toy", JobJournal(folder), keys, fn, [("a",), ("bb",), ("ccc",)], 1, encode,
+                        decode, on_reused=reused.append) as jobs:
+        seen = [r["x"] for r in jobs]
+    assert calls == ["ccc"] and seen == ["a", "bb", "ccc"] and [r["x"] for r in reused] == ["a", "bb"]
+    assert capsys.readouterr().out == f"bench toy: 2 of 3 jobs finished earlier are reused from {folder} " \
+                                      "(--fresh runs them again)\n"
+    # other settings: nothing is reused, and the line says the folder holds jobs of other settings
+    calls.clear()
+    with JournalledJobs("bench toy", JobJournal(folder), [job_key("other")], fn, [("d",)], 1, encode,
+                        decode) as jobs:
+        assert [r["x"] for r in jobs] == ["d"]
+    assert calls == ["d"] and "holds 3 finished jobs of other settings; none is reused" in \
+        capsys.readouterr().out
+    with pytest.raises(ValueError, match="keys: need one unique key per job"):
+        JournalledJobs("bench toy", JobJournal(folder), [keys[0], keys[0]], fn, [("a",), ("b",)], 1, encode,
+                       decode)
+
+
+@pytest.fixture(scope="module")
+def tiny_crossmodal(tmp_path_factory):
+    from vtlearn.sim_data.fixtures import make_tiny_dataset
+
+    return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
+
+
+def _counting(real, calls, stop_at=None):
+    """``real`` that records each call's (variant or strategy, seed) and raises KeyboardInterrupt, as a Ctrl-C
+    during that job would, for ``stop_at``. Keeps ``real``'s name, which is part of the journal key."""
+
+    @functools.wraps(real)
+    def job(*args, **kwargs):
+        calls.append(tuple(args[:2]))
+        if tuple(args[:2]) == stop_at:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    return job
+
+
+def test_bench_crossmodal_stopped_by_ctrl_c_goes_on_from_its_finished_trainings(tmp_path, tiny_crossmodal,
+                                                                                  monkeypatch, capsys):
+    import vtlearn.models.xavtnet_cli as xcli
+    from vtlearn.cli import main
+
+    real = xcli._crossmodal_job
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal)
+    argv = ["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "2"]
+    calls: list[tuple] = []
+    monkeypatch.setattr(xcli, "_crossmodal_job", _counting(real, calls, stop_at=("noda", 1)))
+    out = tmp_path / "a.json"
+    assert main([*argv, "--json", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert f"1 of 2 jobs are kept in {tmp_path / 'a.jobs'}" in err and not out.exists()
+    shutil.copytree(tmp_path / "a.jobs", tmp_path / "b.jobs")  # the same stopped run, for --fresh below
+
+    calls.clear()
+    monkeypatch.setattr(xcli, "_crossmodal_job", _counting(real, calls))
+    assert main([*argv, "--json", str(out)]) == 0
+    assert calls == [("noda", 1)]  # seed 0 came from the journal
+    assert "1 of 2 jobs finished earlier are reused" in capsys.readouterr().out
+    resumed = json.loads(out.read_text())
+    assert not (tmp_path / "a.jobs").exists()  # removed once the results and the figures are written
+    # seed 0 was the t-SNE figure's job: its features came back from the journal's arrays
+    assert (tmp_path / "a" / "tsne_before_after.png").is_file()
+
+    calls.clear()
+    assert main([*argv, "--json", str(tmp_path / "b.json"), "--fresh"]) == 0
+    assert calls == [("noda", 0), ("noda", 1)]
+    fresh = json.loads((tmp_path / "b.json").read_text())
+    same = ("variant", "seed", "tactile_acc", "visual_acc", "confusion")
+    assert [[r[k] for k in same] for r in resumed["runs"]] == [[r[k] for k in same] for r in fresh["runs"]]
+    assert resumed["rows"] == fresh["rows"]
+
+
+def test_bench_active_learning_stopped_by_ctrl_c_goes_on_from_its_finished_runs(tmp_path, tiny_crossmodal,
+                                                                                 monkeypatch, capsys):
+    import vtlearn.models.xavtnet_cli as xcli
+    from vtlearn.cli import main
+
+    real = xcli._active_learning_job
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
+    out = tmp_path / "al.json"
+    argv = ["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)]
+    calls: list[tuple] = []
+    monkeypatch.setattr(xcli, "_active_learning_job", _counting(real, calls, stop_at=("random", 0)))
+    assert main(argv) == 130
+    assert "2 of 3 jobs are kept" in capsys.readouterr().err
+    kept = {tuple(r[:2]): r[2] for r, _ in JobJournal(tmp_path / "al.jobs").finished().values()}
+    assert set(kept) == {("full", 0), ("entropy", 0)}
+
+    calls.clear()
+    monkeypatch.setattr(xcli, "_active_learning_job", _counting(real, calls))
+    assert main(argv) == 0
+    assert calls == [("random", 0)] and not (tmp_path / "al.jobs").exists()
+    res = json.loads(out.read_text())
+    assert res["full_acc"] == [kept["full", 0]] and res["curves"]["entropy"]["runs"] == [kept["entropy", 0]]
+    assert [h["n_labels"] for h in res["curves"]["random"]["runs"][0]] == [3, 5]

@@ -1,0 +1,229 @@
+"""The finished jobs of a long bench, kept on disk as each one ends, so that a bench stopped part-way (Ctrl-C,
+a crash, a machine taken back) goes on from where it stopped when the same command runs again.
+
+``bench crossmodal`` and ``bench active-learning`` run tens of trainings, for minutes to hours. Their
+``--json`` is written once, at the end; until then the finished trainings live in a journal folder beside it,
+``<json without .json>.jobs/``:
+
+- ``jobs.jsonl``: one JSON line per finished job, ``{"key", "result", "arrays"}``, appended and fsync'ed as
+  the job ends;
+- ``<key>.npz``: the job's arrays, where it has any (the t-SNE figure's features), written atomically with
+  ``allow_pickle=False`` before its line, whose ``arrays`` entry holds the file's SHA-256.
+
+A job's key is the SHA-256 of the canonical JSON of everything that decides its result: the bench, the job's
+function and arguments, the row's model settings, the data's fingerprint, the versions of vtlearn and torch,
+and the vector capability of torch's CPU kernels. A rerun with other settings therefore finds no finished job
+of its own and trains everything; one with more seeds or rows reuses the jobs it shares with the stopped run.
+Edits to the code under the same version number are not seen: after one, ``--fresh`` trains everything again.
+A line cut short by a kill, or whose arrays file is missing or changed, is not a finished job: that job runs
+again. Nothing in the folder is executed or unpickled. The folder is removed once the bench has written its
+``--json`` (and figures); ``--fresh`` empties it before the run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtlearn.io import sha256_file
+
+__all__ = ["JobJournal", "JournalledJobs", "job_key", "journal_folder"]
+
+_LINES = "jobs.jsonl"
+
+
+def journal_folder(json_path) -> Path:
+    """The journal folder of a bench writing ``json_path``: beside it, named after it without ``.json`` and
+    with ``.jobs`` (``runs/bench/cm.json`` -> ``runs/bench/cm.jobs``)."""
+    p = Path(json_path)
+    return p.with_name(p.stem + ".jobs") if p.suffix == ".json" else p.with_name(p.name + ".jobs")
+
+
+def job_key(*parts: Any) -> str:
+    """The SHA-256 (hex) of the canonical JSON of ``parts`` (dict keys sorted, tuples as lists, numpy values
+    as Python ones); equal parts give equal keys in every process and on every machine."""
+    from vtlearn.bench_utils import to_jsonable
+
+    text = json.dumps(to_jsonable(list(parts)), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _plain(obj: Any) -> Any:
+    """``obj`` with numpy arrays and scalars as Python lists and numbers, tuples as lists, and non-finite
+    floats kept (``json`` writes and reads them as ``NaN`` / ``Infinity``), so a job's result comes back
+    from the journal as the bench would have used it."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+class JobJournal:
+    """The finished jobs of one bench run kept in ``folder`` (see the module docstring for its layout).
+
+    ``fresh``: discard what the folder holds first (``--fresh``). :meth:`finished` reads the jobs kept by an
+    earlier run; :meth:`add` keeps one more; :meth:`discard` removes the folder once the bench's results are
+    written.
+
+    Example::
+
+        journal = JobJournal(journal_folder("runs/bench/cm.json"))
+        done = journal.finished()               # {key: (result, arrays)}
+        journal.add(key, {"acc": 71.2}, {"features": feats})
+    """
+
+    def __init__(self, folder, fresh: bool = False) -> None:
+        self.folder = Path(folder)
+        if self.folder.exists() and not self.folder.is_dir():
+            raise ValueError(f"--json: the bench keeps its finished jobs in {self.folder}, which is a file; "
+                             "move it or choose another --json")
+        if fresh:
+            self.discard()
+        self.lines = self.folder / _LINES
+
+    def finished(self) -> dict[str, tuple[Any, dict[str, np.ndarray] | None]]:
+        """``{key: (result, arrays or None)}`` of every job the folder holds whole: lines that do not parse (a
+        write cut short) and jobs whose arrays file is missing or does not match its checksum are left out,
+        so those jobs run again."""
+        out: dict[str, tuple[Any, dict[str, np.ndarray] | None]] = {}
+        if not self.lines.is_file():
+            return out
+        for line in self.lines.read_text(errors="replace").splitlines():
+            try:
+                entry = json.loads(line)
+                key, result, arrays = entry["key"], entry["result"], entry["arrays"]
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue
+            if arrays is None:
+                out[key] = (result, None)
+                continue
+            path = self.folder / f"{key}.npz"
+            try:
+                if not path.is_file() or sha256_file(path) != arrays.get("sha256"):
+                    continue
+                with np.load(path, allow_pickle=False) as z:
+                    out[key] = (result, {k: z[k] for k in z.files})
+            except (OSError, ValueError, AttributeError):
+                continue
+        return out
+
+    def add(self, key: str, result: Any, arrays: dict[str, np.ndarray] | None = None) -> None:
+        """Keep a finished job: its ``arrays`` (name -> numeric array) as ``<key>.npz``, written atomically,
+        then its line, ``result`` as JSON (numpy values converted, NaN kept), appended and fsync'ed."""
+        from vtlearn.io import atomic_write_npz
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        stored = None
+        if arrays is not None:
+            path = atomic_write_npz(self.folder / f"{key}.npz", **arrays)
+            stored = {"file": path.name, "sha256": sha256_file(path)}
+        line = json.dumps({"key": key, "result": _plain(result), "arrays": stored})
+        with open(self.lines, "a+b") as fh:
+            fh.seek(0, os.SEEK_END)
+            if fh.tell():  # a line cut short by a kill ends where this one would start: end it first
+                fh.seek(-1, os.SEEK_END)
+                cut = fh.read(1) != b"\n"
+                fh.seek(0, os.SEEK_END)
+                if cut:
+                    fh.write(b"\n")
+            fh.write(line.encode() + b"\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def discard(self) -> None:
+        """Remove the folder and everything in it (nothing happens when there is none)."""
+        if self.folder.is_dir():
+            shutil.rmtree(self.folder)
+
+
+def _keyed(key: str, fn: Callable, *args, progress=None):
+    """``(key, fn(*args, progress=progress))``: tells the journal which job a result from a worker (they
+    arrive in completion order) belongs to. Module level, so that spawned workers can run it."""
+    return key, fn(*args, progress=progress)
+
+
+class JournalledJobs:
+    """The results of a bench's jobs, ``fn(*a, progress=sink)`` for every ``a`` in ``job_args`` as
+    :func:`vtlearn.job_progress.map_jobs` runs them, where ``keys[i]`` (unique, :func:`job_key`) names the job
+    ``job_args[i]``.
+
+    Iterating yields first the jobs ``journal`` holds finished, rebuilt by ``decode(result, arrays)``
+    without running (``on_reused(result)`` is called for each, e.g. to move a progress bar by the job's
+    epochs), then the others as they end, each kept in the journal as ``encode(result) -> (JSON-able part,
+    arrays or None)`` before it is yielded. Leaving the ``with`` block stops any job still running.
+
+    ``bench`` names the command in the lines printed: how many finished jobs are reused, and, when the
+    ``with`` block ends on an error or a Ctrl-C, how many are kept and that the same command goes on from
+    there.
+
+    Example::
+
+        with JournalledJobs("bench crossmodal", journal, keys, fn, job_args, workers, encode, decode) as jobs:
+            for result in jobs:
+                ...
+    """
+
+    def __init__(self, bench: str, journal: JobJournal, keys: list[str], fn: Callable, job_args: list[tuple],
+                 workers: int, encode: Callable[[Any], tuple[Any, dict | None]],
+                 decode: Callable[[Any, dict | None], Any], tick: Callable[[int], object] | None = None,
+                 on_reused: Callable[[Any], object] | None = None) -> None:
+        from vtlearn.job_progress import map_jobs
+
+        if len(keys) != len(job_args) or len(set(keys)) != len(keys):
+            raise ValueError(f"keys: need one unique key per job, got {len(set(keys))} distinct for "
+                             f"{len(job_args)} jobs")
+        self.bench, self.journal, self.keys = bench, journal, keys
+        self.encode, self.decode, self.on_reused = encode, decode, on_reused
+        self.done = journal.finished()
+        todo = [(k, fn, *a) for k, a in zip(keys, job_args, strict=True) if k not in self.done]
+        self._running = map_jobs(_keyed, todo, workers, tick)  # checks workers before anything runs
+        self.kept = 0  # jobs in the journal among those yielded so far
+
+    def __enter__(self) -> JournalledJobs:
+        from tqdm.auto import tqdm
+
+        reused = sum(k in self.done for k in self.keys)
+        if reused:
+            tqdm.write(f"{self.bench}: {reused} of {len(self.keys)} jobs finished earlier are reused from "
+                       f"{self.journal.folder} (--fresh runs them again)")
+        elif self.done:
+            tqdm.write(f"{self.bench}: {self.journal.folder} holds {len(self.done)} finished jobs of other "
+                       "settings; none is reused")
+        return self
+
+    def __iter__(self) -> Iterator:
+        for k in self.keys:
+            if k in self.done:
+                result = self.decode(*self.done[k])
+                if self.on_reused is not None:
+                    self.on_reused(result)
+                self.kept += 1
+                yield result
+        for k, result in self._running:
+            self.journal.add(k, *self.encode(result))
+            self.kept += 1
+            yield result
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        import sys
+
+        from tqdm.auto import tqdm
+
+        self._running.close()  # a block left early stops the workers (vtlearn.worker_pool)
+        if exc_type is not None and self.kept:
+            tqdm.write(f"{self.bench}: {self.kept} of {len(self.keys)} jobs are kept in "
+                       f"{self.journal.folder}; the same command goes on from there", file=sys.stderr)
