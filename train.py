@@ -48,7 +48,7 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger, WandbLogger
 
-from vtlearn.interrupts import import_trimesh
+from vtlearn.interrupts import import_trimesh, lightning_interrupt_as_keyboard_interrupt
 from vtlearn.validation import ConfigMismatchError
 
 
@@ -116,6 +116,21 @@ class LogVersions(Callback):
     def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         checkpoint[self.key] = {_version_key(lg): lg.version for lg in trainer.loggers
                                 if isinstance(lg, (CSVLogger, TensorBoardLogger))}
+
+
+class SayLastCheckpointOnInterrupt(Callback):
+    """On a Ctrl-C during ``fit``, says on stderr where the last checkpoint is and that ``fit --ckpt_path
+    last`` goes on from it (Lightning's own line only says it shuts down). Nothing is saved here: the epoch
+    under way is lost, as ``last.ckpt`` is written at the end of each epoch."""
+
+    def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
+        if not isinstance(exception, KeyboardInterrupt) or not trainer.is_global_zero:
+            return
+        last = next((cb.last_model_path for cb in trainer.checkpoint_callbacks
+                     if getattr(cb, "last_model_path", "")), "")
+        where = (f"the last checkpoint is {last}; fit --ckpt_path last goes on from it" if last else
+                 "no checkpoint was written yet")
+        print(f"train.py: stopped in epoch {trainer.current_epoch}; {where}", file=sys.stderr)
 
 
 def _recorded_versions(checkpoint: dict) -> dict:
@@ -399,7 +414,7 @@ class VtlearnCLI(LightningCLI):
                 logs = ", ".join(f"{type(lg).__name__} in {lg.root_dir}" for lg in unrecorded)
                 print(f"train.py: note: {resumed[0]} records no log version for {logs} (it was written with "
                       f"another log folder); logging into a new version folder", file=sys.stderr)
-            trainer.callbacks.append(LogVersions())
+            trainer.callbacks += [LogVersions(), SayLastCheckpointOnInterrupt()]
         return trainer
 
     def _run_subcommand(self, subcommand: str) -> None:
@@ -474,10 +489,15 @@ def main(args=None) -> int:
         print("train.py: interrupted", file=sys.stderr)
         return 130
     try:
-        cli_main(args)
+        # Lightning answers a Ctrl-C during training with sys.exit(1): it ends here as any other Ctrl-C
+        with lightning_interrupt_as_keyboard_interrupt():
+            cli_main(args)
     except (ConfigError, ConfigMismatchError) as exc:
         print(f"train.py: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("train.py: interrupted", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -91,6 +91,29 @@ def test_last_before_training_is_refused_and_fit_resumes(run, tmp_path):
     np.testing.assert_allclose(probs.sum(1), 1.0, atol=1e-5)
 
 
+def test_ctrl_c_during_fit_says_where_to_go_on_from_and_resumes(run, tmp_path, monkeypatch):
+    """A Ctrl-C in the second epoch: Lightning shuts down and exits 1; train.py says which checkpoint holds
+    the first epoch, ends with its interrupted line and 130, and ``--ckpt_path last`` goes on from there."""
+    from vtlearn.models.xavtnet import XAVTNet
+
+    step = XAVTNet.training_step
+
+    def interrupted_in_epoch_1(self, batch, batch_idx):
+        if self.current_epoch == 1:
+            raise KeyboardInterrupt
+        return step(self, batch, batch_idx)
+
+    monkeypatch.setattr(XAVTNet, "training_step", interrupted_in_epoch_1)
+    last = tmp_path / "runs" / "xavtnet_quick" / "checkpoints" / "last.ckpt"
+    assert run("fit", "--trainer.max_epochs=3") == (130, "train.py: interrupted")
+    assert f"train.py: stopped in epoch 1; the last checkpoint is {last}; fit --ckpt_path last goes on " \
+        "from it" in run.lines
+    assert torch.load(last, weights_only=True)["epoch"] == 0
+    monkeypatch.setattr(XAVTNet, "training_step", step)
+    assert run("fit", "--trainer.max_epochs=2", "--ckpt_path=last")[0] == 0
+    assert torch.load(last, weights_only=True)["epoch"] == 1
+
+
 def test_a_checkpoint_of_another_model_class_is_refused(run, tmp_path):
     """Lightning would build the checkpoint's class in place of the config's and fail deep in training."""
     other = {"state_dict": {"w": torch.ones(2)},
