@@ -21,9 +21,9 @@ def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, 
     group of its own, send the group SIGINT once ``workers`` ``started-*`` files are in ``folder``, and return
     the child's exit code, its stderr and the seconds it took to end after the interrupt.
 
-    The interrupt waits until every worker has taken a job. Sent while the parent still imports, it would test
-    the imports (tests/test_cli.py has those cases); sent while a worker still starts, before the pool's
-    initializer has it ignore Ctrl-C, that worker prints a traceback of its own."""
+    The interrupt waits until every worker has taken a job, so that it stops running jobs. Sent while the
+    parent still imports, it would test the imports (tests/test_cli.py has those cases); workers that still
+    start are tested in test_job_progress.py."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-c", SIGINT_AS_IN_A_TERMINAL + code, str(folder)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)

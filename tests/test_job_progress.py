@@ -136,3 +136,47 @@ def test_a_consumer_that_stops_early_stops_the_workers_at_once(tmp_path, monkeyp
     start = time.monotonic()
     results.close()
     assert time.monotonic() - start < 10  # the running job sleeps 60 s
+
+
+
+# A main script whose import takes a second in a spawned worker (as `vtlearn`'s, which imports vtlearn.cli
+# there, before the pool's initializer runs); the parent sends each starting worker a Ctrl-C meanwhile, as a
+# terminal's Ctrl-C reaches every process of the group, and then waits for the jobs.
+_SLOW_MAIN = """
+import multiprocessing as mp
+import os
+import signal
+import sys
+import time
+
+if __name__ == "__mp_main__":
+    time.sleep(1.0)  # a worker still starting
+
+
+def job(x):
+    return 2 * x
+
+
+if __name__ == "__main__":
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    from vtlearn.worker_pool import worker_pool
+
+    with worker_pool(2) as ex:
+        futures = [ex.submit(job, x) for x in (1, 2)]
+        for proc in mp.active_children():
+            os.kill(proc.pid, signal.SIGINT)
+        print([f.result() for f in futures])
+"""
+
+
+def test_ctrl_c_while_the_workers_still_start_reaches_no_worker(tmp_path):
+    # a worker spawned with Ctrl-C deliverable took it before the pool's initializer had it ignored: it
+    # printed a KeyboardInterrupt traceback of its own under the command's interrupted line
+    import subprocess
+    import sys
+
+    (tmp_path / "slow_main.py").write_text(_SLOW_MAIN)
+    out = subprocess.run([sys.executable, str(tmp_path / "slow_main.py")], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert (out.returncode, out.stdout, out.stderr) == (0, "[2, 4]\n", "")

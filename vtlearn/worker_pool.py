@@ -4,7 +4,8 @@ Ctrl-C reaches every process of the terminal's process group. A :class:`ProcessP
 whatever its job raises, KeyboardInterrupt and Lightning's exit after one included, sends it back, and takes
 the next queued job; and leaving the executor waits for every queued job. So after a Ctrl-C the parent would
 wait for the rest of the work (every remaining training of a bench). In :func:`worker_pool` the workers
-ignore Ctrl-C, and the parent, on Ctrl-C, terminates them and drops the queued jobs.
+ignore Ctrl-C (they start with it blocked, so not even one still starting prints a traceback), and the parent,
+on Ctrl-C, terminates them and drops the queued jobs.
 """
 
 from __future__ import annotations
@@ -14,6 +15,22 @@ from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 
 __all__ = ["worker_pool"]
+
+
+class _Executor(ProcessPoolExecutor):
+    """A spawn-context :class:`ProcessPoolExecutor` whose ``submit`` (where it spawns its workers, one per
+    submit until it has them all) holds SIGINT blocked: a worker inherits the blocked signal through fork
+    and exec, so a Ctrl-C while it still starts (importing the main module, before the initializer) does not
+    reach it. The parent gets a Ctrl-C of that moment as soon as ``submit`` returns."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        import signal
+
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            return super().submit(fn, *args, **kwargs)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _ignore_sigint() -> None:
@@ -41,7 +58,8 @@ def _stop_pool(ex: ProcessPoolExecutor, workers_before: set[int]) -> None:
 
 @contextlib.contextmanager
 def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
-    """A :class:`ProcessPoolExecutor` of ``workers`` spawned processes that ignore Ctrl-C.
+    """A :class:`ProcessPoolExecutor` of ``workers`` spawned processes that ignore Ctrl-C, from their start
+    (they are spawned with SIGINT blocked) to their end.
 
     On leaving the block:
 
@@ -58,7 +76,7 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     import multiprocessing as mp
 
     before = {p.pid for p in mp.active_children()}
-    ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
+    ex = _Executor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
     try:
         yield ex
     except (KeyboardInterrupt, GeneratorExit):
