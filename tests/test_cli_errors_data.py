@@ -305,6 +305,24 @@ def test_gen_episodes_errors_name_the_flag(flags, message, cross_dir, tmp_path, 
     assert not (tmp_path / "ep").exists()
 
 
+def test_gen_episodes_refusal_to_resume_names_the_flags(cross_dir, tmp_path, capsys):
+    """A folder of episodes made with other settings is refused naming the flags that differ (it named
+    EpisodeDataConfig's fields, ``n_candidates`` for ``--candidates``)."""
+    from dataclasses import asdict
+
+    from vtlearn.active.episode_data import EpisodeDataConfig
+
+    out = tmp_path / "ep"
+    out.mkdir()
+    folder = asdict(EpisodeDataConfig(source=str(cross_dir), touches=8, prefixes=[4], n_candidates=32))
+    (out / "config.json").write_text(json.dumps(folder))
+    err = _error(capsys, ["gen-episodes", "--source", str(cross_dir), "--out", str(out), "--touches", "8",
+                          "--prefixes", "4", "--candidates", "16"])
+    assert err.startswith(f"vtlearn: error: --out: {out} holds a set of episodes made with another config "
+                          "(--candidates: 32 in the folder, 16 asked); use a new directory"), err
+    assert sorted(p.name for p in out.iterdir()) == ["config.json"]
+
+
 def test_gen_data_mesh_folder_errors_name_the_flag_once(tmp_path, capsys):
     """A missing folder, a folder without meshes, a category it lacks and an empty category folder each
     give one line naming the flag; without --categories every category of the folder is taken."""

@@ -81,12 +81,20 @@ def test_another_config_in_the_folder_names_the_settings_that_differ(tmp_path, c
     folder_cfg = GenConfig(kind="reconstruction", categories=["can", "box", "cup"], per_category=6)
     claim_out_dir(out, asdict(folder_cfg))
     argv = ["gen-data", "reconstruction", "--out", str(out), "--categories", "can,box,cup"]
-    assert main([*argv, "--per-category", "5", "--seed", "3"]) == 2
+    assert main([*argv, "--per-category", "5", "--seed", "3", "--tactile-points", "30", "80"]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"vtlearn: error: --out: {out} holds a dataset made with another config")
-    assert "per_category: 6 in the folder, 5 asked; seed: 0 in the folder, 3 asked)" in err
-    assert err.count(" in the folder, ") == 2  # only the settings that differ
+    # the settings that differ, each named by the flag that sets it (the config's field names before)
+    assert ("(--per-category: 6 in the folder, 5 asked; --seed: 0 in the folder, 3 asked; --tactile-points "
+            "(max): 120 in the folder, 80 asked)") in err
+    assert err.count(" in the folder, ") == 3  # only the settings that differ
     assert not list(out.glob("*.npz"))
+    # called from Python, the refusal names the config's fields
+    from vtlearn.sim_data.writer import OutDirConfigError
+
+    with pytest.raises(OutDirConfigError, match=r"^out_dir: .*\(per_category: 6 in the folder, 5 asked\)"):
+        claim_out_dir(out, asdict(GenConfig(kind="reconstruction", categories=["can", "box", "cup"],
+                                            per_category=5)))
     from vtlearn.sim_data.writer import config_differences
 
     assert config_differences({"a": 1}, {"a": 1, "b": [1, 2]}) == "b: not set in the folder, [1, 2] asked"
@@ -228,7 +236,7 @@ def test_gen_data_tactile_points_bounds_every_cloud(tmp_path, capsys):
     argv = ["gen-data", "crossmodal", "--out", str(out), "--categories", "can", "--per-category", "1",
             "--splits", "1,0,0", "--views", "1", "--tactile-clouds", "4", "--width", "160", "--height", "120"]
     assert main(argv) == 2  # the default 30 120 into the 30-40 folder: refused, nothing rewritten
-    assert "tactile_max_points: 40 in the folder, 120 asked" in capsys.readouterr().err
+    assert "--tactile-points (max): 40 in the folder, 120 asked" in capsys.readouterr().err
     assert json.loads((out / "manifest.json").read_text()) == m
 
 

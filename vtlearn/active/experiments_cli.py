@@ -765,8 +765,12 @@ _GEN_EPISODES_FLAGS = {
 
 
 def _cmd_gen_episodes(args: argparse.Namespace) -> int:
+    from vtlearn.sim_data.writer import OutDirConfigError
+
     try:
         return _gen_episodes(args)
+    except OutDirConfigError as exc:
+        raise exc.with_names(_GEN_EPISODES_FLAGS) from None
     except (ValueError, FileNotFoundError) as exc:
         raise (with_flag(exc, _GEN_EPISODES_FLAGS) or exc) from None
 

@@ -25,12 +25,21 @@ _GEN_DATA_FLAGS = {
     "visual_crop_margin": "--visual-crop-margin", "tactile_clouds": "--tactile-clouds",
     "tactile_min_points/tactile_max_points": "--tactile-points",
     "mesh_source": "--meshes", "keep_split": "--keep-split", "out_dir": "--out", "workers": "--workers",
+    "seed": "--seed", "position_noise": "--position-noise", "dropout": "--dropout",
+    "depth_noise": "--no-depth-noise",
 }
+# ... and in the refusal to resume a folder made with other settings, which names each setting that differs
+_GEN_DATA_RESUME_NAMES = {**_GEN_DATA_FLAGS, "tactile_min_points": "--tactile-points (min)",
+                          "tactile_max_points": "--tactile-points (max)", "kind": "KIND"}
 
 
 def _cmd_gen_data(args: argparse.Namespace) -> int:
+    from vtlearn.sim_data.writer import OutDirConfigError
+
     try:
         return _gen_data(args)
+    except OutDirConfigError as exc:
+        raise exc.with_names(_GEN_DATA_RESUME_NAMES) from None
     except (ValueError, FileNotFoundError) as exc:
         raise (with_flag(exc, _GEN_DATA_FLAGS) or exc) from None
 

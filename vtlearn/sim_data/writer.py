@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import logging
 from collections import Counter
+from collections.abc import Mapping
 from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -345,20 +346,39 @@ def _difference(a, b) -> str:
     return f"{a} in the folder, {b} asked"
 
 
-def config_differences(old: dict, new: dict) -> str:
+def config_differences(old: dict, new: dict, names: Mapping[str, str] | None = None) -> str:
     """The settings that differ between a folder's ``config.json`` (``old``) and the run asked for (``new``),
     one ``key: A in the folder, B asked`` each, ``;``-separated (e.g. ``per_category: 6 in the folder, 5
-    asked``)."""
+    asked``). ``names`` renames keys in the text (a command's flags: ``--per-category: 6 in the folder, 5
+    asked``); keys it lacks keep their own name."""
     parts = []
     for key in sorted(set(old) | set(new)):
         a, b = old.get(key, _MISSING), new.get(key, _MISSING)
         if a != b:
-            parts.append(f"{key}: {_difference(a, b)}")
+            parts.append(f"{(names or {}).get(key, key)}: {_difference(a, b)}")
     return "; ".join(parts)
 
 
+class OutDirConfigError(ValueError):
+    """A folder holds data made with another config (:func:`claim_out_dir`). :meth:`with_names` gives the same
+    error with the folder and the settings named by a command's flags, so the user reads the flags typed."""
+
+    def __init__(self, out: Path, what: str, old: dict, new: dict, names: Mapping[str, str] | None = None,
+                 out_name: str = "out_dir") -> None:
+        self.out, self.what, self.old, self.new = out, what, old, new
+        super().__init__(f"{out_name}: {out} holds a {what} made with another config "
+                         f"({config_differences(old, new, names)}); use a new directory, or the folder's "
+                         "settings to resume it")
+
+    def with_names(self, names: Mapping[str, str], out_name: str = "--out") -> OutDirConfigError:
+        """This error with config keys named by ``names`` (keys it lacks keep their name) and the folder by
+        ``out_name``."""
+        return OutDirConfigError(self.out, self.what, self.old, self.new, names, out_name)
+
+
 def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, what: str = "dataset") -> None:
-    """Create ``out`` and record ``config.json``, or refuse (ValueError) a folder made with another config.
+    """Create ``out`` and record ``config.json``, or refuse (:class:`OutDirConfigError`, a ValueError) a
+    folder made with another config.
 
     ``old_defaults`` fills keys that older config files lack, so their datasets still resume. Leftover
     ``*.tmp*`` files of a killed run are removed; their shards are redone.
@@ -370,10 +390,7 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
         old = {**(old_defaults or {}), **json.loads(cfg_path.read_text())}
         new = json.loads(json.dumps(cfg_dict))
         if old != new:
-            raise ValueError(
-                f"out_dir: {out} holds a {what} made with another config ({config_differences(old, new)}); "
-                "use a new directory, or the folder's settings to resume it"
-            )
+            raise OutDirConfigError(out, what, old, new)
     else:
         write_json_atomic(cfg_path, cfg_dict)
     for stale in out.glob("*.tmp*"):
