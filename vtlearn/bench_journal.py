@@ -55,23 +55,6 @@ def job_key(*parts: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _plain(obj: Any) -> Any:
-    """``obj`` with numpy arrays and scalars as Python lists and numbers, tuples as lists, and non-finite
-    floats kept (``json`` writes and reads them as ``NaN`` / ``Infinity``), so a job's result comes back
-    from the journal as the bench would have used it."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
 class JobJournal:
     """The finished jobs of one bench run kept in ``folder`` (see the module docstring for its layout).
 
@@ -124,6 +107,7 @@ class JobJournal:
     def add(self, key: str, result: Any, arrays: dict[str, np.ndarray] | None = None) -> None:
         """Keep a finished job: its ``arrays`` (name -> numeric array) as ``<key>.npz``, written atomically,
         then its line, ``result`` as JSON (numpy values converted, NaN kept), appended and fsync'ed."""
+        from vtlearn.bench_utils import to_jsonable
         from vtlearn.io import atomic_write_npz
 
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -131,7 +115,7 @@ class JobJournal:
         if arrays is not None:
             path = atomic_write_npz(self.folder / f"{key}.npz", **arrays)
             stored = {"file": path.name, "sha256": sha256_file(path)}
-        line = json.dumps({"key": key, "result": _plain(result), "arrays": stored})
+        line = json.dumps({"key": key, "result": to_jsonable(result, nan_as_null=False), "arrays": stored})
         with open(self.lines, "a+b") as fh:
             fh.seek(0, os.SEEK_END)
             if fh.tell():  # a line cut short by a kill ends where this one would start: end it first

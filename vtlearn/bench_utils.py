@@ -225,17 +225,19 @@ def check_same_units(a, name_a: str, b, name_b: str, factor: float = 200.0) -> N
                          "(is one in millimetres?)")
 
 
-def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays (and NaN) recursively into JSON-safe Python objects."""
+def to_jsonable(obj: Any, nan_as_null: bool = True) -> Any:
+    """Convert numpy scalars/arrays (and NaN) recursively into JSON-safe Python objects. ``nan_as_null=False``
+    keeps non-finite floats, which Python's ``json`` writes and reads back as ``NaN`` / ``Infinity`` (not
+    standard JSON)."""
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
+        return {str(k): to_jsonable(v, nan_as_null) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
+        return [to_jsonable(v, nan_as_null) for v in obj]
     if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
+        return to_jsonable(obj.tolist(), nan_as_null)
     if isinstance(obj, np.generic):
-        return to_jsonable(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
+        return to_jsonable(obj.item(), nan_as_null)
+    if nan_as_null and isinstance(obj, float) and not math.isfinite(obj):
         return None
     if isinstance(obj, Path):
         return str(obj)
