@@ -32,38 +32,45 @@ def test_job_key_is_canonical_and_tells_settings_apart():
 def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):
     journal = JobJournal(tmp_path / "j")
     feats = np.arange(12, dtype=np.float32).reshape(3, 4)
-    journal.add("k1", {"acc": np.float64(71.25), "ratio": float("nan"), "conf": np.eye(2, dtype=int)},
+    k1, k2 = job_key(1), job_key(2)
+    journal.add(k1, {"acc": np.float64(71.25), "ratio": float("nan"), "conf": np.eye(2, dtype=int)},
                 {"features": feats, "labels": np.array([0, 1, 1])})
-    journal.add("k2", [("full", 3), 0.5])
+    journal.add(k2, [("full", 3), 0.5])
     done = JobJournal(tmp_path / "j").finished()
-    assert set(done) == {"k1", "k2"}
-    result, arrays = done["k1"]
+    assert set(done) == {k1, k2}
+    result, arrays = done[k1]
     assert result["acc"] == 71.25 and math.isnan(result["ratio"]) and result["conf"] == [[1, 0], [0, 1]]
     assert arrays["features"].dtype == np.float32 and np.array_equal(arrays["features"], feats)
     assert arrays["labels"].tolist() == [0, 1, 1]
-    assert done["k2"] == ([["full", 3], 0.5], None)
+    assert done[k2] == ([["full", 3], 0.5], None)
     with pytest.raises(ValueError, match="object arrays"):  # files load with allow_pickle=False
-        journal.add("k3", {}, {"bad": np.array([{"a": 1}], dtype=object)})
+        journal.add(job_key(3), {}, {"bad": np.array([{"a": 1}], dtype=object)})
+    # a line whose key is not a job key (a path, say) is not read
+    with open(tmp_path / "j" / "jobs.jsonl", "a") as fh:
+        fh.write(json.dumps({"key": "../elsewhere", "result": 1, "arrays": None}) + "\n")
+    assert set(JobJournal(tmp_path / "j").finished()) == {k1, k2}
 
 
 def test_journal_leaves_out_cut_lines_and_changed_arrays(tmp_path):
     folder = tmp_path / "j"
     journal = JobJournal(folder)
-    journal.add("whole", {"acc": 1.0})
-    journal.add("arrays", {"acc": 2.0}, {"x": np.ones(3)})
-    assert set(journal.finished()) == {"whole", "arrays"}
+    whole, with_arrays, after = job_key("whole"), job_key("arrays"), job_key("after")
+    journal.add(whole, {"acc": 1.0})
+    journal.add(with_arrays, {"acc": 2.0}, {"x": np.ones(3)})
+    assert set(journal.finished()) == {whole, with_arrays}
     with open(folder / "jobs.jsonl", "a") as fh:  # a kill in the middle of a line
         fh.write('{"key": "cut", "result": {"acc"')
-    assert set(journal.finished()) == {"whole", "arrays"}
-    data = bytearray((folder / "arrays.npz").read_bytes())  # the arrays changed after their line was written
+    assert set(journal.finished()) == {whole, with_arrays}
+    npz = folder / f"{with_arrays}.npz"
+    data = bytearray(npz.read_bytes())  # the arrays changed after their line was written
     data[-30] ^= 0xFF
-    (folder / "arrays.npz").write_bytes(bytes(data))
-    assert set(journal.finished()) == {"whole"}
-    (folder / "arrays.npz").unlink()
-    assert set(journal.finished()) == {"whole"}
+    npz.write_bytes(bytes(data))
+    assert set(journal.finished()) == {whole}
+    npz.unlink()
+    assert set(journal.finished()) == {whole}
     # a line appended after a cut one is read: the next run's jobs are not lost behind it
-    journal.add("after", {"acc": 3.0})
-    assert set(JobJournal(folder).finished()) == {"whole", "after"}
+    journal.add(after, {"acc": 3.0})
+    assert set(JobJournal(folder).finished()) == {whole, after}
     assert JobJournal(folder, fresh=True).finished() == {} and not folder.exists()
 
 

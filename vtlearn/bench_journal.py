@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -37,6 +38,7 @@ from vtlearn.io import sha256_file
 __all__ = ["JobJournal", "JournalledJobs", "job_key", "journal_folder"]
 
 _LINES = "jobs.jsonl"
+_KEY = re.compile(r"[0-9a-f]{64}")
 
 
 def journal_folder(json_path) -> Path:
@@ -90,6 +92,8 @@ class JobJournal:
                 entry = json.loads(line)
                 key, result, arrays = entry["key"], entry["result"], entry["arrays"]
             except (json.JSONDecodeError, KeyError, TypeError):
+                continue
+            if not (isinstance(key, str) and _KEY.fullmatch(key)):  # keys are job_key's: no path in them
                 continue
             if arrays is None:
                 out[key] = (result, None)
