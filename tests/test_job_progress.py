@@ -138,7 +138,6 @@ def test_a_consumer_that_stops_early_stops_the_workers_at_once(tmp_path, monkeyp
     assert time.monotonic() - start < 10  # the running job sleeps 60 s
 
 
-
 # A main script whose import takes a second in a spawned worker (as `vtlearn`'s, which imports vtlearn.cli
 # there, before the pool's initializer runs); the parent sends each starting worker a Ctrl-C meanwhile, as a
 # terminal's Ctrl-C reaches every process of the group, and then waits for the jobs.

@@ -736,6 +736,11 @@ def _job_environment() -> dict[str, str]:
             "cpu_capability": torch.backends.cpu.get_cpu_capability()}
 
 
+def _journal(args: argparse.Namespace) -> JobJournal:
+    """The job journal of a training bench, beside its ``--json``, emptied first with ``--fresh``."""
+    return JobJournal(journal_folder(args.json), fresh=bool(getattr(args, "fresh", False)))
+
+
 def _encode_crossmodal(result: tuple) -> tuple[dict, dict | None]:
     """A crossmodal job's ``(row or classical rows, features or None, class names)`` as the journal keeps it
     (:class:`~vtlearn.bench_journal.JobJournal`): the JSON part, and the figure's features as arrays."""
@@ -840,8 +845,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     bar = tqdm(total=(len(job_args) * max_epochs), desc="bench crossmodal", unit="epoch")
     fingerprint = _data_fingerprints(data_kwargs)
     # finished trainings are kept as they end, so that the same command, stopped, goes on where it stopped
-    journal = JobJournal(journal_folder(args.json), fresh=bool(getattr(args, "fresh", False)))
-    keys = [job_key("bench crossmodal", a[0].__name__, a[1:], fingerprint, _job_environment(),
+    journal, env = _journal(args), _job_environment()
+    keys = [job_key("bench crossmodal", a[0].__name__, a[1:], fingerprint, env,
                     _variant_settings([a[1]]) if a[0] is _crossmodal_job else None) for a in job_args]
     jobs_run = JournalledJobs("bench crossmodal", journal, keys, _call, job_args, args.workers,
                               _encode_crossmodal, _decode_crossmodal, tick=bar.update,
@@ -1340,8 +1345,8 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
                  args.accelerator) for s, seed in jobs]
     fingerprint = _data_fingerprints(data_kwargs)
     # finished runs are kept as they end, so that the same command, stopped, goes on where it stopped
-    journal = JobJournal(journal_folder(args.json), fresh=bool(getattr(args, "fresh", False)))
-    keys = [job_key("bench active-learning", a, fingerprint, _job_environment()) for a in job_args]
+    journal, env = _journal(args), _job_environment()
+    keys = [job_key("bench active-learning", a, fingerprint, env) for a in job_args]
     jobs_run = JournalledJobs("bench active-learning", journal, keys, _active_learning_job, job_args,
                               args.workers, lambda r: (list(r), None), lambda stored, _: tuple(stored),
                               tick=bar.update, on_reused=lambda r: bar.update(_trainings_done(r)))
@@ -1925,8 +1930,7 @@ def register_bench(sub) -> None:
                    help="skip the confusion matrix, t-SNE and paired-difference figures")
     p.add_argument("--out-dir", default=None,
                    help="figure folder (default: beside --json, named after it without .json)")
-    p.add_argument("--fresh", action="store_true",
-                   help=_FRESH_HELP)
+    p.add_argument("--fresh", action="store_true", help=_FRESH_HELP)
     p.add_argument("--json", default="runs/bench/crossmodal.json")
     p.set_defaults(func=run_crossmodal_bench)
 
@@ -1969,7 +1973,6 @@ def register_bench(sub) -> None:
     q.add_argument("--n-boot", dest="n_boot", type=count(1), default=2000,
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default=None, help="PNG of accuracy against labels (default: beside --json)")
-    q.add_argument("--fresh", action="store_true",
-                   help=_FRESH_HELP)
+    q.add_argument("--fresh", action="store_true", help=_FRESH_HELP)
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
