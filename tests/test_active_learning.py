@@ -376,3 +376,61 @@ def test_loop_arguments_are_checked_by_name(kwargs, name):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), **kwargs)
     with pytest.raises(ValueError, match="model_factory: need a callable"):
         ActiveLearningLoop(TinyPoolDM(), XAVTNet(**TINY))
+
+
+@pytest.mark.parametrize("warm", [False, True])
+def test_loop_stopped_mid_way_goes_on_from_its_state_to_the_unstopped_history(tmp_path, warm, monkeypatch):
+    """A Ctrl-C in the third training: rebuilt with the same settings, the loop restores two rounds (the
+    labelled set, the history, the last weights), trains only the rest, and ends where an unstopped run
+    does, queries included (warm-started rounds go on from the restored weights)."""
+    import vtlearn.active.learning_loop as loop_module
+
+    kw = dict(strategy="entropy", kappa=4, rounds=3, mc_passes=3, max_epochs=2, warm_start=warm, seed=5,
+              show_progress=False)
+    unstopped = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), **kw)
+    unstopped.run()
+    real, trainings = loop_module.train_and_test, []
+
+    def stop_third(*args, **kwargs):
+        trainings.append(1)
+        if len(trainings) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(loop_module, "train_and_test", stop_third)
+    with pytest.raises(KeyboardInterrupt):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
+    assert (tmp_path / loop_module.LOOP_STATE_FILE).is_file()
+    monkeypatch.setattr(loop_module, "train_and_test", real)
+
+    dm = TinyPoolDM()
+    loop = ActiveLearningLoop(dm, lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw)
+    assert loop.restore() == 2 and loop.restore() == 2
+    assert len(dm.labelled_indices) == 6 + 2 * 4
+    assert loop.run() is loop.history and loop.history_dicts() == unstopped.history_dicts()
+    assert sorted(dm.labelled_indices) == sorted(unstopped.dm.labelled_indices)
+    # a loop whose rounds are all kept trains nothing and gives the last round's model back
+    monkeypatch.setattr(loop_module, "train_and_test", stop_third)
+    again = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw)
+    assert again.run() and again.history_dicts() == unstopped.history_dicts()
+    for a, b in zip(again.model.state_dict().values(), unstopped.model.state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_loop_state_dir_of_other_settings_labels_or_model_is_refused(tmp_path):
+    kw = dict(strategy="random", kappa=4, rounds=1, mc_passes=1, max_epochs=1, seed=0, show_progress=False)
+    ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
+    other = {**kw, "kappa": 3, "strategy": "entropy"}
+    with pytest.raises(ValueError, match=r"^state_dir: .* other settings \(kappa 4 there, 3 here, strategy "
+                                         r"'random' there, 'entropy' here\)"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **other).run()
+    with pytest.raises(ValueError, match="started from other labels"):
+        ActiveLearningLoop(TinyPoolDM(seed=1), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
+    wider = {**TINY, "fc_dims": [16, 12]}
+    with pytest.raises(ValueError, match="holds the weights of another model"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**wider), state_dir=tmp_path, **kw).run()
+    (tmp_path / "loop_state.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="state_dir: cannot read .*loop_state.npz"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
+    with pytest.raises(ValueError, match="state_dir: .* is a file"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path / "loop_state.npz")

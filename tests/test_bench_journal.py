@@ -36,6 +36,7 @@ def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):
     journal.add(k1, {"acc": np.float64(71.25), "ratio": float("nan"), "conf": np.eye(2, dtype=int)},
                 {"features": feats, "labels": np.array([0, 1, 1])})
     journal.add(k2, [("full", 3), 0.5])
+    journal.release()  # the folder is kept: it holds jobs
     done = JobJournal(tmp_path / "j").finished()
     assert set(done) == {k1, k2}
     result, arrays = done[k1]
@@ -48,6 +49,7 @@ def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):
     # a line whose key is not a job key (a path, say) is not read
     with open(tmp_path / "j" / "jobs.jsonl", "a") as fh:
         fh.write(json.dumps({"key": "../elsewhere", "result": 1, "arrays": None}) + "\n")
+    journal.release()
     assert set(JobJournal(tmp_path / "j").finished()) == {k1, k2}
 
 
@@ -70,8 +72,14 @@ def test_journal_leaves_out_cut_lines_and_changed_arrays(tmp_path):
     assert set(journal.finished()) == {whole}
     # a line appended after a cut one is read: the next run's jobs are not lost behind it
     journal.add(after, {"acc": 3.0})
-    assert set(JobJournal(folder).finished()) == {whole, after}
-    assert JobJournal(folder, fresh=True).finished() == {} and not folder.exists()
+    journal.release()
+    reread = JobJournal(folder)
+    assert set(reread.finished()) == {whole, after}
+    reread.release()
+    emptied = JobJournal(folder, fresh=True)
+    assert emptied.finished() == {} and [p.name for p in folder.iterdir()] == ["lock"]
+    emptied.release()  # a folder that holds no job goes with the lock
+    assert not folder.exists()
 
 
 def test_journal_folder_that_is_a_file_is_refused(tmp_path):
@@ -104,12 +112,17 @@ def test_journalled_jobs_keep_what_finished_and_run_only_the_rest(tmp_path, caps
 
     calls.clear()
     reused: list[dict] = []
-    with JournalledJobs("bench toy", JobJournal(folder), keys, fn, [("a",), ("bb",), ("ccc",)], 1, encode,
-                        decode, on_reused=reused.append) as jobs:
+    journal = JobJournal(folder)
+    with JournalledJobs("bench toy", journal, keys, fn, [("a",), ("bb",), ("ccc",)], 1, encode, decode,
+                        on_reused=reused.append) as jobs:
         seen = [r["x"] for r in jobs]
     assert calls == ["ccc"] and seen == ["a", "bb", "ccc"] and [r["x"] for r in reused] == ["a", "bb"]
     assert capsys.readouterr().out == f"bench toy: 2 of 3 jobs finished earlier are reused from {folder} " \
                                       "(--fresh runs them again)\n"
+    # a second bench on the same folder while the first holds it is refused, naming --json
+    with pytest.raises(ValueError, match=r"^--json: another bench writing the same --json is running"):
+        JobJournal(folder)
+    journal.release()
     # other settings: nothing is reused, and the line says the folder holds jobs of other settings
     calls.clear()
     with JournalledJobs("bench toy", JobJournal(folder), [job_key("other")], fn, [("d",)], 1, encode,
@@ -117,9 +130,49 @@ def test_journalled_jobs_keep_what_finished_and_run_only_the_rest(tmp_path, caps
         assert [r["x"] for r in jobs] == ["d"]
     assert calls == ["d"] and "holds 3 finished jobs of other settings; none is reused" in \
         capsys.readouterr().out
+    jobs.journal.release()
     with pytest.raises(ValueError, match="keys: need one unique key per job"):
         JournalledJobs("bench toy", JobJournal(folder), [keys[0], keys[0]], fn, [("a",), ("b",)], 1, encode,
                        decode)
+
+
+def _stateful_job(x, progress=None, state_dir=None, calls=None):
+    """A job in two steps that keeps the first in ``state_dir``; ``x == "stop"`` is stopped after it."""
+    calls.append((x, state_dir.name))
+    step = state_dir / "step1"
+    if not step.is_file():
+        state_dir.mkdir(parents=True, exist_ok=True)
+        step.write_text(x.upper())
+        if x == "stop":
+            raise KeyboardInterrupt
+    return {"x": x, "first": step.read_text()}
+
+
+def test_journalled_jobs_hand_an_unfinished_job_its_kept_state(tmp_path, capsys):
+    folder = tmp_path / "j"
+    keys = [job_key("a"), job_key("stop")]
+    encode, decode = (lambda r: (r, None)), (lambda stored, arrays: stored)
+    calls: list[tuple] = []
+    fn = functools.partial(_stateful_job, calls=calls)
+    with pytest.raises(KeyboardInterrupt):
+        with JournalledJobs("bench toy", JobJournal(folder), keys, fn, [("a",), ("stop",)], 1, encode, decode,
+                            partial=True) as jobs:
+            list(jobs)
+    assert calls == [("a", f"{keys[0]}.partial"), ("stop", f"{keys[1]}.partial")]
+    assert f"1 of 2 jobs are kept in {folder} with the state of 1 unfinished; the same command goes on" in \
+        capsys.readouterr().err
+    assert not (folder / f"{keys[0]}.partial").exists()  # a finished job's state goes with its line
+    assert (folder / f"{keys[1]}.partial" / "step1").read_text() == "STOP"
+
+    calls.clear()
+    with JournalledJobs("bench toy", JobJournal(folder), keys, fn, [("a",), ("stop",)], 1, encode, decode,
+                        partial=True) as jobs:
+        assert [r["first"] for r in jobs] == ["A", "STOP"]
+    assert calls == [("stop", f"{keys[1]}.partial")]  # went on from its first step: no second stop
+    assert "1 unfinished jobs go on from the state they kept" in capsys.readouterr().out
+    assert sorted(p.name for p in folder.iterdir()) == ["jobs.jsonl", "lock"]
+    jobs.journal.discard()
+    assert not folder.exists()
 
 
 @pytest.fixture(scope="module")
@@ -201,3 +254,43 @@ def test_bench_active_learning_stopped_by_ctrl_c_goes_on_from_its_finished_runs(
     res = json.loads(out.read_text())
     assert res["full_acc"] == [kept["full", 0]] and res["curves"]["entropy"]["runs"] == [kept["entropy", 0]]
     assert [h["n_labels"] for h in res["curves"]["random"]["runs"][0]] == [3, 5]
+
+
+def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round(tmp_path, tiny_crossmodal,
+                                                                                  monkeypatch, capsys):
+    """A Ctrl-C in the second round of the entropy loop: the rerun trains that round and random's, not the
+    entropy loop's first round again, and writes what an unstopped run writes."""
+    import vtlearn.active.learning_loop as loop_module
+    from vtlearn.cli import main
+
+    real = loop_module.train_and_test
+    trainings: list[int] = []
+
+    def counted(*args, stop_at=None, **kwargs):
+        trainings.append(len(trainings))
+        if len(trainings) == stop_at:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
+    argv = ["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--rounds", "2", "--kappa", "1"]
+    out = tmp_path / "al.json"
+    # trainings: full 1, entropy 2-4, random 5-7; the third is the entropy loop's second round
+    monkeypatch.setattr(loop_module, "train_and_test", functools.partial(counted, stop_at=3))
+    assert main([*argv, "--json", str(out)]) == 130
+    assert "1 of 3 jobs are kept" in capsys.readouterr().err
+    (state,) = (tmp_path / "al.jobs").glob("*.partial/loop_state.npz")
+    with np.load(state, allow_pickle=False) as z:
+        assert z["round"].tolist() == [0] and len(z["queried"]) == z["queried_count"][0] > 0
+
+    trainings.clear()
+    monkeypatch.setattr(loop_module, "train_and_test", counted)
+    assert main([*argv, "--json", str(out)]) == 0
+    assert len(trainings) == 2 + 3  # entropy's rounds 1 and 2, random's three
+    assert "1 unfinished jobs go on from the state they kept" in capsys.readouterr().out
+    trainings.clear()
+    assert main([*argv, "--json", str(tmp_path / "fresh.json")]) == 0
+    assert len(trainings) == 1 + 3 + 3
+    resumed, fresh = json.loads(out.read_text()), json.loads((tmp_path / "fresh.json").read_text())
+    assert resumed["curves"] == fresh["curves"] and resumed["full_acc"] == fresh["full_acc"]
+    assert [h["n_labels"] for h in resumed["curves"]["entropy"]["runs"][0]] == [3, 4, 5]

@@ -315,6 +315,15 @@ from vtlearn.io import read_geometry
 _bunny = read_geometry(os.path.join(pybullet_data.getDataPath(), "bunny.obj"), n_points=1500)
 _bunny = 0.15 * (_bunny - _bunny.mean(0)) / np.ptp(_bunny, axis=0).max()   # 15 cm
 """
+# the quickstart's tactile pool (2 clouds) is smaller than the blocks' initial labels: 2 x 3 objects x 6 clouds
+_CROSS_SMALL = """
+import dataclasses, os
+from vtlearn.sim_data.fixtures import tiny_config
+from vtlearn.sim_data.writer import generate_dataset
+_cfg = dataclasses.replace(tiny_config("crossmodal"), categories=["mug", "bottle"], views=1, tactile_clouds=6,
+                           image_width=80, image_height=60)
+generate_dataset(_cfg, "data/cross_small", workers=1, progress=False)
+"""
 SETUP = {
     ("docs/actor.md", 0): f"""
 import os, shutil
@@ -345,6 +354,7 @@ P_C, P_W = [P_C_view0, P_C_view1], P_W_tactile
 nominal = X.copy()
 nominal[:3, 3] += [0.01, -0.005, 0.008]
 """,
+    ("docs/xavtnet.md", 0): _CROSS_SMALL,
     ("docs/runtime.md", 0): """
 import numpy as np
 def _top(cx, cy, sx, sy, h=0.04):   # points on the top face of a box standing on the table
@@ -354,22 +364,17 @@ clouds = {1: _top(0.0, 0.0, 0.05, 0.05), 2: _top(0.06, 0.0, 0.03, 0.05)}
 target = 1
 """,
     ("docs/sim_data.md", 0): f"""
-import dataclasses, os
-from vtlearn.sim_data.fixtures import tiny_config
-from vtlearn.sim_data.writer import generate_dataset
+import os
 os.makedirs("data")
 os.symlink(os.path.abspath("{QUICKSTART}/data/reconstruction"), "data/recon_small")
-# the quickstart's tactile pool is smaller than the block's initial_labels=10: 2 x 3 objects x 6 clouds
-_cfg = dataclasses.replace(tiny_config("crossmodal"), categories=["mug", "bottle"], views=1, tactile_clouds=6,
-                           image_width=80, image_height=60)
-generate_dataset(_cfg, "data/cross_small", workers=1, progress=False)
-""",
+""" + _CROSS_SMALL,
 }
 
 # Output that a block's comments claim, as substrings of its stdout.
 EXPECT = {
     # success; the push count and distance after it vary with the host's rounding of the contact physics
     ("docs/manipulation.md", 0): ["True "],
+    ("docs/xavtnet.md", 0): ["3 True\n"],
     ("docs/manipulation.md", 1): [
         "prismatic 5 ['push', 'push', 'hold_pull', 'hold_pull', 'hold_pull'] [-0.052", "\nrevolute\n"
     ],

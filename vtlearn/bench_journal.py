@@ -8,7 +8,12 @@ a crash, a machine taken back) goes on from where it stopped when the same comma
 - ``jobs.jsonl``: one JSON line per finished job, ``{"key", "result", "arrays"}``, appended and fsync'ed as
   the job ends;
 - ``<key>.npz``: the job's arrays, where it has any (the t-SNE figure's features), written atomically with
-  ``allow_pickle=False`` before its line, whose ``arrays`` entry holds the file's SHA-256.
+  ``allow_pickle=False`` before its line, whose ``arrays`` entry holds the file's SHA-256;
+- ``<key>.partial/``: what a job that keeps its own state while it runs (an active-learning loop, round by
+  round: :class:`vtlearn.active.learning_loop.ActiveLearningLoop`'s ``state_dir``) has kept so far; removed
+  once the job's line is written. A stopped bench's rerun hands it back to the job, which goes on from it;
+- ``lock``: held (``flock``) by the bench writing the folder, so that a second bench started with the same
+  ``--json`` is refused instead of mixing its jobs in and removing the folder under the first.
 
 A job's key is the SHA-256 of the canonical JSON of everything that decides its result: the bench, the job's
 function and arguments, the row's model settings, the data's fingerprint, the versions of vtlearn and torch,
@@ -38,6 +43,7 @@ from vtlearn.io import sha256_file
 __all__ = ["JobJournal", "JournalledJobs", "job_key", "journal_folder"]
 
 _LINES = "jobs.jsonl"
+_LOCK = "lock"
 _KEY = re.compile(r"[0-9a-f]{64}")
 
 
@@ -62,7 +68,8 @@ class JobJournal:
 
     ``fresh``: discard what the folder holds first (``--fresh``). :meth:`finished` reads the jobs kept by an
     earlier run; :meth:`add` keeps one more; :meth:`discard` removes the folder once the bench's results are
-    written.
+    written. The journal holds the folder's lock from its creation until :meth:`discard` or :meth:`release`
+    (or the process's end): a second journal of the same folder is refused meanwhile.
 
     Example::
 
@@ -76,9 +83,34 @@ class JobJournal:
         if self.folder.exists() and not self.folder.is_dir():
             raise ValueError(f"--json: the bench keeps its finished jobs in {self.folder}, which is a file; "
                              "move it or choose another --json")
-        if fresh:
-            self.discard()
         self.lines = self.folder / _LINES
+        self._lock = self._take_lock()
+        if fresh:
+            for entry in self.folder.iterdir():
+                if entry.name != _LOCK:
+                    shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+
+    def _take_lock(self):
+        """The open lock file, locked (``flock``, released by the kernel when the process ends, however it
+        ends); a ValueError naming ``--json`` when another bench holds it. None where ``fcntl`` is missing."""
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no lock, as before
+            return None
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fh = open(self.folder / _LOCK, "a")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            raise ValueError(f"--json: another bench writing the same --json is running (it holds "
+                             f"{self.folder / _LOCK}); wait for it to end, or choose another --json") \
+                from None
+        return fh
+
+    def partial_dir(self, key: str) -> Path:
+        """The folder in which the job ``key`` keeps its state while it runs (see the module docstring)."""
+        return self.folder / f"{key}.partial"
 
     def finished(self) -> dict[str, tuple[Any, dict[str, np.ndarray] | None]]:
         """``{key: (result, arrays or None)}`` of every job the folder holds whole: lines that do not parse (a
@@ -131,17 +163,30 @@ class JobJournal:
             fh.write(line.encode() + b"\n")
             fh.flush()
             os.fsync(fh.fileno())
+        shutil.rmtree(self.partial_dir(key), ignore_errors=True)  # the job's line now stands for it
 
     def discard(self) -> None:
-        """Remove the folder and everything in it (nothing happens when there is none)."""
+        """Remove the folder and everything in it (nothing happens when there is none); let its lock go."""
         if self.folder.is_dir():
             shutil.rmtree(self.folder)
+        self.release()
+
+    def release(self) -> None:
+        """Let the folder's lock go, and remove the folder if it holds nothing else (no job was kept)."""
+        if self._lock is None:
+            return
+        self._lock.close()
+        self._lock = None
+        if self.folder.is_dir() and [p.name for p in self.folder.iterdir()] == [_LOCK]:
+            shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _keyed(key: str, fn: Callable, *args, progress=None):
-    """``(key, fn(*args, progress=progress))``: tells the journal which job a result from a worker (they
-    arrive in completion order) belongs to. Module level, so that spawned workers can run it."""
-    return key, fn(*args, progress=progress)
+def _keyed(key: str, state_dir: Path | None, fn: Callable, *args, progress=None):
+    """``(key, fn(*args, progress=progress))``, with ``state_dir=state_dir`` too unless it is None: tells the
+    journal which job a result from a worker (they arrive in completion order) belongs to. Module level, so
+    that spawned workers can run it."""
+    kwargs = {} if state_dir is None else {"state_dir": state_dir}
+    return key, fn(*args, progress=progress, **kwargs)
 
 
 class JournalledJobs:
@@ -156,7 +201,11 @@ class JournalledJobs:
 
     ``bench`` names the command in the lines printed: how many finished jobs are reused, and, when the
     ``with`` block ends on an error or a Ctrl-C, how many are kept and that the same command goes on from
-    there.
+    there (the journal's lock is then let go).
+
+    ``partial=True``: ``fn`` also gets ``state_dir=journal.partial_dir(key)``, a folder in which to keep its
+    state while it runs and from which, rerun after a stop, it goes on (the folder is removed once the job's
+    result is kept).
 
     Example::
 
@@ -168,7 +217,7 @@ class JournalledJobs:
     def __init__(self, bench: str, journal: JobJournal, keys: list[str], fn: Callable, job_args: list[tuple],
                  workers: int, encode: Callable[[Any], tuple[Any, dict | None]],
                  decode: Callable[[Any, dict | None], Any], tick: Callable[[int], object] | None = None,
-                 on_reused: Callable[[Any], object] | None = None) -> None:
+                 on_reused: Callable[[Any], object] | None = None, partial: bool = False) -> None:
         from vtlearn.job_progress import map_jobs
 
         if len(keys) != len(job_args) or len(set(keys)) != len(keys):
@@ -177,7 +226,9 @@ class JournalledJobs:
         self.bench, self.journal, self.keys = bench, journal, keys
         self.encode, self.decode, self.on_reused = encode, decode, on_reused
         self.done = journal.finished()
-        todo = [(k, fn, *a) for k, a in zip(keys, job_args, strict=True) if k not in self.done]
+        todo = [(k, journal.partial_dir(k) if partial else None, fn, *a)
+                for k, a in zip(keys, job_args, strict=True) if k not in self.done]
+        self.resumed = sum(d is not None and d.is_dir() for _, d, *_ in todo)  # jobs with a state kept
         self._running = map_jobs(_keyed, todo, workers, tick)  # checks workers before anything runs
         self.kept = 0  # jobs in the journal among those yielded so far
 
@@ -191,6 +242,9 @@ class JournalledJobs:
         elif self.done:
             tqdm.write(f"{self.bench}: {self.journal.folder} holds {len(self.done)} finished jobs of other "
                        "settings; none is reused")
+        if self.resumed:
+            tqdm.write(f"{self.bench}: {self.resumed} unfinished jobs go on from the state they kept in "
+                       f"{self.journal.folder}")
         return self
 
     def __iter__(self) -> Iterator:
@@ -212,6 +266,11 @@ class JournalledJobs:
         from tqdm.auto import tqdm
 
         self._running.close()  # a block left early stops the workers (vtlearn.worker_pool)
-        if exc_type is not None and self.kept:
+        if exc_type is None:
+            return
+        partial = sum(self.journal.partial_dir(k).is_dir() for k in self.keys)
+        if self.kept or partial:
+            also = f" with the state of {partial} unfinished" if partial else ""
             tqdm.write(f"{self.bench}: {self.kept} of {len(self.keys)} jobs are kept in "
-                       f"{self.journal.folder}; the same command goes on from there", file=sys.stderr)
+                       f"{self.journal.folder}{also}; the same command goes on from there", file=sys.stderr)
+        self.journal.release()

@@ -15,6 +15,10 @@ does not depend on the order the labels arrived in and strategies are compared f
 ``warm_start=True`` the previous round's weights are kept and fine-tuned (a fresh optimiser each
 round); it is cheaper but the curve then mixes label count with total training time.
 
+A loop given a ``state_dir`` keeps its state there after every round (:meth:`ActiveLearningLoop.restore`):
+a loop stopped part-way (Ctrl-C, a crash) and built again with the same settings goes on from its last
+finished round instead of training every round again, and gives the history an unstopped run gives.
+
 Evaluation after each round is ``trainer.test`` on ``datamodule.test_dataloader()``. The Table 7.1
 analogue (:func:`labels_to_reach`) gives, per strategy, the number of labels at which the relative
 error ``(acc_full − acc) / acc_full`` against a model trained on the whole pool first falls to 10 %,
@@ -23,10 +27,12 @@ error ``(acc_full − acc) / acc_full`` against a model trained on the whole poo
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import lightning as L
 import numpy as np
@@ -38,9 +44,14 @@ from vtlearn.bench_utils import wilcoxon_p
 from vtlearn.validation import as_int, as_real
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach",
-           "bootstrap_label_ratio"]
+           "bootstrap_label_ratio", "LOOP_STATE_FILE"]
 
 log = logging.getLogger(__name__)
+
+#: the file, in an :class:`ActiveLearningLoop`'s ``state_dir``, that holds its state after its last round
+LOOP_STATE_FILE = "loop_state.npz"
+#: the prefix of the model's weights in that file
+_WEIGHTS = "model/"
 
 
 @dataclass
@@ -119,6 +130,9 @@ class ActiveLearningLoop:
         power_beta: β of the power strategies.
         seed: base seed; round r trains with ``seed + r``.
         trainer_kwargs: extra ``Trainer`` arguments (e.g. ``limit_train_batches``).
+        state_dir: a folder in which the loop keeps its state after every round (:meth:`restore`), so
+            that a stopped loop built again with the same arguments goes on from its last finished round;
+            ``None`` keeps nothing.
     """
 
     def __init__(
@@ -137,6 +151,7 @@ class ActiveLearningLoop:
         seed: int = 0,
         trainer_kwargs: dict | None = None,
         show_progress: bool = True,
+        state_dir: str | Path | None = None,
     ) -> None:
         if strategy not in QUERY_STRATEGIES:
             raise ValueError(f"strategy must be one of {QUERY_STRATEGIES}, got {strategy!r}")
@@ -155,8 +170,12 @@ class ActiveLearningLoop:
         self.power_beta = float(power_beta)
         self.trainer_kwargs = dict(trainer_kwargs or {})
         self.show_progress = show_progress
+        self.state_dir = None if state_dir is None else Path(state_dir)
+        if self.state_dir is not None and self.state_dir.exists() and not self.state_dir.is_dir():
+            raise ValueError(f"state_dir: {self.state_dir} is a file; the loop keeps its state in a folder")
         self.history: list[RoundResult] = []
         self.model: L.LightningModule | None = None
+        self._restored = False
 
     def _query(self, round_idx: int) -> list[int]:
         unlabelled = list(self.dm.unlabelled_indices)
@@ -172,9 +191,15 @@ class ActiveLearningLoop:
         return [int(i) for i in chosen]
 
     def run(self) -> list[RoundResult]:
-        bar = tqdm(range(self.rounds + 1), desc=f"active learning [{self.strategy}]",
+        """Train, test and query round after round (Algorithm 5) and return the history. With a
+        ``state_dir`` the loop first goes on from the state kept there (:meth:`restore`), and keeps its state
+        after every round; a loop whose rounds are all kept trains nothing."""
+        start = self.restore()
+        bar = tqdm(total=self.rounds + 1, initial=start, desc=f"active learning [{self.strategy}]",
                    disable=not self.show_progress)
-        for r in bar:
+        for r in range(start, self.rounds + 1):
+            if self._finished():
+                break
             L.seed_everything(self.seed + r, verbose=False)
             if self.model is None or not self.warm_start:
                 self.model = self.model_factory(self.seed + r)
@@ -182,13 +207,98 @@ class ActiveLearningLoop:
                                  self.max_epochs, self.min_steps, self.train_steps, **self.trainer_kwargs)
             result = RoundResult(r, len(self.dm.labelled_indices), acc)
             self.history.append(result)
+            bar.update()
             bar.set_postfix(labels=result.n_labels, acc=f"{acc:.3f}")
             if r < self.rounds and len(self.dm.unlabelled_indices) > 0:
                 result.queried = self._query(r)
             elif r < self.rounds:
                 log.info("pool exhausted after %d rounds", r)
-                break
+            self._save_state()
+        bar.close()
         return self.history
+
+    def _finished(self) -> bool:
+        """Whether the rounds are spent, or the last round found the pool empty (nothing queried)."""
+        return bool(self.history) and (self.history[-1].round >= self.rounds or not self.history[-1].queried)
+
+    def _settings(self) -> dict:
+        """What a kept state must have been made with to be gone on from."""
+        return {"strategy": self.strategy, "kappa": self.kappa, "rounds": self.rounds,
+                "mc_passes": self.mc_passes, "max_epochs": self.max_epochs, "min_steps": self.min_steps,
+                "train_steps": self.train_steps, "warm_start": self.warm_start, "power_beta": self.power_beta,
+                "seed": self.seed}
+
+    def _save_state(self) -> None:
+        """Keep the history, the labelled set and the last model's weights in ``state_dir`` (one ``.npz``
+        written atomically, loaded with ``allow_pickle=False``), so a kill leaves the previous round's."""
+        if self.state_dir is None:
+            return
+        from vtlearn.io import atomic_write_npz
+
+        h = self.history
+        weights = {_WEIGHTS + k: v.detach().cpu().numpy() for k, v in self.model.state_dict().items()}
+        settings = json.dumps(self._settings(), sort_keys=True)
+        atomic_write_npz(
+            self.state_dir / LOOP_STATE_FILE, settings=np.array([settings]),
+            labelled=np.asarray(self.dm.labelled_indices, dtype=np.int64),
+            round=np.array([x.round for x in h], dtype=np.int64),
+            n_labels=np.array([x.n_labels for x in h], dtype=np.int64),
+            accuracy=np.array([x.accuracy for x in h], dtype=np.float64),
+            queried=np.array([q for x in h for q in x.queried], dtype=np.int64),
+            queried_count=np.array([len(x.queried) for x in h], dtype=np.int64), **weights)
+
+    def restore(self) -> int:
+        """Go on from the state kept in ``state_dir`` by an earlier run of this loop, and return the number
+        of rounds it holds (0 when there is none, or without a ``state_dir``; a second call returns the same
+        and changes nothing).
+
+        The history comes back as it was; the labelled set by querying the datamodule for the clouds the
+        kept rounds queried (its first labels must be those the kept run started from); the model is built
+        by ``model_factory`` and given the last round's weights. Every round seeds the random number
+        generators anew (``seed + r``), so the rounds still to run give what they give in an unstopped run.
+
+        Raises:
+            ValueError: the state was kept with other settings, from another starting set of labels, or
+                for a model with other weights (naming what differs), or the file cannot be read.
+        """
+        path = None if self.state_dir is None else self.state_dir / LOOP_STATE_FILE
+        if self._restored or path is None or not path.is_file():
+            self._restored = True
+            return len(self.history)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                state = {k: z[k] for k in z.files}
+            kept = json.loads(str(state["settings"][0]))
+        except (OSError, ValueError, KeyError, IndexError) as exc:  # JSONDecodeError is a ValueError
+            raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
+                from None
+        now = self._settings()
+        differ = sorted(k for k in now.keys() | kept.keys() if now.get(k) != kept.get(k))
+        if differ:
+            raise ValueError(f"state_dir: {path} was kept by a loop with other settings ("
+                             + ", ".join(f"{k} {kept.get(k)!r} there, {now.get(k)!r} here" for k in differ)
+                             + "); remove it or choose another state_dir")
+        counts = state["queried_count"]
+        queried = np.split(state["queried"], np.cumsum(counts)[:-1]) if len(counts) else []
+        first = sorted(set(state["labelled"].tolist()) - set(state["queried"].tolist()))
+        if sorted(int(i) for i in self.dm.labelled_indices) != first:
+            raise ValueError(f"state_dir: {path} was kept by a loop that started from other labels; the "
+                             "datamodule must start from the same initial labels (initial_labels, seed)")
+        last = int(state["round"][-1])
+        model = self.model_factory(self.seed + last)
+        weights = {k[len(_WEIGHTS):]: torch.from_numpy(v) for k, v in state.items() if k.startswith(_WEIGHTS)}
+        try:
+            model.load_state_dict(weights)
+        except RuntimeError as exc:
+            raise ValueError(f"state_dir: {path} holds the weights of another model ({exc})") from None
+        if len(state["queried"]):
+            self.dm.query([int(i) for i in state["queried"]])
+        self.model = model
+        self.history = [RoundResult(int(r), int(n), float(a), [int(i) for i in q]) for r, n, a, q in
+                        zip(state["round"], state["n_labels"], state["accuracy"], queried, strict=True)]
+        self._restored = True
+        log.info("active learning [%s]: %d rounds restored from %s", self.strategy, len(self.history), path)
+        return len(self.history)
 
     def history_dicts(self) -> list[dict]:
         return [asdict(h) for h in self.history]

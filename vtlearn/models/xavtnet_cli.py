@@ -1196,11 +1196,13 @@ def _variant_settings(variants: list[str]) -> dict[str, dict]:
 
 def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict, al: dict, max_epochs: int,
                          threads: int, pool: int, train_steps: int = 0, accelerator: str = "cpu",
-                         progress=None):
+                         progress=None, state_dir=None):
     """One seed of one strategy of the Fig. 7.5a analogue, or (``strategy="full"``) the reference model
     trained on the whole labelled pool of ``pool`` clouds. Returns (strategy, seed, history dicts or the
     full-pool accuracy). ``train_steps > 0``: every training runs exactly that many optimiser steps.
-    ``progress``: a sink that every training ticks once, when it ends (:mod:`vtlearn.job_progress`).
+    ``progress``: a sink that every training ticks once, when it ends (:mod:`vtlearn.job_progress`), and
+    that the rounds restored from ``state_dir`` tick at once. ``state_dir``: where the loop keeps its state
+    after every round and goes on from (``ActiveLearningLoop(state_dir=...)``).
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
@@ -1233,7 +1235,10 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
                               mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
                               train_steps=train_steps, warm_start=bool(al["warm_start"]),
                               power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
-                              trainer_kwargs=trainer_kwargs)
+                              trainer_kwargs=trainer_kwargs, state_dir=state_dir)
+    restored = loop.restore()
+    if restored and progress is not None:
+        progress.put(restored)
     return strategy, seed, (loop.history_dicts() if loop.run() else [])
 
 
@@ -1344,12 +1349,14 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     job_args = [(s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps,
                  args.accelerator) for s, seed in jobs]
     fingerprint = _data_fingerprints(data_kwargs)
-    # finished runs are kept as they end, so that the same command, stopped, goes on where it stopped
+    # finished runs are kept as they end, and unfinished loops round by round, so that the same command,
+    # stopped, goes on where it stopped
     journal, env = _journal(args), _job_environment()
     keys = [job_key("bench active-learning", a, fingerprint, env) for a in job_args]
     jobs_run = JournalledJobs("bench active-learning", journal, keys, _active_learning_job, job_args,
                               args.workers, lambda r: (list(r), None), lambda stored, _: tuple(stored),
-                              tick=bar.update, on_reused=lambda r: bar.update(_trainings_done(r)))
+                              tick=bar.update, on_reused=lambda r: bar.update(_trainings_done(r)),
+                              partial=True)
     results: dict = {}
     with jobs_run:
         for strategy, seed, res in jobs_run:
