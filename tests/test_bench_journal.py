@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tests._tiny_models import tiny_xavtnet_config
-from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder
+from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder, source_digest
 
 
 def test_journal_folder_sits_beside_the_json():
@@ -27,6 +27,29 @@ def test_job_key_is_canonical_and_tells_settings_apart():
     assert a != job_key("bench", ("noda", 1), {"lr": 1e-3, "layers": ("fc1", "fc2")})
     assert a != job_key("bench", ("noda", 0), {"lr": 2e-3, "layers": ("fc1", "fc2")})
     assert len(a) == 64 and int(a, 16) >= 0
+
+
+def test_source_digest_follows_every_python_file_of_the_package(tmp_path, monkeypatch):
+    """The job keys carry it, so that an edit to vtlearn under the same version trains again."""
+    import vtlearn
+
+    pkg = tmp_path / "vtlearn"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("x = 1\n")
+    (pkg / "sub" / "a.py").write_text("y = 2\n")
+    (pkg / "notes.txt").write_text("not code")
+    monkeypatch.setattr(vtlearn, "__file__", str(pkg / "__init__.py"))
+    first = source_digest()
+    assert source_digest() == first and len(first) == 64
+    (pkg / "notes.txt").write_text("other")  # not Python: no change
+    assert source_digest() == first
+    (pkg / "sub" / "a.py").write_text("y = 3\n")
+    edited = source_digest()
+    assert edited != first
+    (pkg / "sub" / "a.py").rename(pkg / "sub" / "b.py")  # the same bytes under another name
+    assert source_digest() not in (first, edited)
+    (pkg / "sub" / "b.py").rename(pkg / "sub" / "a.py")
+    assert source_digest() == edited
 
 
 def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):

@@ -315,7 +315,7 @@ from vtlearn.io import read_geometry
 _bunny = read_geometry(os.path.join(pybullet_data.getDataPath(), "bunny.obj"), n_points=1500)
 _bunny = 0.15 * (_bunny - _bunny.mean(0)) / np.ptp(_bunny, axis=0).max()   # 15 cm
 """
-# the quickstart's tactile pool (2 clouds) is smaller than the blocks' initial labels: 2 x 3 objects x 6 clouds
+# a crossmodal pool larger than the quickstart's (2 tactile clouds): 2 x 3 objects x 6 clouds
 _CROSS_SMALL = """
 import dataclasses, os
 from vtlearn.sim_data.fixtures import tiny_config

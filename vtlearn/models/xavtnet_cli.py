@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder
+from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder, source_digest
 from vtlearn.bench_utils import csv_list, sample_std, save_figure
 from vtlearn.classical import crossmodal_baseline
 from vtlearn.classical.crossmodal_baseline import CLASSICAL_ROWS, THESIS_TABLE_7_4
@@ -725,14 +725,15 @@ def _run_line(row: dict, adabn: bool, balanced: bool) -> str:
 
 
 def _job_environment() -> dict[str, str]:
-    """The versions of vtlearn and torch and the vector capability torch's CPU kernels use (AVX2, AVX512,
-    ...), part of every bench job's journal key (:mod:`vtlearn.bench_journal`): a job kept by another
-    version, or on a CPU whose sums may round differently, is trained again instead of mixed in."""
+    """The versions of vtlearn and torch, the digest of vtlearn's source and the vector capability torch's CPU
+    kernels use (AVX2, AVX512, ...), part of every bench job's journal key (:mod:`vtlearn.bench_journal`): a
+    job kept by another version or other code, or on a CPU whose sums may round differently, is trained
+    again instead of mixed in."""
     import torch
 
     import vtlearn
 
-    return {"vtlearn": vtlearn.__version__, "torch": torch.__version__,
+    return {"vtlearn": vtlearn.__version__, "source": source_digest(), "torch": torch.__version__,
             "cpu_capability": torch.backends.cpu.get_cpu_capability()}
 
 
