@@ -154,9 +154,14 @@ def test_journalled_jobs_keep_what_finished_and_run_only_the_rest(tmp_path, caps
     assert calls == ["d"] and "holds 3 finished jobs of other settings; none is reused" in \
         capsys.readouterr().out
     jobs.journal.release()
+    refused = JobJournal(folder)
     with pytest.raises(ValueError, match="keys: need one unique key per job"):
-        JournalledJobs("bench toy", JobJournal(folder), [keys[0], keys[0]], fn, [("a",), ("b",)], 1, encode,
-                       decode)
+        JournalledJobs("bench toy", refused, [keys[0], keys[0]], fn, [("a",), ("b",)], 1, encode, decode)
+    JobJournal(folder).release()  # the refusal let the lock go
+    with pytest.raises(ValueError, match="--workers: need >= 1"):
+        JournalledJobs("bench toy", JobJournal(tmp_path / "new"), keys, fn, [("a",), ("bb",), ("c",)], 0,
+                       encode, decode)
+    assert not (tmp_path / "new").exists()  # nor is an empty folder left behind
 
 
 def _stateful_job(x, progress=None, state_dir=None, calls=None):

@@ -238,16 +238,20 @@ class JournalledJobs:
                  on_reused: Callable[[Any], object] | None = None, partial: bool = False) -> None:
         from vtlearn.job_progress import map_jobs
 
-        if len(keys) != len(job_args) or len(set(keys)) != len(keys):
-            raise ValueError(f"keys: need one unique key per job, got {len(set(keys))} distinct for "
-                             f"{len(job_args)} jobs")
         self.bench, self.journal, self.keys = bench, journal, keys
         self.encode, self.decode, self.on_reused = encode, decode, on_reused
-        self.done = journal.finished()
-        todo = [(k, journal.partial_dir(k) if partial else None, fn, *a)
-                for k, a in zip(keys, job_args, strict=True) if k not in self.done]
-        self.resumed = sum(d is not None and d.is_dir() for _, d, *_ in todo)  # jobs with a state kept
-        self._running = map_jobs(_keyed, todo, workers, tick)  # checks workers before anything runs
+        try:  # a refusal here ends the bench: let the folder's lock go (and the folder, if it holds nothing)
+            if len(keys) != len(job_args) or len(set(keys)) != len(keys):
+                raise ValueError(f"keys: need one unique key per job, got {len(set(keys))} distinct for "
+                                 f"{len(job_args)} jobs")
+            self.done = journal.finished()
+            todo = [(k, journal.partial_dir(k) if partial else None, fn, *a)
+                    for k, a in zip(keys, job_args, strict=True) if k not in self.done]
+            self.resumed = sum(d is not None and d.is_dir() for _, d, *_ in todo)  # jobs with a state kept
+            self._running = map_jobs(_keyed, todo, workers, tick)  # checks workers before anything runs
+        except BaseException:
+            journal.release()
+            raise
         self.kept = 0  # jobs in the journal among those yielded so far
 
     def __enter__(self) -> JournalledJobs:
