@@ -249,8 +249,8 @@ class ActiveLearningLoop:
 
     def restore(self) -> int:
         """Go on from the state kept in ``state_dir`` by an earlier run of this loop, and return the number
-        of rounds it holds (0 when there is none, or without a ``state_dir``; a second call returns the same
-        and changes nothing).
+        of rounds it holds (0 when there is none, or without a ``state_dir``). Only the first call reads the
+        state; a later one changes nothing and returns the number of rounds the loop holds by then.
 
         The history comes back as it was; the labelled set by querying the datamodule for the clouds the
         kept rounds queried (its first labels must be those the kept run started from); the model is built
