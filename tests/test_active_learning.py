@@ -417,6 +417,59 @@ def test_loop_stopped_mid_way_goes_on_from_its_state_to_the_unstopped_history(tm
         assert torch.equal(a, b)
 
 
+@pytest.mark.parametrize("warm", [False, True])
+def test_finished_loop_built_with_more_rounds_goes_on_to_the_longer_runs_history(tmp_path, warm, monkeypatch):
+    """A loop of 1 round kept in state_dir, built again with 3 rounds: its last round queries with the
+    restored weights, only the 2 new rounds train, and history, labels and weights equal a 3-round run's."""
+    import vtlearn.active.learning_loop as loop_module
+
+    kw = dict(strategy="entropy", kappa=4, mc_passes=3, max_epochs=2, warm_start=warm, seed=5,
+              show_progress=False)
+    longer = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=3, **kw)
+    longer.run()
+    short = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=1, state_dir=tmp_path, **kw)
+    short.run()
+    assert short.history_dicts()[-1]["queried"] == []  # its rounds spent, its last round queried nothing
+    real, trainings = loop_module.train_and_test, []
+
+    def counting(*args, **kwargs):
+        trainings.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(loop_module, "train_and_test", counting)
+    dm = TinyPoolDM()
+    extended = ActiveLearningLoop(dm, lambda s: XAVTNet(**TINY), rounds=3, state_dir=tmp_path, **kw)
+    assert extended.restore() == 2 and len(dm.labelled_indices) == 6 + 2 * 4  # round 1 queried on restore
+    extended.run()
+    assert len(trainings) == 2 and extended.history_dicts() == longer.history_dicts()
+    assert sorted(dm.labelled_indices) == sorted(longer.dm.labelled_indices)
+    for a, b in zip(extended.model.state_dict().values(), longer.model.state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+    # the state now holds 3 rounds: going back to fewer is refused, naming the rounds
+    with pytest.raises(ValueError, match=r"other settings \(rounds 3 there, 1 here; a loop goes on to more "
+                                         r"rounds than it kept, not to fewer\)"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=1, state_dir=tmp_path, **kw).run()
+
+
+def test_loop_removes_the_partial_state_a_killed_process_left(tmp_path):
+    """A SIGKILL between the write and the rename of the state leaves a temporary file: the next loop on
+    that state_dir removes it; a temporary file of a running process (here this one) is kept."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    dead = tmp_path / f".loop_state.tmp-{int(done.stdout)}.npz"
+    alive = tmp_path / f".loop_state.tmp-{os.getpid()}.npz"
+    other = tmp_path / ".other.tmp-1.npz"
+    for f in (dead, alive, other):
+        f.write_bytes(b"partial")
+    loop = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=1, state_dir=tmp_path,
+                              show_progress=False)
+    assert loop.restore() == 0
+    assert not dead.exists() and alive.exists() and other.exists()
+
+
 def test_loop_state_dir_of_other_settings_labels_or_model_is_refused(tmp_path):
     kw = dict(strategy="random", kappa=4, rounds=1, mc_passes=1, max_epochs=1, seed=0, show_progress=False)
     ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()

@@ -320,6 +320,32 @@ def atomic_path(path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def remove_stale_temporaries(path) -> list[Path]:
+    """Remove the temporary files of :func:`atomic_path` beside ``path`` whose writing process is no longer
+    running (a SIGKILL between the write and the rename leaves one) and return them. Those of running
+    processes, this one included, are kept; so is everything on a system without POSIX process signals.
+    """
+    p = Path(path)
+    head = f".{p.stem}.tmp-"
+    if os.name != "posix" or not p.parent.is_dir():
+        return []
+    removed = []
+    for tmp in sorted(p.parent.glob(f"{head}*{p.suffix}")):
+        pid = tmp.name[len(head):len(tmp.name) - len(p.suffix)]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)  # signal 0: only asks whether the process exists
+            continue
+        except ProcessLookupError:
+            pass
+        except PermissionError:  # it exists, under another user
+            continue
+        tmp.unlink(missing_ok=True)
+        removed.append(tmp)
+    return removed
+
+
 def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
     """Write an ``.npz`` atomically and byte-reproducibly.
 

@@ -131,8 +131,8 @@ class ActiveLearningLoop:
         seed: base seed; round r trains with ``seed + r``.
         trainer_kwargs: extra ``Trainer`` arguments (e.g. ``limit_train_batches``).
         state_dir: a folder in which the loop keeps its state after every round (:meth:`restore`), so
-            that a stopped loop built again with the same arguments goes on from its last finished round;
-            ``None`` keeps nothing.
+            that a stopped loop built again with the same arguments goes on from its last finished round,
+            and a finished one built with more ``rounds`` goes on to them; ``None`` keeps nothing.
     """
 
     def __init__(
@@ -182,8 +182,13 @@ class ActiveLearningLoop:
         k = min(self.kappa, len(unlabelled))
         gen = torch.Generator().manual_seed(self.seed * 7919 + round_idx)
         score, selection = split_strategy(self.strategy)
-        idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), score,
-                                 self.mc_passes, generator=gen)
+        # the dropout masks of the MC passes come from the global generator, seeded here so that a query
+        # depends on the weights, the pool, the seed and the round only (not on what training drew before
+        # it): a loop restored from its state and given more rounds queries what an unstopped run does
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(self.seed * 7919 + round_idx)
+            idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), score,
+                                     self.mc_passes, generator=gen)
         pick = (select_power(scores, k, self.power_beta, generator=gen) if selection == "power"
                 else select_top_k(scores, k))
         chosen = idx[pick].tolist()
@@ -255,13 +260,24 @@ class ActiveLearningLoop:
         The history comes back as it was; the labelled set by querying the datamodule for the clouds the
         kept rounds queried (its first labels must be those the kept run started from); the model is built
         by ``model_factory`` and given the last round's weights. Every round seeds the random number
-        generators anew (``seed + r``), so the rounds still to run give what they give in an unstopped run.
+        generators anew (``seed + r``), and every query seeds its MC-dropout passes from ``seed`` and the
+        round, so the rounds still to run give what they give in an unstopped run.
+
+        A loop built with more ``rounds`` than the state was kept with goes on to them: if the kept loop
+        spent its rounds (rather than its pool), its last round queries now, with the restored weights, as
+        it would have in a run with these rounds, and the state is kept with the new ``rounds``.
 
         Raises:
-            ValueError: the state was kept with other settings, from another starting set of labels, or
-                for a model with other weights (naming what differs), or the file cannot be read.
+            ValueError: the state was kept with other settings (more ``rounds`` included), from another
+                starting set of labels, or for a model with other weights (naming what differs), or the
+                file cannot be read.
         """
         path = None if self.state_dir is None else self.state_dir / LOOP_STATE_FILE
+        if not self._restored and path is not None:
+            from vtlearn.io import remove_stale_temporaries
+
+            for tmp in remove_stale_temporaries(path):  # left by a loop killed while writing its state
+                log.info("active learning: removed %s, a partial state of a stopped process", tmp)
         if self._restored or path is None or not path.is_file():
             self._restored = True
             return len(self.history)
@@ -273,11 +289,16 @@ class ActiveLearningLoop:
             raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
                 from None
         now = self._settings()
-        differ = sorted(k for k in now.keys() | kept.keys() if now.get(k) != kept.get(k))
+        kept_rounds = kept.get("rounds")
+        more_rounds = isinstance(kept_rounds, int) and kept_rounds < self.rounds
+        differ = sorted(k for k in now.keys() | kept.keys()
+                        if now.get(k) != kept.get(k) and not (k == "rounds" and more_rounds))
         if differ:
+            fewer = ("; a loop goes on to more rounds than it kept, not to fewer" if "rounds" in differ
+                     and isinstance(kept_rounds, int) else "")
             raise ValueError(f"state_dir: {path} was kept by a loop with other settings ("
                              + ", ".join(f"{k} {kept.get(k)!r} there, {now.get(k)!r} here" for k in differ)
-                             + "); remove it or choose another state_dir")
+                             + f"{fewer}); remove it or choose another state_dir")
         counts = state["queried_count"]
         queried = np.split(state["queried"], np.cumsum(counts)[:-1]) if len(counts) else []
         first = sorted(set(state["labelled"].tolist()) - set(state["queried"].tolist()))
@@ -298,6 +319,13 @@ class ActiveLearningLoop:
                         zip(state["round"], state["n_labels"], state["accuracy"], queried, strict=True)]
         self._restored = True
         log.info("active learning [%s]: %d rounds restored from %s", self.strategy, len(self.history), path)
+        last_round = self.history[-1]
+        if more_rounds and last_round.round == kept_rounds and not last_round.queried:
+            # the kept loop spent its rounds (it did not run out of pool): its last round queries now, as
+            # it would have with these rounds, and the state is kept with them
+            if len(self.dm.unlabelled_indices) > 0:
+                last_round.queried = self._query(last_round.round)
+            self._save_state()
         return len(self.history)
 
     def history_dicts(self) -> list[dict]:
