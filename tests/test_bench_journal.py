@@ -52,6 +52,36 @@ def test_source_digest_follows_every_python_file_of_the_package(tmp_path, monkey
     assert source_digest() == edited
 
 
+def test_source_digest_ignores_docstrings_comments_and_layout_but_not_code(tmp_path, monkeypatch):
+    """An edit to a docstring, a comment or the layout keeps the kept jobs; one to what the code does,
+    a string that is not a docstring included, does not."""
+    import vtlearn
+
+    pkg = tmp_path / "vtlearn"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    code = pkg / "m.py"
+    monkeypatch.setattr(vtlearn, "__file__", str(pkg / "__init__.py"))
+
+    def digest(text: str) -> str:
+        code.write_text(text)
+        return source_digest()
+
+    base = digest('"""Module."""\n\nclass A:\n    """A."""\n\n    def f(self, x):\n        """f."""\n'
+                  '        return x + 1  # one\n')
+    same = ['"""Other words."""\nclass A:\n    """B."""\n    def f(self, x):\n        """g."""\n'
+            '        # a comment\n        return (x\n                + 1)\n',
+            'class A:\n    def f(self, x):\n        return x + 1\n']
+    assert all(digest(t) == base for t in same)
+    other = ['class A:\n    def f(self, x):\n        return x + 2\n',
+             'class A:\n    def f(self, x):\n        "not first"\n        return x + 1\n        "x"\n',
+             'class A:\n    def f(self, y):\n        return y + 1\n']
+    digests = [digest(t) for t in other]
+    assert base not in digests and len(set(digests)) == len(other)
+    broken = digest("def f(:\n")  # not Python: counted by its bytes
+    assert broken != base and digest("def f(:\n  ") != broken
+
+
 def test_journal_round_trip_keeps_nan_numpy_values_and_arrays(tmp_path):
     journal = JobJournal(tmp_path / "j")
     feats = np.arange(12, dtype=np.float32).reshape(3, 4)

@@ -17,10 +17,10 @@ a crash, a machine taken back) goes on from where it stopped when the same comma
 
 A job's key is the SHA-256 of the canonical JSON of everything that decides its result: the bench, the job's
 function and arguments, the row's model settings, the data's fingerprint, the versions of vtlearn and torch,
-the digest of vtlearn's own source (:func:`source_digest`, so that an edit to the code under the same version
-number trains again) and the vector capability of torch's CPU kernels. A rerun with other settings therefore
-finds no finished job of its own and trains everything; one with more seeds or rows reuses the jobs it
-shares with the stopped run.
+the digest of vtlearn's own code (:func:`source_digest`, so that an edit to the code under the same version
+number trains again, and one to a docstring or comment does not) and the vector capability of torch's CPU
+kernels. A rerun with other settings therefore finds no finished job of its own and trains everything; one
+with more seeds or rows reuses the jobs it shares with the stopped run.
 A line cut short by a kill, or whose arrays file is missing or changed, is not a finished job: that job runs
 again. Nothing in the folder is executed or unpickled. The folder is removed once the bench has written its
 ``--json`` (and figures); ``--fresh`` empties it before the run.
@@ -55,11 +55,36 @@ def journal_folder(json_path) -> Path:
     return p.with_name(p.stem + ".jobs") if p.suffix == ".json" else p.with_name(p.name + ".jobs")
 
 
+def _code_of(data: bytes) -> bytes:
+    """What a Python file runs: its syntax tree without line numbers, docstrings or comments (``ast.dump``),
+    so that an edit to a docstring, a comment or the layout leaves it unchanged. A file that does not parse
+    counts by its bytes."""
+    import ast
+
+    try:
+        tree = ast.parse(data)
+    except (SyntaxError, ValueError):
+        return data
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree).encode()
+
+
+_CODE_DIGESTS: dict[bytes, bytes] = {}  # SHA-256 of a file's bytes -> SHA-256 of its _code_of
+
+
 def source_digest() -> str:
-    """The SHA-256 (hex) of vtlearn's Python source: every ``.py`` file of the installed package, by its path
-    within the package and its bytes, in path order. Part of the benches' job keys, so that a job kept before
-    an edit to the code is trained again rather than mixed with jobs of the edited code (a few milliseconds:
-    the source is under 2 MB)."""
+    """The SHA-256 (hex) of vtlearn's Python code: every ``.py`` file of the installed package, by its path
+    within the package and its syntax tree without docstrings and comments (:func:`_code_of`), in path order.
+    Part of the benches' job keys, so that a job kept before an edit to the code is trained again rather than
+    mixed with jobs of the edited code, while an edit to a docstring, a comment or the layout keeps them.
+
+    Parsing the package takes about a second; the tree's digest is kept for the process under the digest of
+    the file's bytes, so a later call costs a few milliseconds."""
     import vtlearn
 
     root = Path(vtlearn.__file__).resolve().parent
@@ -68,7 +93,10 @@ def source_digest() -> str:
         rel = path.relative_to(root).as_posix().encode()
         h.update(len(rel).to_bytes(4, "little") + rel)
         data = path.read_bytes()
-        h.update(len(data).to_bytes(8, "little") + data)
+        raw = hashlib.sha256(data).digest()
+        if raw not in _CODE_DIGESTS:
+            _CODE_DIGESTS[raw] = hashlib.sha256(_code_of(data)).digest()
+        h.update(_CODE_DIGESTS[raw])
     return h.hexdigest()
 
 
