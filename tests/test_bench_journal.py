@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import re
 import shutil
 
 import numpy as np
@@ -314,10 +315,13 @@ def test_bench_active_learning_stopped_by_ctrl_c_goes_on_from_its_finished_runs(
     assert [h["n_labels"] for h in res["curves"]["random"]["runs"][0]] == [3, 5]
 
 
+@pytest.mark.parametrize("damaged", [False, True])
 def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round(tmp_path, tiny_crossmodal,
-                                                                                  monkeypatch, capsys):
+                                                                                  monkeypatch, capsys, caplog,
+                                                                                  damaged):
     """A Ctrl-C in the second round of the entropy loop: the rerun trains that round and random's, not the
-    entropy loop's first round again, and writes what an unstopped run writes."""
+    entropy loop's first round again, and writes what an unstopped run writes. A kept loop state that
+    cannot be read (``damaged``) is dropped with a warning and that loop trains again from its first round."""
     import vtlearn.active.learning_loop as loop_module
     from vtlearn.cli import main
 
@@ -341,11 +345,18 @@ def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round
     with np.load(state, allow_pickle=False) as z:
         assert z["round"].tolist() == [0] and len(z["queried"]) == z["queried_count"][0] > 0
 
+    if damaged:
+        state.write_bytes(b"not a zip")
     trainings.clear()
     monkeypatch.setattr(loop_module, "train_and_test", counted)
     assert main([*argv, "--json", str(out)]) == 0
-    assert len(trainings) == 2 + 3  # entropy's rounds 1 and 2, random's three
-    assert "1 unfinished jobs go on from the state they kept" in capsys.readouterr().out
+    if damaged:  # entropy's three rounds, random's three
+        assert len(trainings) == 3 + 3 and not (tmp_path / "al.jobs").exists()
+        assert re.search(r"the entropy loop of seed 0 trains again from its first round, as its kept state "
+                         r"cannot be used: state_dir: cannot read .*loop_state\.npz", caplog.text)
+    else:  # entropy's rounds 1 and 2, random's three
+        assert len(trainings) == 2 + 3
+        assert "1 unfinished jobs go on from the state they kept" in capsys.readouterr().out
     trainings.clear()
     assert main([*argv, "--json", str(tmp_path / "fresh.json")]) == 0
     assert len(trainings) == 1 + 3 + 3

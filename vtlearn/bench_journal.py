@@ -11,7 +11,8 @@ a crash, a machine taken back) goes on from where it stopped when the same comma
   ``allow_pickle=False`` before its line, whose ``arrays`` entry holds the file's SHA-256;
 - ``<key>.partial/``: what a job that keeps its own state while it runs (an active-learning loop, round by
   round: :class:`vtlearn.active.learning_loop.ActiveLearningLoop`'s ``state_dir``) has kept so far; removed
-  once the job's line is written. A stopped bench's rerun hands it back to the job, which goes on from it;
+  once the job's line is written. A stopped bench's rerun hands it back to the job, which goes on from it
+  (or, when it cannot be used, drops it and starts again);
 - ``lock``: held (``flock``) by the bench writing the folder, so that a second bench started with the same
   ``--json`` is refused instead of mixing its jobs in and removing the folder under the first.
 

@@ -1203,14 +1203,15 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
     full-pool accuracy). ``train_steps > 0``: every training runs exactly that many optimiser steps.
     ``progress``: a sink that every training ticks once, when it ends (:mod:`vtlearn.job_progress`), and
     that the rounds restored from ``state_dir`` tick at once. ``state_dir``: where the loop keeps its state
-    after every round and goes on from (``ActiveLearningLoop(state_dir=...)``).
+    after every round and goes on from (``ActiveLearningLoop(state_dir=...)``); a state there that cannot be
+    used is dropped, with a warning, and the loop trains from its first round.
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
     import lightning as L
     import torch
 
-    from vtlearn.active.learning_loop import ActiveLearningLoop, train_and_test
+    from vtlearn.active.learning_loop import LOOP_STATE_FILE, ActiveLearningLoop, train_and_test
     from vtlearn.datamodules import ActivePoolDataModule
     from vtlearn.job_progress import TickCallback
     from vtlearn.models.xavtnet import XAVTNet
@@ -1227,17 +1228,29 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
         model = XAVTNet(num_classes=dm.num_classes, **base)
         return strategy, seed, train_and_test(model, dm.train_dataloader(), dm.test_dataloader(), max_epochs,
                                               min_steps, train_steps, **trainer_kwargs)
-    dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
 
-    def factory(round_seed: int):
-        return XAVTNet(num_classes=dm.num_classes, **base)
+    def new_loop() -> ActiveLearningLoop:
+        dm = ActivePoolDataModule(initial_labels=al["n0"], seed=seed, **data_kwargs)
+        return ActiveLearningLoop(dm, lambda round_seed: XAVTNet(num_classes=dm.num_classes, **base),
+                                  strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
+                                  mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
+                                  train_steps=train_steps, warm_start=bool(al["warm_start"]),
+                                  power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
+                                  trainer_kwargs=trainer_kwargs, state_dir=state_dir)
 
-    loop = ActiveLearningLoop(dm, factory, strategy=strategy, kappa=al["kappa"], rounds=al["rounds"],
-                              mc_passes=al["mc_passes"], max_epochs=max_epochs, min_steps=min_steps,
-                              train_steps=train_steps, warm_start=bool(al["warm_start"]),
-                              power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
-                              trainer_kwargs=trainer_kwargs, state_dir=state_dir)
-    restored = loop.restore()
+    loop = new_loop()
+    try:
+        restored = loop.restore()
+    except ValueError as exc:
+        if state_dir is None:
+            raise
+        # the journal's own state of this job (its key fixes the settings) that cannot be used: like a
+        # journal line cut short, it is not kept work, and the loop trains again from its first round
+        log.warning("the %s loop of seed %d trains again from its first round, as its kept state cannot be "
+                    "used: %s", strategy, seed, exc)
+        (Path(state_dir) / LOOP_STATE_FILE).unlink(missing_ok=True)
+        loop = new_loop()
+        restored = loop.restore()
     if restored and progress is not None:
         progress.put(restored)
     return strategy, seed, (loop.history_dicts() if loop.run() else [])
