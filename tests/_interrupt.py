@@ -43,3 +43,17 @@ def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, 
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+class CountedCalls:
+    """A stand-in for a function (e.g. ``learning_loop.train_and_test``) that counts its calls in ``calls``
+    and raises ``KeyboardInterrupt`` in the ``stop_at``-th, as a Ctrl-C in that training would."""
+
+    def __init__(self, real, stop_at: int | None = None) -> None:
+        self.real, self.stop_at, self.calls = real, stop_at, 0
+
+    def __call__(self, *args, **kwargs):
+        self.calls += 1
+        if self.calls == self.stop_at:
+            raise KeyboardInterrupt
+        return self.real(*args, **kwargs)

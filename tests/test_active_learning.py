@@ -7,6 +7,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from _interrupt import CountedCalls
 from torch import nn
 from torch.utils.data import DataLoader
 
@@ -389,15 +390,8 @@ def test_loop_stopped_mid_way_goes_on_from_its_state_to_the_unstopped_history(tm
               show_progress=False)
     unstopped = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), **kw)
     unstopped.run()
-    real, trainings = loop_module.train_and_test, []
-
-    def stop_third(*args, **kwargs):
-        trainings.append(1)
-        if len(trainings) == 3:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(loop_module, "train_and_test", stop_third)
+    real = loop_module.train_and_test
+    monkeypatch.setattr(loop_module, "train_and_test", CountedCalls(real, stop_at=3))
     with pytest.raises(KeyboardInterrupt):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
     assert (tmp_path / loop_module.LOOP_STATE_FILE).is_file()
@@ -410,7 +404,7 @@ def test_loop_stopped_mid_way_goes_on_from_its_state_to_the_unstopped_history(tm
     assert loop.run() is loop.history and loop.history_dicts() == unstopped.history_dicts()
     assert sorted(dm.labelled_indices) == sorted(unstopped.dm.labelled_indices)
     # a loop whose rounds are all kept trains nothing and gives the last round's model back
-    monkeypatch.setattr(loop_module, "train_and_test", stop_third)
+    monkeypatch.setattr(loop_module, "train_and_test", CountedCalls(real, stop_at=1))
     again = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw)
     assert again.run() and again.history_dicts() == unstopped.history_dicts()
     for a, b in zip(again.model.state_dict().values(), unstopped.model.state_dict().values(), strict=True):
@@ -430,18 +424,13 @@ def test_finished_loop_built_with_more_rounds_goes_on_to_the_longer_runs_history
     short = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=1, state_dir=tmp_path, **kw)
     short.run()
     assert short.history_dicts()[-1]["queried"] == []  # its rounds spent, its last round queried nothing
-    real, trainings = loop_module.train_and_test, []
-
-    def counting(*args, **kwargs):
-        trainings.append(1)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(loop_module, "train_and_test", counting)
+    trainings = CountedCalls(loop_module.train_and_test)
+    monkeypatch.setattr(loop_module, "train_and_test", trainings)
     dm = TinyPoolDM()
     extended = ActiveLearningLoop(dm, lambda s: XAVTNet(**TINY), rounds=3, state_dir=tmp_path, **kw)
     assert extended.restore() == 2 and len(dm.labelled_indices) == 6 + 2 * 4  # round 1 queried on restore
     extended.run()
-    assert len(trainings) == 2 and extended.history_dicts() == longer.history_dicts()
+    assert trainings.calls == 2 and extended.history_dicts() == longer.history_dicts()
     assert sorted(dm.labelled_indices) == sorted(longer.dm.labelled_indices)
     for a, b in zip(extended.model.state_dict().values(), longer.model.state_dict().values(), strict=True):
         assert torch.equal(a, b)

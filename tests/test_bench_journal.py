@@ -11,6 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
+from _interrupt import CountedCalls
 
 from tests._tiny_models import tiny_xavtnet_config
 from vtlearn.bench_journal import JobJournal, JournalledJobs, job_key, journal_folder, source_digest
@@ -326,19 +327,11 @@ def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round
     from vtlearn.cli import main
 
     real = loop_module.train_and_test
-    trainings: list[int] = []
-
-    def counted(*args, stop_at=None, **kwargs):
-        trainings.append(len(trainings))
-        if len(trainings) == stop_at:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
     cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
     argv = ["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--rounds", "2", "--kappa", "1"]
     out = tmp_path / "al.json"
     # trainings: full 1, entropy 2-4, random 5-7; the third is the entropy loop's second round
-    monkeypatch.setattr(loop_module, "train_and_test", functools.partial(counted, stop_at=3))
+    monkeypatch.setattr(loop_module, "train_and_test", CountedCalls(real, stop_at=3))
     assert main([*argv, "--json", str(out)]) == 130
     assert "1 of 3 jobs are kept" in capsys.readouterr().err
     (state,) = (tmp_path / "al.jobs").glob("*.partial/loop_state.npz")
@@ -347,19 +340,19 @@ def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round
 
     if damaged:
         state.write_bytes(b"not a zip")
-    trainings.clear()
-    monkeypatch.setattr(loop_module, "train_and_test", counted)
+    trainings = CountedCalls(real)
+    monkeypatch.setattr(loop_module, "train_and_test", trainings)
     assert main([*argv, "--json", str(out)]) == 0
     if damaged:  # entropy's three rounds, random's three
-        assert len(trainings) == 3 + 3 and not (tmp_path / "al.jobs").exists()
+        assert trainings.calls == 3 + 3 and not (tmp_path / "al.jobs").exists()
         assert re.search(r"the entropy loop of seed 0 trains again from its first round, as its kept state "
                          r"cannot be used: state_dir: cannot read .*loop_state\.npz", caplog.text)
     else:  # entropy's rounds 1 and 2, random's three
-        assert len(trainings) == 2 + 3
+        assert trainings.calls == 2 + 3
         assert "1 unfinished jobs go on from the state they kept" in capsys.readouterr().out
-    trainings.clear()
+    trainings.calls = 0
     assert main([*argv, "--json", str(tmp_path / "fresh.json")]) == 0
-    assert len(trainings) == 1 + 3 + 3
+    assert trainings.calls == 1 + 3 + 3
     resumed, fresh = json.loads(out.read_text()), json.loads((tmp_path / "fresh.json").read_text())
     assert resumed["curves"] == fresh["curves"] and resumed["full_acc"] == fresh["full_acc"]
     assert [h["n_labels"] for h in resumed["curves"]["entropy"]["runs"][0]] == [3, 4, 5]
