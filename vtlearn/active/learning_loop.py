@@ -176,19 +176,15 @@ class ActiveLearningLoop:
         self.history: list[RoundResult] = []
         self.model: L.LightningModule | None = None
         self._restored = False
+        self._rng_before_query = torch.get_rng_state()  # of the last round trained (see run)
 
     def _query(self, round_idx: int) -> list[int]:
         unlabelled = list(self.dm.unlabelled_indices)
         k = min(self.kappa, len(unlabelled))
         gen = torch.Generator().manual_seed(self.seed * 7919 + round_idx)
         score, selection = split_strategy(self.strategy)
-        # the dropout masks of the MC passes come from the global generator, seeded here so that a query
-        # depends on the weights, the pool, the seed and the round only (not on what training drew before
-        # it): a loop restored from its state and given more rounds queries what an unstopped run does
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(self.seed * 7919 + round_idx)
-            idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), score,
-                                     self.mc_passes, generator=gen)
+        idx, scores = score_pool(self.model, self.dm.unlabelled_dataloader(), score,
+                                 self.mc_passes, generator=gen)
         pick = (select_power(scores, k, self.power_beta, generator=gen) if selection == "power"
                 else select_top_k(scores, k))
         chosen = idx[pick].tolist()
@@ -210,6 +206,9 @@ class ActiveLearningLoop:
                 self.model = self.model_factory(self.seed + r)
             acc = train_and_test(self.model, self.dm.train_dataloader(), self.dm.test_dataloader(),
                                  self.max_epochs, self.min_steps, self.train_steps, **self.trainer_kwargs)
+            # the query's MC-dropout masks come from the global generator as training left it; kept with
+            # the state, so that a loop given more rounds later queries this round as an unstopped run does
+            self._rng_before_query = torch.get_rng_state()
             result = RoundResult(r, len(self.dm.labelled_indices), acc)
             self.history.append(result)
             bar.update()
@@ -250,7 +249,8 @@ class ActiveLearningLoop:
             n_labels=np.array([x.n_labels for x in h], dtype=np.int64),
             accuracy=np.array([x.accuracy for x in h], dtype=np.float64),
             queried=np.array([q for x in h for q in x.queried], dtype=np.int64),
-            queried_count=np.array([len(x.queried) for x in h], dtype=np.int64), **weights)
+            queried_count=np.array([len(x.queried) for x in h], dtype=np.int64),
+            rng_before_query=self._rng_before_query.numpy(), **weights)
 
     def restore(self) -> int:
         """Go on from the state kept in ``state_dir`` by an earlier run of this loop, and return the number
@@ -260,12 +260,13 @@ class ActiveLearningLoop:
         The history comes back as it was; the labelled set by querying the datamodule for the clouds the
         kept rounds queried (its first labels must be those the kept run started from); the model is built
         by ``model_factory`` and given the last round's weights. Every round seeds the random number
-        generators anew (``seed + r``), and every query seeds its MC-dropout passes from ``seed`` and the
-        round, so the rounds still to run give what they give in an unstopped run.
+        generators anew (``seed + r``), so the rounds still to run give what they give in an unstopped run.
 
         A loop built with more ``rounds`` than the state was kept with goes on to them: if the kept loop
-        spent its rounds (rather than its pool), its last round queries now, with the restored weights, as
-        it would have in a run with these rounds, and the state is kept with the new ``rounds``.
+        spent its rounds (rather than its pool), its last round queries now, with the restored weights and
+        the state of torch's generator that its training left (kept for this, since the MC-dropout masks
+        are drawn from it), as a run with these rounds would have, and the state is kept with the new
+        ``rounds``.
 
         Raises:
             ValueError: the state was kept with other settings (more ``rounds`` included), from another
@@ -285,6 +286,10 @@ class ActiveLearningLoop:
             with np.load(path, allow_pickle=False) as z:
                 state = {k: z[k] for k in z.files}
             kept = json.loads(str(state["settings"][0]))
+            rng = state["rng_before_query"]
+            if rng.dtype != np.uint8 or rng.shape != tuple(self._rng_before_query.shape):
+                raise ValueError(f"rng_before_query is not a state of torch's generator: {rng.dtype} "
+                                 f"{rng.shape}, need uint8 {tuple(self._rng_before_query.shape)}")
         except (OSError, ValueError, KeyError, IndexError) as exc:  # JSONDecodeError is a ValueError
             raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
                 from None
@@ -319,12 +324,15 @@ class ActiveLearningLoop:
                         zip(state["round"], state["n_labels"], state["accuracy"], queried, strict=True)]
         self._restored = True
         log.info("active learning [%s]: %d rounds restored from %s", self.strategy, len(self.history), path)
+        self._rng_before_query = torch.from_numpy(rng)
         last_round = self.history[-1]
         if more_rounds and last_round.round == kept_rounds and not last_round.queried:
             # the kept loop spent its rounds (it did not run out of pool): its last round queries now, as
             # it would have with these rounds, and the state is kept with them
             if len(self.dm.unlabelled_indices) > 0:
-                last_round.queried = self._query(last_round.round)
+                with torch.random.fork_rng(devices=[]):
+                    torch.set_rng_state(self._rng_before_query)
+                    last_round.queried = self._query(last_round.round)
             self._save_state()
         return len(self.history)
 
