@@ -471,6 +471,12 @@ def test_loop_state_dir_of_other_settings_labels_or_model_is_refused(tmp_path):
     wider = {**TINY, "fc_dims": [16, 12]}
     with pytest.raises(ValueError, match="holds the weights of another model"):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**wider), state_dir=tmp_path, **kw).run()
+    with np.load(tmp_path / "loop_state.npz", allow_pickle=False) as z:
+        kept = {k: z[k] for k in z.files}
+    np.savez(tmp_path / "loop_state.npz", **{**kept, "rng_before_query": np.zeros(3)})
+    with pytest.raises(ValueError, match=r"state_dir: cannot read .*rng_before_query is not a state of "
+                                         r"torch's generator: float64 \(3,\), need uint8"):
+        ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
     (tmp_path / "loop_state.npz").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="state_dir: cannot read .*loop_state.npz"):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()

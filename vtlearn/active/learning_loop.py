@@ -176,7 +176,7 @@ class ActiveLearningLoop:
         self.history: list[RoundResult] = []
         self.model: L.LightningModule | None = None
         self._restored = False
-        self._rng_before_query = torch.get_rng_state()  # of the last round trained (see run)
+        self._rng_before_query: torch.Tensor | None = None  # set by each training (run) or by restore
 
     def _query(self, round_idx: int) -> list[int]:
         unlabelled = list(self.dm.unlabelled_indices)
@@ -287,9 +287,10 @@ class ActiveLearningLoop:
                 state = {k: z[k] for k in z.files}
             kept = json.loads(str(state["settings"][0]))
             rng = state["rng_before_query"]
-            if rng.dtype != np.uint8 or rng.shape != tuple(self._rng_before_query.shape):
+            want = tuple(torch.get_rng_state().shape)
+            if rng.dtype != np.uint8 or rng.shape != want:
                 raise ValueError(f"rng_before_query is not a state of torch's generator: {rng.dtype} "
-                                 f"{rng.shape}, need uint8 {tuple(self._rng_before_query.shape)}")
+                                 f"{rng.shape}, need uint8 {want}")
         except (OSError, ValueError, KeyError, IndexError) as exc:  # JSONDecodeError is a ValueError
             raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
                 from None
