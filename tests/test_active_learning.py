@@ -1,5 +1,6 @@
 """Tests for MC-dropout active learning (thesis eq. 7.3-7.4, Algorithm 5 visual-learning loop)."""
 
+import json
 import math
 import os
 
@@ -482,3 +483,34 @@ def test_loop_state_dir_of_other_settings_labels_or_model_is_refused(tmp_path):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path, **kw).run()
     with pytest.raises(ValueError, match="state_dir: .* is a file"):
         ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), state_dir=tmp_path / "loop_state.npz")
+
+
+def test_history_of_fewer_rounds_reads_the_first_rounds_of_a_longer_kept_loop(tmp_path):
+    from vtlearn.active.learning_loop import LOOP_STATE_FILE, history_of_fewer_rounds
+
+    def keep(rounds: int, queried: list[list[int]]) -> None:  # a kept state's arrays, as _save_state writes
+        n = len(queried)
+        np.savez(tmp_path / LOOP_STATE_FILE, settings=np.array([json.dumps({"rounds": rounds})]),
+                 labelled=np.arange(3 + sum(map(len, queried))), round=np.arange(n),
+                 n_labels=3 + 2 * np.arange(n), accuracy=np.linspace(0.5, 0.8, n),
+                 queried=np.array([i for q in queried for i in q], dtype=np.int64),
+                 queried_count=np.array([len(q) for q in queried]),
+                 rng_before_query=torch.get_rng_state().numpy())
+
+    def read(rounds: int):
+        got = history_of_fewer_rounds(tmp_path, rounds)
+        return None if got is None else [(h.round, h.n_labels, h.queried) for h in got]
+
+    keep(3, [[5, 6], [7, 8], [9, 1], []])  # a 3-round loop that spent its rounds
+    # a 1-round loop: rounds 0 and 1, whose last round queries nothing
+    assert read(1) == [(0, 3, [5, 6]), (1, 5, [])]
+    assert read(2) == [(0, 3, [5, 6]), (1, 5, [7, 8]), (2, 7, [])]
+    assert read(3) is None and read(4) is None  # not fewer rounds: the loop's restore goes on from it
+    keep(3, [[5, 6], [7, 8]])  # stopped after round 1, which queried: round 2 is not there
+    assert read(2) is None and read(1) == [(0, 3, [5, 6]), (1, 5, [])]
+    keep(3, [[5, 6], []])  # the pool ran out at round 1: a 2-round loop ends there too
+    assert read(2) == [(0, 3, [5, 6]), (1, 5, [])]
+    (tmp_path / LOOP_STATE_FILE).write_bytes(b"not a zip")  # restore says why; here it is no answer
+    assert read(1) is None
+    (tmp_path / LOOP_STATE_FILE).unlink()
+    assert read(1) is None

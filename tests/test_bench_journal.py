@@ -8,6 +8,7 @@ import json
 import math
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -356,3 +357,61 @@ def test_bench_active_learning_stopped_inside_a_loop_goes_on_from_its_last_round
     resumed, fresh = json.loads(out.read_text()), json.loads((tmp_path / "fresh.json").read_text())
     assert resumed["curves"] == fresh["curves"] and resumed["full_acc"] == fresh["full_acc"]
     assert [h["n_labels"] for h in resumed["curves"]["entropy"]["runs"][0]] == [3, 4, 5]
+
+
+def test_bench_active_learning_keep_loops_goes_on_to_more_rounds_and_reads_fewer(tmp_path, tiny_crossmodal,
+                                                                                monkeypatch, capsys):
+    """``--keep-loops``: a 2-round bench keeps each loop's last state beside its JSON. The same command with
+    1 round then trains nothing (the kept loops' first rounds and the kept reference), and with 3 rounds
+    only each loop's third round; each writes what a fresh run of its rounds writes. ``--fresh`` lets the
+    kept states go."""
+    import vtlearn.active.learning_loop as loop_module
+    from vtlearn.cli import main
+
+    cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
+    argv = ["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--kappa", "1", "--strategies",
+            "entropy"]
+    out, folder = tmp_path / "al.json", tmp_path / "al.jobs"
+    trainings = CountedCalls(loop_module.train_and_test)
+    monkeypatch.setattr(loop_module, "train_and_test", trainings)
+
+    def run(rounds: int, *flags: str, json_path=out) -> dict:
+        trainings.calls = 0
+        assert main([*argv, "--rounds", str(rounds), *flags, "--json", str(json_path)]) == 0
+        return json.loads(Path(json_path).read_text())
+
+    run(2, "--keep-loops")
+    assert trainings.calls == 1 + 3 and len(list(folder.glob("*.kept"))) == 1
+    assert "kept the last state of 1 loop in" in capsys.readouterr().out
+
+    for rounds, trained in ((1, 0), (3, 1)):  # the flag is not needed once the folder holds kept states
+        kept = run(rounds)
+        assert trainings.calls == trained, rounds
+        assert "holds the last state of 1 loop of an earlier --keep-loops run" in capsys.readouterr().out
+        fresh = run(rounds, json_path=tmp_path / f"fresh{rounds}.json")
+        assert trainings.calls == 1 + rounds + 1
+        assert kept["curves"] == fresh["curves"] and kept["full_acc"] == fresh["full_acc"]
+        assert [h["n_labels"] for h in kept["curves"]["entropy"]["runs"][0]] == list(range(3, 4 + rounds))
+        assert kept["curves"]["entropy"]["runs"][0][-1]["queried"] == []  # a last round queries nothing
+    assert folder.is_dir() and not (tmp_path / "fresh1.jobs").exists()
+
+    run(1, "--fresh")
+    assert trainings.calls == 1 + 2 and not folder.exists()
+
+
+def test_a_kept_state_takes_its_names_place_and_keeps_the_folder(tmp_path):
+    journal = JobJournal(tmp_path / "b.jobs")
+    for key, text in (("a" * 64, "first"), ("b" * 64, "second")):
+        journal.partial_dir(key).mkdir()
+        (journal.partial_dir(key) / "state").write_text(text)
+        journal.add(key, text, keep_as="loop")
+        assert (journal.kept_dir("loop") / "state").read_text() == text
+        assert not journal.partial_dir(key).exists()
+    assert journal.kept_states() == [journal.kept_dir("loop")] and not list(journal.folder.glob("*.old"))
+    assert journal.finish() == [journal.kept_dir("loop")] and journal.folder.is_dir()
+    plain = JobJournal(tmp_path / "c.jobs")
+    plain.add("a" * 64, 1)
+    assert plain.finish() == [] and not plain.folder.exists()
+    with pytest.raises(ValueError, match="keep_as: need one name or None per job of a partial=True journal"):
+        JournalledJobs("bench", JobJournal(tmp_path / "d.jobs"), ["a" * 64], print, [(1,)], 1,
+                       lambda r: (r, None), lambda r, _: r, keep_as=["loop"])

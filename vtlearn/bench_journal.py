@@ -13,6 +13,11 @@ a crash, a machine taken back) goes on from where it stopped when the same comma
   round: :class:`vtlearn.active.learning_loop.ActiveLearningLoop`'s ``state_dir``) has kept so far; removed
   once the job's line is written. A stopped bench's rerun hands it back to the job, which goes on from it
   (or, when it cannot be used, drops it and starts again);
+- ``<name>.kept/``: where asked (``bench active-learning --keep-loops``), a finished job's last state, moved
+  there from its ``.partial/`` under a name that leaves out the settings a longer run may change (the number
+  of rounds). A job of another key under that name that has no state of its own starts from a copy (a loop
+  given more rounds goes on from the kept one's last round), and its last state then takes the name's
+  place. A folder holding kept states is not removed at the end of a bench;
 - ``lock``: held (``flock``) by the bench writing the folder, so that a second bench started with the same
   ``--json`` is refused instead of mixing its jobs in and removing the folder under the first.
 
@@ -24,7 +29,7 @@ kernels. A rerun with other settings therefore finds no finished job of its own 
 with more seeds or rows reuses the jobs it shares with the stopped run.
 A line cut short by a kill, or whose arrays file is missing or changed, is not a finished job: that job runs
 again. Nothing in the folder is executed or unpickled. The folder is removed once the bench has written its
-``--json`` (and figures); ``--fresh`` empties it before the run.
+``--json`` (and figures), unless it holds kept states; ``--fresh`` empties it before the run.
 """
 
 from __future__ import annotations
@@ -159,6 +164,15 @@ class JobJournal:
         """The folder in which the job ``key`` keeps its state while it runs (see the module docstring)."""
         return self.folder / f"{key}.partial"
 
+    def kept_dir(self, name: str) -> Path:
+        """The folder in which a finished job's last state is kept under ``name`` (see the module
+        docstring)."""
+        return self.folder / f"{name}.kept"
+
+    def kept_states(self) -> list[Path]:
+        """The kept states the folder holds (:meth:`kept_dir`), sorted."""
+        return sorted(self.folder.glob("*.kept")) if self.folder.is_dir() else []
+
     def finished(self) -> dict[str, tuple[Any, dict[str, np.ndarray] | None]]:
         """``{key: (result, arrays or None)}`` of every job the folder holds whole: lines that do not parse (a
         write cut short) and jobs whose arrays file is missing or does not match its checksum are left out,
@@ -187,9 +201,12 @@ class JobJournal:
                 continue
         return out
 
-    def add(self, key: str, result: Any, arrays: dict[str, np.ndarray] | None = None) -> None:
+    def add(self, key: str, result: Any, arrays: dict[str, np.ndarray] | None = None,
+            keep_as: str | None = None) -> None:
         """Keep a finished job: its ``arrays`` (name -> numeric array) as ``<key>.npz``, written atomically,
-        then its line, ``result`` as JSON (numpy values converted, NaN kept), appended and fsync'ed."""
+        then its line, ``result`` as JSON (numpy values converted, NaN kept), appended and fsync'ed.
+        ``keep_as``: the job's last state (its :meth:`partial_dir`) then takes the place of the state kept
+        under that name (:meth:`kept_dir`); without it the state is removed."""
         from vtlearn.bench_utils import to_jsonable
         from vtlearn.io import atomic_write_npz
 
@@ -210,7 +227,26 @@ class JobJournal:
             fh.write(line.encode() + b"\n")
             fh.flush()
             os.fsync(fh.fileno())
-        shutil.rmtree(self.partial_dir(key), ignore_errors=True)  # the job's line now stands for it
+        partial = self.partial_dir(key)
+        if keep_as is not None and partial.is_dir():
+            kept = self.kept_dir(keep_as)
+            old = kept.with_name(kept.name + ".old")
+            shutil.rmtree(old, ignore_errors=True)
+            if kept.is_dir():  # moved aside, not removed, until the new state stands in its place
+                os.replace(kept, old)
+            os.replace(partial, kept)
+            shutil.rmtree(old, ignore_errors=True)
+        shutil.rmtree(partial, ignore_errors=True)  # the job's line now stands for it
+
+    def finish(self) -> list[Path]:
+        """The end of a bench that has written its ``--json``: remove the folder, unless it holds kept states
+        (:meth:`kept_states`, which a later run goes on from), which are returned; then only the lock goes."""
+        kept = self.kept_states()
+        if kept:
+            self.release()
+        else:
+            self.discard()
+        return kept
 
     def discard(self) -> None:
         """Remove the folder and everything in it (nothing happens when there is none); let its lock go."""
@@ -252,7 +288,9 @@ class JournalledJobs:
 
     ``partial=True``: ``fn`` also gets ``state_dir=journal.partial_dir(key)``, a folder in which to keep its
     state while it runs and from which, rerun after a stop, it goes on (the folder is removed once the job's
-    result is kept).
+    result is kept). ``keep_as`` (with ``partial``): one name or None per job; a named job's last state is
+    kept under its name once it ends (:meth:`JobJournal.add`), and a named job with no state of its own
+    starts from a copy of the one kept under its name, if any.
 
     Example::
 
@@ -264,7 +302,8 @@ class JournalledJobs:
     def __init__(self, bench: str, journal: JobJournal, keys: list[str], fn: Callable, job_args: list[tuple],
                  workers: int, encode: Callable[[Any], tuple[Any, dict | None]],
                  decode: Callable[[Any, dict | None], Any], tick: Callable[[int], object] | None = None,
-                 on_reused: Callable[[Any], object] | None = None, partial: bool = False) -> None:
+                 on_reused: Callable[[Any], object] | None = None, partial: bool = False,
+                 keep_as: list[str | None] | None = None) -> None:
         from vtlearn.job_progress import map_jobs
 
         self.bench, self.journal, self.keys = bench, journal, keys
@@ -273,10 +312,20 @@ class JournalledJobs:
             if len(keys) != len(job_args) or len(set(keys)) != len(keys):
                 raise ValueError(f"keys: need one unique key per job, got {len(set(keys))} distinct for "
                                  f"{len(job_args)} jobs")
+            if keep_as is not None and (not partial or len(keep_as) != len(keys)):
+                raise ValueError(f"keep_as: need one name or None per job of a partial=True journal, got "
+                                 f"{len(keep_as)} for {len(keys)} jobs (partial={partial})")
+            self.keep_as = dict(zip(keys, keep_as or [None] * len(keys), strict=True))
             self.done = journal.finished()
             todo = [(k, journal.partial_dir(k) if partial else None, fn, *a)
                     for k, a in zip(keys, job_args, strict=True) if k not in self.done]
             self.resumed = sum(d is not None and d.is_dir() for _, d, *_ in todo)  # jobs with a state kept
+            self.from_kept = 0  # jobs that start from a copy of a state kept under their name
+            for k, d, *_ in todo:
+                name = self.keep_as[k]
+                if name is not None and not d.is_dir() and journal.kept_dir(name).is_dir():
+                    shutil.copytree(journal.kept_dir(name), d)
+                    self.from_kept += 1
             self._running = map_jobs(_keyed, todo, workers, tick)  # checks workers before anything runs
         except BaseException:
             journal.release()
@@ -296,6 +345,9 @@ class JournalledJobs:
         if self.resumed:
             tqdm.write(f"{self.bench}: {self.resumed} unfinished jobs go on from the state they kept in "
                        f"{self.journal.folder}")
+        if self.from_kept:
+            tqdm.write(f"{self.bench}: {self.from_kept} jobs start from the last state of an earlier run, "
+                       f"kept in {self.journal.folder}")
         return self
 
     def __iter__(self) -> Iterator:
@@ -307,7 +359,7 @@ class JournalledJobs:
                 self.kept += 1
                 yield result
         for k, result in self._running:
-            self.journal.add(k, *self.encode(result))
+            self.journal.add(k, *self.encode(result), keep_as=self.keep_as[k])
             self.kept += 1
             yield result
 

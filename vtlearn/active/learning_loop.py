@@ -44,7 +44,7 @@ from vtlearn.bench_utils import wilcoxon_p
 from vtlearn.validation import as_int, as_real
 
 __all__ = ["RoundResult", "ActiveLearningLoop", "epochs_for", "train_and_test", "labels_to_reach",
-           "bootstrap_label_ratio", "LOOP_STATE_FILE"]
+           "bootstrap_label_ratio", "history_of_fewer_rounds", "LOOP_STATE_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -282,18 +282,7 @@ class ActiveLearningLoop:
         if self._restored or path is None or not path.is_file():
             self._restored = True
             return len(self.history)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                state = {k: z[k] for k in z.files}
-            kept = json.loads(str(state["settings"][0]))
-            rng = state["rng_before_query"]
-            want = tuple(torch.get_rng_state().shape)
-            if rng.dtype != np.uint8 or rng.shape != want:
-                raise ValueError(f"rng_before_query is not a state of torch's generator: {rng.dtype} "
-                                 f"{rng.shape}, need uint8 {want}")
-        except (OSError, ValueError, KeyError, IndexError) as exc:  # JSONDecodeError is a ValueError
-            raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
-                from None
+        state, kept, history = _read_state(path)
         now = self._settings()
         kept_rounds = kept.get("rounds")
         more_rounds = isinstance(kept_rounds, int) and kept_rounds < self.rounds
@@ -305,8 +294,6 @@ class ActiveLearningLoop:
             raise ValueError(f"state_dir: {path} was kept by a loop with other settings ("
                              + ", ".join(f"{k} {kept.get(k)!r} there, {now.get(k)!r} here" for k in differ)
                              + f"{fewer}); remove it or choose another state_dir")
-        counts = state["queried_count"]
-        queried = np.split(state["queried"], np.cumsum(counts)[:-1]) if len(counts) else []
         first = sorted(set(state["labelled"].tolist()) - set(state["queried"].tolist()))
         if sorted(int(i) for i in self.dm.labelled_indices) != first:
             raise ValueError(f"state_dir: {path} was kept by a loop that started from other labels; the "
@@ -321,11 +308,10 @@ class ActiveLearningLoop:
         if len(state["queried"]):
             self.dm.query([int(i) for i in state["queried"]])
         self.model = model
-        self.history = [RoundResult(int(r), int(n), float(a), [int(i) for i in q]) for r, n, a, q in
-                        zip(state["round"], state["n_labels"], state["accuracy"], queried, strict=True)]
+        self.history = history
         self._restored = True
         log.info("active learning [%s]: %d rounds restored from %s", self.strategy, len(self.history), path)
-        self._rng_before_query = torch.from_numpy(rng)
+        self._rng_before_query = torch.from_numpy(state["rng_before_query"])
         last_round = self.history[-1]
         if more_rounds and last_round.round == kept_rounds and not last_round.queried:
             # the kept loop spent its rounds (it did not run out of pool): its last round queries now, as
@@ -339,6 +325,59 @@ class ActiveLearningLoop:
 
     def history_dicts(self) -> list[dict]:
         return [asdict(h) for h in self.history]
+
+
+def _read_state(path: Path) -> tuple[dict[str, np.ndarray], dict, list[RoundResult]]:
+    """The arrays of the loop state kept in ``path``, its settings and its rounds; a ValueError naming the
+    file when it cannot be read (not a zip, a key missing, settings that are not a JSON object, a
+    generator state of another shape) or its rounds do not add up."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            state = {k: z[k] for k in z.files}
+        kept = json.loads(str(state["settings"][0]))
+        if not isinstance(kept, dict):
+            raise ValueError(f"settings are {type(kept).__name__}, not a JSON object")
+        rng = state["rng_before_query"]
+        want = tuple(torch.get_rng_state().shape)
+        if rng.dtype != np.uint8 or rng.shape != want:
+            raise ValueError(f"rng_before_query is not a state of torch's generator: {rng.dtype} "
+                             f"{rng.shape}, need uint8 {want}")
+        counts = state["queried_count"]
+        queried = np.split(state["queried"], np.cumsum(counts)[:-1]) if len(counts) else []
+        history = [RoundResult(int(r), int(n), float(a), [int(i) for i in q]) for r, n, a, q in
+                   zip(state["round"], state["n_labels"], state["accuracy"], queried, strict=True)]
+    except (OSError, ValueError, KeyError, IndexError) as exc:  # JSONDecodeError is a ValueError
+        raise ValueError(f"state_dir: cannot read {path} ({exc}); remove it to start the loop again") \
+            from None
+    return state, kept, history
+
+
+def history_of_fewer_rounds(state_dir, rounds: int) -> list[RoundResult] | None:
+    """The history a loop of ``rounds`` rounds gives, read off the state of a longer loop kept in
+    ``state_dir`` without training: every round seeds itself (``seed + r``) and queries from what the rounds
+    before it left, so the first ``rounds + 1`` rounds of a longer run are those of the shorter run, except
+    that the shorter run's last round queries nothing.
+
+    None when ``state_dir`` holds no state, one of ``rounds`` rounds or fewer, one that cannot be read (the
+    loop's :meth:`ActiveLearningLoop.restore` then says why) or one stopped before its round ``rounds`` with
+    its pool not spent. The other settings are not compared: the caller keys the folder by them.
+    """
+    path = Path(state_dir) / LOOP_STATE_FILE
+    if not path.is_file():
+        return None
+    try:
+        _, kept, history = _read_state(path)
+    except ValueError:
+        return None
+    kept_rounds = kept.get("rounds")
+    if not (isinstance(kept_rounds, int) and kept_rounds > rounds and history):
+        return None
+    shorter = [h for h in history if h.round <= rounds]
+    if shorter[-1].round < rounds and shorter[-1].queried:  # neither at round `rounds` nor out of pool
+        return None
+    if shorter[-1].round == rounds:
+        shorter[-1].queried = []
+    return shorter
 
 
 def labels_to_reach(

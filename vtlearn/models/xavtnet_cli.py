@@ -1204,14 +1204,23 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
     ``progress``: a sink that every training ticks once, when it ends (:mod:`vtlearn.job_progress`), and
     that the rounds restored from ``state_dir`` tick at once. ``state_dir``: where the loop keeps its state
     after every round and goes on from (``ActiveLearningLoop(state_dir=...)``); a state there that cannot be
-    used is dropped, with a warning, and the loop trains from its first round.
+    used is dropped, with a warning, and the loop trains from its first round. A state there of a longer
+    loop (a copy of one kept by ``--keep-loops``) gives this loop's rounds without training
+    (:func:`~vtlearn.active.learning_loop.history_of_fewer_rounds`).
 
     A module-level function so that ``--workers`` can run it in a spawned process.
     """
+    from dataclasses import asdict
+
     import lightning as L
     import torch
 
-    from vtlearn.active.learning_loop import LOOP_STATE_FILE, ActiveLearningLoop, train_and_test
+    from vtlearn.active.learning_loop import (
+        LOOP_STATE_FILE,
+        ActiveLearningLoop,
+        history_of_fewer_rounds,
+        train_and_test,
+    )
     from vtlearn.datamodules import ActivePoolDataModule
     from vtlearn.job_progress import TickCallback
     from vtlearn.models.xavtnet import XAVTNet
@@ -1238,6 +1247,13 @@ def _active_learning_job(strategy: str, seed: int, data_kwargs: dict, base: dict
                                   power_beta=float(al["power_beta"]), seed=seed, show_progress=False,
                                   trainer_kwargs=trainer_kwargs, state_dir=state_dir)
 
+    if state_dir is not None:
+        # a longer loop's last state, kept by --keep-loops: its first rounds are this loop's
+        shorter = history_of_fewer_rounds(state_dir, al["rounds"])
+        if shorter is not None:
+            if progress is not None:
+                progress.put(len(shorter))
+            return strategy, seed, [asdict(h) for h in shorter]
     loop = new_loop()
     try:
         restored = loop.restore()
@@ -1360,17 +1376,24 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
     # pool used up early ends its run sooner, and the bar jumps its missing rounds when the run comes back)
     trainings = {s: 1 if s == "full" else al["rounds"] + 1 for s in ["full", *strategies]}
     bar = tqdm(total=sum(trainings[s] for s, _ in jobs), desc="bench active-learning", unit="training")
-    job_args = [(s, seed, data_kwargs, base, al, max_epochs, args.threads, pool, train_steps,
-                 args.accelerator) for s, seed in jobs]
+    # each job gets (and is keyed by) the settings it reads: a reference none of the loops', a loop not the
+    # list of strategies, so that another --rounds or --strategies reuses the jobs it shares
+    job_args = [(s, seed, data_kwargs, base, _job_settings(al, s), max_epochs, args.threads, pool,
+                 train_steps, args.accelerator) for s, seed in jobs]
     fingerprint = _data_fingerprints(data_kwargs)
     # finished runs are kept as they end, and unfinished loops round by round, so that the same command,
-    # stopped, goes on where it stopped
+    # stopped, goes on where it stopped; with --keep-loops each loop's last state is kept too, under a name
+    # without its rounds, from which the command with more (or fewer) --rounds goes on
     journal, env = _journal(args), _job_environment()
     keys = [job_key("bench active-learning", a, fingerprint, env) for a in job_args]
+    keep_as = None
+    if _keep_loops(args, journal):
+        keep_as = [None if a[0] == "full" else
+                   job_key("bench active-learning", _without_rounds(a), fingerprint, env) for a in job_args]
     jobs_run = JournalledJobs("bench active-learning", journal, keys, _active_learning_job, job_args,
                               args.workers, lambda r: (list(r), None), lambda stored, _: tuple(stored),
                               tick=bar.update, on_reused=lambda r: bar.update(_trainings_done(r)),
-                              partial=True)
+                              partial=True, keep_as=keep_as)
     results: dict = {}
     with jobs_run:
         for strategy, seed, res in jobs_run:
@@ -1391,6 +1414,37 @@ def run_active_learning_bench(args: argparse.Namespace) -> int:
             "max_epochs": max_epochs, "train_steps": train_steps or None, "seeds": seeds, "full_acc": full,
             "accelerator": args.accelerator}
     return _summarize_active_learning(args, meta, runs, journal)
+
+
+def _job_settings(al: dict, strategy: str) -> dict:
+    """The active-learning settings a job of ``strategy`` reads (:func:`_active_learning_job`): a full-pool
+    reference only ``min_steps``; a loop all but the list of strategies and ``equal_steps`` (which reaches it
+    as ``train_steps``)."""
+    if strategy == "full":
+        return {"min_steps": al["min_steps"]}
+    return {k: v for k, v in al.items() if k not in ("strategies", "equal_steps")}
+
+
+def _without_rounds(job_args: tuple) -> tuple:
+    """A loop job's arguments without its number of rounds: the name its last state is kept under."""
+    strategy, seed, data_kwargs, base, al, *rest = job_args
+    return (strategy, seed, data_kwargs, base, {k: v for k, v in al.items() if k != "rounds"}, *rest)
+
+
+def _keep_loops(args: argparse.Namespace, journal: JobJournal) -> bool:
+    """Whether this run keeps each loop's last state: ``--keep-loops``, or a journal that holds states kept by
+    an earlier run (which this run then goes on from, and keeps with its own)."""
+    asked = bool(getattr(args, "keep_loops", False))
+    kept = journal.kept_states()
+    if kept and not asked:
+        print(f"bench active-learning: {journal.folder} holds the last state of {_loops(len(kept))} of an "
+              f"earlier --keep-loops run; this run goes on from them and keeps its own (--fresh lets them "
+              f"go)")
+    return asked or bool(kept)
+
+
+def _loops(n: int) -> str:
+    return f"{n} loop" if n == 1 else f"{n} loops"
 
 
 def _trainings_done(result: tuple) -> int:
@@ -1579,9 +1633,14 @@ def _summarize_active_learning(args: argparse.Namespace, meta: dict, runs: dict[
         "paired_vs_random": paired, "bootstrap_2pct": boot,
         "machine": machine_info(),
     }, plot, active_learning_figure)
-    if journal is not None:  # kept until now: a rerun after a failed plot trains nothing again
-        journal.discard()
     print(f"wrote {args.json}\nplot: {plot}")
+    if journal is not None:  # kept until now: a rerun after a failed plot trains nothing again
+        kept = journal.finish()
+        if kept:
+            size = sum(f.stat().st_size for d in kept for f in d.rglob("*") if f.is_file())
+            print(f"kept the last state of {_loops(len(kept))} in {journal.folder} ({size / 2**20:.1f} MiB): "
+                  f"the same command with more or fewer --rounds goes on from them; --fresh or removing the "
+                  f"folder lets them go")
     return 0
 
 
@@ -1995,5 +2054,9 @@ def register_bench(sub) -> None:
                    help="seed-bootstrap draws for the interval of the 2%% label ratio (default 2000)")
     q.add_argument("--plot", default=None, help="PNG of accuracy against labels (default: beside --json)")
     q.add_argument("--fresh", action="store_true", help=_FRESH_HELP)
+    q.add_argument("--keep-loops", dest="keep_loops", action="store_true",
+                   help="keep each loop's last state (its weights and labels) beside --json, in "
+                        "JSON_STEM.jobs/, so that the same command with more --rounds trains only the new "
+                        "rounds, and with fewer trains nothing (a folder holding kept states is kept)")
     q.add_argument("--json", default="runs/bench/active_learning.json")
     q.set_defaults(func=run_active_learning_bench)
