@@ -462,6 +462,53 @@ def test_afn_weight_adds_the_feature_norm_of_both_domains_and_lengthens_the_targ
             XAVTNet(**TINY, **bad)
 
 
+def test_l2_preserved_dropout_keeps_the_squared_norm_and_is_what_fc3_and_the_feature_norm_read(monkeypatch):
+    """Xu et al.'s L2-preserved dropout: while the dropout is on, fc3 reads m ⊙ fc2 / √(1 − p), whose mean
+    squared norm over masks is fc2's (plain dropout's is 1/(1 − p) times it, 1.67 at p = 0.4); with it off the
+    head is the plain one; a training step's adaptive feature norm reads the dropped feature."""
+    import vtlearn.models.xavtnet as xavtnet_module
+    from vtlearn.models.components.xavtnet_backbone import XAVTNetHead
+
+    torch.manual_seed(0)
+    p = 0.4
+    plain = XAVTNetHead(16, 3, (12, 10), p).eval()
+    l2 = XAVTNetHead(16, 3, (12, 10), p, l2_preserved_dropout=True).eval()
+    l2.load_state_dict(plain.state_dict())
+    g = torch.randn(5, 16)
+    (logits_p, feats_p), (logits_l2, feats) = plain(g), l2(g)
+    assert torch.equal(logits_p, logits_l2) and torch.equal(feats["fc2_dropout"], feats["fc2"])
+    assert set(feats_p) == {"fc1", "fc2"}
+    draws = g.repeat(2000, 1)  # 2000 masks of each cloud in one pass (batch norm in eval mode)
+    squares = {}
+    for name, head in (("plain", plain), ("l2", l2)):
+        head.dropout.train()  # as MC-dropout runs it: batch norm in eval mode, dropout on
+        logits, f = head(draws)
+        fc2 = f["fc2"][:5]
+        # what fc3 reads: the head's own output under l2, plain dropout's otherwise
+        dropped = f["fc2_dropout"] if name == "l2" else head.dropout(f["fc2"])
+        squares[name] = dropped.pow(2).sum(1).view(2000, 5).mean(0)
+        if name == "l2":
+            kept = dropped != 0
+            torch.testing.assert_close(dropped[kept] * math.sqrt(1 - p), f["fc2"][kept])
+            torch.testing.assert_close(logits, head.fc3(dropped))
+    ref = fc2.pow(2).sum(1)
+    assert torch.allclose(squares["l2"] / ref, torch.ones(5), rtol=0.05), squares["l2"] / ref
+    assert torch.allclose(squares["plain"] / ref, torch.full((5,), 1 / (1 - p)), rtol=0.05)
+
+    seen = []
+    real = xavtnet_module.adaptive_feature_norm
+    monkeypatch.setattr(xavtnet_module, "adaptive_feature_norm",
+                        lambda f, step: seen.append(f.detach()) or real(f, step))
+    batch = next(iter(TinyCrossModalDM().train_dataloader()))[0]
+    _, model, _, out_s, out_t = _one_step(batch, afn_weight=0.7, dropout=p, l2_preserved_dropout=True)
+    assert model.hparams.l2_preserved_dropout and len(seen) == 2
+    for got, out in zip(seen, (out_s, out_t), strict=True):
+        torch.testing.assert_close(got, out.features["fc2_dropout"])
+        assert not torch.allclose(got, out.features["fc2"])
+    with pytest.raises(ValueError, match="l2_preserved_dropout"):
+        XAVTNet(**TINY, l2_preserved_dropout="yes")
+
+
 def test_cdan_discriminates_fc2_conditioned_on_the_prediction():
     """CDAN+E's step: α·CE + w·L_dom with the discriminator on fc2 ⊗ softmax and entropy weights normalised
     per domain (``cdan_entropy=False``: every cloud alike); behind the gradient reversal the encoder's

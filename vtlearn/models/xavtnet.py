@@ -366,6 +366,10 @@ class XAVTNet(L.LightningModule):
             the loss of ``da_method``; it needs two-stream batches. 0 (default): off, as in eq. 7.8.
         afn_step: its residual step Δr, the norm each step asks for beyond the current one (1, Xu et
             al.'s), > 0.
+        l2_preserved_dropout: Xu et al.'s L2-preserved dropout on fc2 (:class:`XAVTNetHead`): while the
+            dropout is on, its output is rescaled by ``1/√(1 − p)`` instead of ``1/(1 − p)``, fc3 reads it,
+            and the adaptive feature norm is taken on it, as their classifier has it, in place of the fc2
+            feature before the dropout. False (default): the thesis's dropout.
         pseudo_label_weight: weight of the cross-entropy of the target batch against its centroid
             pseudo-labels (module docstring; SHOT and CBST, beyond the thesis), added to the loss of
             ``da_method``. 0 (default): off, as in eq. 7.8.
@@ -514,6 +518,7 @@ class XAVTNet(L.LightningModule):
         node_mmd_weight: float = 0.0,
         afn_weight: float = 0.0,
         afn_step: float = AFN_STEP,
+        l2_preserved_dropout: bool = False,
         pseudo_label_weight: float = 0.0,
         pseudo_label_start: float = 1 / 3,
         pseudo_label_fraction: float = 0.5,
@@ -685,7 +690,7 @@ class XAVTNet(L.LightningModule):
         self.save_hyperparameters()
         self.encoder = PointNetEncoder(global_dim, input_transform, feature_transform, sa_nodes, sa_group,
                                        sa_radius, sa_feature_ball)
-        self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout)
+        self.head = XAVTNetHead(global_dim, num_classes, fc_dims, dropout, l2_preserved_dropout)
         self._bn_domain = "target"  # evaluation clouds are tactile unless bn_domain("source") says otherwise
         if domain_bn:
             self._convert_to_domain_bn()
@@ -1046,8 +1051,9 @@ class XAVTNet(L.LightningModule):
             parts = {**parts, "mcc": mcc.detach(), **mcc_parts}
         if use_target and afn_weight > 0:
             step = self.hparams.get("afn_step", AFN_STEP)
-            afn_s, norm_s = adaptive_feature_norm(out_s.features["fc2"], step)
-            afn_t, norm_t = adaptive_feature_norm(out_t.features["fc2"], step)
+            layer = "fc2_dropout" if self.head.l2_preserved_dropout else "fc2"
+            afn_s, norm_s = adaptive_feature_norm(out_s.features[layer], step)
+            afn_t, norm_t = adaptive_feature_norm(out_t.features[layer], step)
             loss = loss + afn_weight * (afn_s + afn_t)
             parts = {**parts, "afn_norm_source": norm_s, "afn_norm_target": norm_t}
         if use_target and self.mcd_head is not None:

@@ -88,6 +88,9 @@ VARIANTS: dict[str, dict] = {
     # α = 10), alone and added to VTLoss.
     "noda_afn": {"da_method": "none", "afn_weight": 0.5},
     "vtloss_afn": {**_VTLOSS, "afn_weight": 0.5},
+    # ... with their L2-preserved dropout: fc3 and the feature norm read fc2 after a dropout rescaled by
+    # √(1 − p) (models/components/xavtnet_backbone.py, XAVTNetHead)
+    "vtloss_afn_l2": {**_VTLOSS, "afn_weight": 0.5, "l2_preserved_dropout": True},
     # Beyond the thesis: VTLoss on the logits (fc3) as well as fc1 and fc2, as DAN adapts its classifier
     # layer and Deep CORAL its fc8.
     "vtloss_fc123": {**_VTLOSS, "da_layers": ["fc1", "fc2", "fc3"]},

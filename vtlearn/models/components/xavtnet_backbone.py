@@ -11,6 +11,7 @@ fc2 (post-ReLU, before dropout) are the features that VTLoss adapts (Fig. 7.2b).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -19,7 +20,7 @@ from torch import nn
 
 from vtlearn.models.components.pointnet_tnet import MaskedPointMLP, TNet, lengths_to_mask, packed_max_pool
 from vtlearn.models.components.sa_nodes import SelfAdaptiveNodes
-from vtlearn.validation import as_int, as_real
+from vtlearn.validation import as_bool, as_int, as_real
 
 __all__ = ["PointNetEncoder", "XAVTNetHead", "XAVTNetOutput", "DomainDiscriminator", "check_cloud_batch"]
 
@@ -150,18 +151,26 @@ class XAVTNetOutput:
 class XAVTNetHead(nn.Module):
     """fc1 → fc2 → dropout → fc3 (thesis 7.3.1).
 
+    ``l2_preserved_dropout``: Xu et al.'s (SAFN, ICCV 2019) L2-preserved dropout. While the dropout is on
+    (training, MC-dropout), its output ``m ⊙ f / (1 − p)`` is multiplied by ``√(1 − p)``, so that
+    ``E‖m ⊙ f / √(1 − p)‖² = ‖f‖²``, the squared norm evaluation reads, where plain dropout keeps the mean
+    instead. fc3 reads it, and it is returned as ``"fc2_dropout"`` for the adaptive feature norm.
+
     Shapes:
-        global (B, in_dim) -> (logits (B, k), {"fc1": (B, fc_dims[0]), "fc2": (B, fc_dims[1])})
+        global (B, in_dim) -> (logits (B, k), {"fc1": (B, fc_dims[0]), "fc2": (B, fc_dims[1])}, with
+        "fc2_dropout" (B, fc_dims[1]) too under ``l2_preserved_dropout``)
     """
 
     def __init__(
-        self, in_dim: int, num_classes: int, fc_dims: Sequence[int] = (512, 256), dropout: float = 0.4
+        self, in_dim: int, num_classes: int, fc_dims: Sequence[int] = (512, 256), dropout: float = 0.4,
+        l2_preserved_dropout: bool = False,
     ):
         super().__init__()
         if len(fc_dims) != 2:
             raise ValueError(f"fc_dims must give the sizes of fc1 and fc2, got {fc_dims}")
         fc_dims = [as_int(d, f"fc_dims[{i}]") for i, d in enumerate(fc_dims)]
         dropout = as_real(dropout, "dropout", low=0.0, high=1.0, open_high=True)
+        self.l2_preserved_dropout = as_bool(l2_preserved_dropout, "l2_preserved_dropout")
         self.fc1 = nn.Sequential(nn.Linear(in_dim, fc_dims[0]), nn.BatchNorm1d(fc_dims[0]), nn.ReLU())
         self.fc2 = nn.Sequential(nn.Linear(fc_dims[0], fc_dims[1]), nn.BatchNorm1d(fc_dims[1]), nn.ReLU())
         self.dropout = nn.Dropout(dropout)
@@ -170,7 +179,12 @@ class XAVTNetHead(nn.Module):
     def forward(self, g: torch.Tensor):
         f1 = self.fc1(g)
         f2 = self.fc2(f1)
-        return self.fc3(self.dropout(f2)), {"fc1": f1, "fc2": f2}
+        dropped = self.dropout(f2)
+        if not self.l2_preserved_dropout:
+            return self.fc3(dropped), {"fc1": f1, "fc2": f2}
+        if self.dropout.training:
+            dropped = dropped * math.sqrt(1.0 - self.dropout.p)
+        return self.fc3(dropped), {"fc1": f1, "fc2": f2, "fc2_dropout": dropped}
 
 
 class DomainDiscriminator(nn.Module):
