@@ -1,5 +1,10 @@
 """Tests for vtlearn.job_progress: the benches' jobs tick a progress bar while they train."""
 
+import contextlib
+import os
+import signal
+import subprocess
+import sys
 import time
 
 import lightning as L
@@ -111,6 +116,73 @@ def test_ctrl_c_stops_the_workers_at_once_and_drops_the_queued_jobs(tmp_path):
     assert seconds < 10  # each job sleeps 60 s
     assert returncode != 0 and err.count("KeyboardInterrupt") == 1, err
     assert len(list(tmp_path.glob("started-*"))) == 2  # the queued jobs never started
+
+
+_PID_JOB = """
+import os
+import time
+from pathlib import Path
+
+
+def job(i, folder, progress=None):
+    (Path(folder) / f"started-{i}").write_text(str(os.getpid()))
+    time.sleep(60.0)
+    return i
+"""
+
+
+def _stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (state, ppid, ...), or None."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, ended and not reaped by a parent that does not reap, does
+    not)."""
+    fields = _stat(pid)
+    return fields is not None and fields[0] != "Z"
+
+
+def _children(pid: int) -> list[int]:
+    return [int(d) for d in os.listdir("/proc") if d.isdigit() and (f := _stat(int(d))) and f[1] == str(pid)]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads process states from /proc")
+def test_the_workers_end_when_their_parent_is_killed(tmp_path):
+    # a parent ended by SIGKILL (or a SIGTERM, which Python does not catch) stopped no worker: each trained
+    # on to the end of its job as an orphan, beside a rerun of the bench and in the same loop states; the
+    # progress manager (tick) idled on for ever
+    (tmp_path / "pid_job.py").write_text(_PID_JOB)
+    code = ("import sys; import pid_job; from vtlearn.job_progress import map_jobs; "
+            "list(map_jobs(pid_job.job, [(i, sys.argv[1]) for i in range(2)], 2, tick=print))")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pids: list[int] = []
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(pids) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+            pids = [int(t) for f in tmp_path.glob("started-*") if (t := f.read_text())]
+        assert len(pids) == 2 and all(map(_alive, pids)), pids
+        pids = _children(proc.pid)  # the workers, the manager and multiprocessing's resource tracker
+        assert len(pids) >= 3, pids
+        proc.kill()  # the parent alone, as `kill -9` or the OOM killer ends it
+        proc.wait()
+        deadline = time.monotonic() + 10.0  # each job sleeps 60 s
+        while any(map(_alive, pids)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(map(_alive, pids)), [p for p in pids if _alive(p)]
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
 
 
 _FIRST_JOB_QUICK = """

@@ -92,11 +92,16 @@ def _map_here(fn: Callable, job_args: list[tuple], sink) -> Iterator:
 def _map_in_processes(fn: Callable, job_args: list[tuple], workers: int,
                       tick: Callable[[int], object] | None) -> Iterator:
     import multiprocessing as mp
+    import os
     from concurrent.futures import FIRST_COMPLETED, wait
+    from multiprocessing.managers import SyncManager
 
-    from vtlearn.worker_pool import worker_pool
+    from vtlearn.worker_pool import exit_with_parent, worker_pool
 
-    manager = mp.get_context("spawn").Manager() if tick is not None else None
+    manager = None
+    if tick is not None:  # its server process ends with this one, as the workers do
+        manager = SyncManager(ctx=mp.get_context("spawn"))
+        manager.start(exit_with_parent, (os.getpid(),))
     try:
         sink = manager.Queue() if manager is not None else None
         # Ctrl-C stops the workers at once; a failed job drops the queued ones (worker_pool)

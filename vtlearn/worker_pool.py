@@ -5,7 +5,8 @@ whatever its job raises, KeyboardInterrupt and Lightning's exit after one includ
 the next queued job; and leaving the executor waits for every queued job. So after a Ctrl-C the parent would
 wait for the rest of the work (every remaining training of a bench). In :func:`worker_pool` the workers
 ignore Ctrl-C (they start with it blocked, so not even one still starting prints a traceback), and the parent,
-on Ctrl-C, terminates them and drops the queued jobs.
+on Ctrl-C, terminates them and drops the queued jobs. A worker also ends when the parent has ended in a way
+that stopped no worker (SIGKILL, an unhandled SIGTERM): it does not train on as an orphan.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import contextlib
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 
-__all__ = ["worker_pool"]
+__all__ = ["exit_with_parent", "worker_pool"]
 
 
 class _Executor(ProcessPoolExecutor):
@@ -33,12 +34,38 @@ class _Executor(ProcessPoolExecutor):
             signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
-def _ignore_sigint() -> None:
-    """Worker initializer: only the parent handles Ctrl-C (it stops the workers), so a worker prints no
-    KeyboardInterrupt traceback of its own."""
+def _init_worker(parent: int) -> None:
+    """Worker initializer. Only the parent handles Ctrl-C (it stops the workers), so a worker ignores it and
+    prints no KeyboardInterrupt traceback of its own. And a worker ends when its parent, the process
+    ``parent``, has ended, however that ended (:func:`exit_with_parent`)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent)
+
+
+def exit_with_parent(parent: int, period_s: float = 0.2) -> None:
+    """End this process (``os._exit(1)``) within ``period_s`` of its parent's end, from a daemon thread that
+    watches ``os.getppid()``.
+
+    A parent ended by a signal it cannot handle (SIGKILL; SIGTERM from a scheduler, ``kill`` or a machine
+    taken back, which Python does not catch) stops no worker, and a worker spawned with SIGINT blocked does
+    not see a Ctrl-C either. Without this thread an orphaned worker trained on to the end of its job (and
+    Lightning, which catches SIGTERM during a fit, kept it going past a SIGTERM of the whole process group).
+    A rerun of the bench then found the orphan training beside it and writing into the same loop state. The
+    state files are written atomically, so ending at any moment loses only the job under way. The progress
+    manager of :mod:`vtlearn.job_progress` runs it too, or it would idle on for ever.
+    """
+    import os
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="vtlearn-exit-with-parent", daemon=True).start()
 
 
 def _stop_pool(ex: ProcessPoolExecutor, workers_before: set[int]) -> None:
@@ -59,7 +86,8 @@ def _stop_pool(ex: ProcessPoolExecutor, workers_before: set[int]) -> None:
 @contextlib.contextmanager
 def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A :class:`ProcessPoolExecutor` of ``workers`` spawned processes that ignore Ctrl-C, from their start
-    (they are spawned with SIGINT blocked) to their end.
+    (they are spawned with SIGINT blocked) to their end, and that end when this process has ended
+    (:func:`exit_with_parent`).
 
     On leaving the block:
 
@@ -74,9 +102,11 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     when it is made are not its workers, and are left alone.
     """
     import multiprocessing as mp
+    import os
 
     before = {p.pid for p in mp.active_children()}
-    ex = _Executor(workers, mp_context=mp.get_context("spawn"), initializer=_ignore_sigint)
+    ex = _Executor(workers, mp_context=mp.get_context("spawn"), initializer=_init_worker,
+                   initargs=(os.getpid(),))
     try:
         yield ex
     except (KeyboardInterrupt, GeneratorExit):
