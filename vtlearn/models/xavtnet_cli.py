@@ -1437,12 +1437,14 @@ def _without_rounds(job_args: tuple) -> tuple:
 def _keep_loops(args: argparse.Namespace, journal: JobJournal) -> bool:
     """Whether this run keeps each loop's last state: ``--keep-loops``, or a journal that holds states kept by
     an earlier run (which this run then goes on from, and keeps with its own)."""
+    from tqdm.auto import tqdm
+
     asked = bool(getattr(args, "keep_loops", False))
     kept = journal.kept_states()
-    if kept and not asked:
-        print(f"bench active-learning: {journal.folder} holds the last state of {_loops(len(kept))} of an "
-              f"earlier --keep-loops run; this run goes on from them and keeps its own (--fresh lets them "
-              f"go)")
+    if kept and not asked:  # above the bar, which is drawn by now
+        tqdm.write(f"bench active-learning: {journal.folder} holds the last state of {_loops(len(kept))} of "
+                   f"an earlier --keep-loops run; this run goes on from them and keeps its own (--fresh lets "
+                   f"them go)")
     return asked or bool(kept)
 
 
