@@ -72,7 +72,7 @@ def test_optimal_weights_match_trying_every_support_alone_bit_for_bit(b):
         return (torch.rand if uniform else torch.randn)(*shape, generator=g, dtype=torch.float64)
 
     cases = []
-    for _ in range(40 if b <= 9 else 8):  # the reference tries 4,095 supports one by one at b = 12
+    for _ in range(40 if b <= 9 else 3):  # the reference tries 4,095 supports one by one at b = 12
         # statistics as the training takes them: 16 quadruples of b kernels, correlated, some η_u < 0
         h = draw(16, 1) * draw(b, uniform=True) + 0.3 * draw(16, b) + 0.2 * draw(b)
         cases.append((h.mean(0), torch.cov(h.T).reshape(b, b)))

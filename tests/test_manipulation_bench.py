@@ -71,6 +71,12 @@ def test_bench_articulation_one_trial_noiseless(tmp_path):
     assert articulation_figure(r, tmp_path / "again.png").stat().st_size > 1000
 
 
+def test_a_tracker_other_than_noisy_truth_or_artreg_is_refused():
+    with pytest.raises(ValueError, match="tracker"):
+        run_articulation_benchmark(trials=1, tracker="oracle")
+
+
+@pytest.mark.slow  # 21 s; tests/test_articulation.py tracks the same articulations with ArtReg by default
 def test_bench_articulation_tracked_by_artreg(tmp_path):
     out = tmp_path / "art.json"
     args = ["bench", "articulation", "--trials", "1", "--categories", "drawer", "--tracker", "artreg"]
@@ -79,8 +85,6 @@ def test_bench_articulation_tracked_by_artreg(tmp_path):
     assert r["settings"]["tracker"] == "artreg" and list(r["summary"]) == ["drawer"]
     for x in r["runs"]:  # tracked poses: a tracking error is measured, and it is that of a working tracker
         assert 0.0 < x["tracking_mm_median"] < 30.0
-    with pytest.raises(ValueError, match="tracker"):
-        run_articulation_benchmark(trials=1, tracker="oracle")
 
 
 def _pair_of_runs(spec, q):
