@@ -16,6 +16,11 @@ SIGINT_AS_IN_A_TERMINAL = ("import signal; signal.pthread_sigmask(signal.SIG_UNB
                            "signal.signal(signal.SIGINT, signal.default_int_handler); ")
 
 
+def env_with_path(folder: Path) -> dict[str, str]:
+    """This process's environment with ``folder`` first on the child interpreter's ``PYTHONPATH``."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))
+
+
 def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, str, float]:
     """Run ``code`` in a child interpreter (``folder`` on its path and as its ``sys.argv[1]``) in a process
     group of its own, send the group SIGINT once ``workers`` ``started-*`` files are in ``folder``, and return
@@ -24,8 +29,8 @@ def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, 
     The interrupt waits until every worker has taken a job, so that it stops running jobs. Sent while the
     parent still imports, it would test the imports (tests/test_cli.py has those cases); workers that still
     start are tested in test_job_progress.py."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.Popen([sys.executable, "-c", SIGINT_AS_IN_A_TERMINAL + code, str(folder)], env=env,
+    proc = subprocess.Popen([sys.executable, "-c", SIGINT_AS_IN_A_TERMINAL + code, str(folder)],
+                            env=env_with_path(folder),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60.0  # the workers start and take their first jobs

@@ -10,7 +10,7 @@ import time
 import lightning as L
 import pytest
 import torch
-from _interrupt import interrupt_once_started
+from _interrupt import env_with_path, interrupt_once_started
 from torch.utils.data import DataLoader, TensorDataset
 
 from vtlearn.job_progress import LocalSink, TickCallback, map_jobs
@@ -159,8 +159,8 @@ def test_the_workers_end_when_their_parent_is_killed(tmp_path):
     (tmp_path / "pid_job.py").write_text(_PID_JOB)
     code = ("import sys; import pid_job; from vtlearn.job_progress import map_jobs; "
             "list(map_jobs(pid_job.job, [(i, sys.argv[1]) for i in range(2)], 2, tick=print))")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env, start_new_session=True,
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env_with_path(tmp_path),
+                            start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pids: list[int] = []
     try:
