@@ -514,3 +514,6 @@ def test_history_of_fewer_rounds_reads_the_first_rounds_of_a_longer_kept_loop(tm
     assert read(1) is None
     (tmp_path / LOOP_STATE_FILE).unlink()
     assert read(1) is None
+    for bad in (-1, 1.5, "2"):
+        with pytest.raises(ValueError, match="rounds"):
+            history_of_fewer_rounds(tmp_path, bad)

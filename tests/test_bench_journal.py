@@ -412,6 +412,11 @@ def test_a_kept_state_takes_its_names_place_and_keeps_the_folder(tmp_path):
     plain = JobJournal(tmp_path / "c.jobs")
     plain.add("a" * 64, 1)
     assert plain.finish() == [] and not plain.folder.exists()
+    for bad in ("", "..", "../elsewhere", "a/b"):  # a name reaching outside the folder
+        with pytest.raises(ValueError, match="name: need a file name within the journal folder"):
+            journal.kept_dir(bad)
+        with pytest.raises(ValueError, match="key: need a file name within the journal folder"):
+            journal.partial_dir(bad)
     with pytest.raises(ValueError, match="keep_as: need one name or None per job of a partial=True journal"):
         JournalledJobs("bench", JobJournal(tmp_path / "d.jobs"), ["a" * 64], print, [(1,)], 1,
                        lambda r: (r, None), lambda r, _: r, keep_as=["loop"])

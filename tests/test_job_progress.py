@@ -185,6 +185,16 @@ def test_the_workers_end_when_their_parent_is_killed(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
 
+def test_exit_with_parent_refuses_a_bad_parent_or_period():
+    from vtlearn.worker_pool import exit_with_parent
+
+    for kwargs, name in ((dict(parent=0), "parent"), (dict(parent="1"), "parent"),
+                         (dict(parent=1, period_s=0.0), "period_s"),
+                         (dict(parent=1, period_s=-1), "period_s")):
+        with pytest.raises(ValueError, match=name):
+            exit_with_parent(**kwargs)
+
+
 _FIRST_JOB_QUICK = """
 import time
 

@@ -54,6 +54,15 @@ _LOCK = "lock"
 _KEY = re.compile(r"[0-9a-f]{64}")
 
 
+def _file_name(name: Any, what: str) -> str:
+    """``name`` as one component of a path inside the journal folder: a ValueError naming ``what`` for an
+    empty name, ``.`` or ``..``, or one with a path separator (it would reach outside the folder)."""
+    if (not isinstance(name, str) or name in ("", ".", "..") or "/" in name
+            or (os.altsep is not None and os.altsep in name) or os.sep in name):
+        raise ValueError(f"{what}: need a file name within the journal folder, got {name!r}")
+    return name
+
+
 def journal_folder(json_path) -> Path:
     """The journal folder of a bench writing ``json_path``: beside it, named after it without ``.json`` and
     with ``.jobs`` (``runs/bench/cm.json`` -> ``runs/bench/cm.jobs``)."""
@@ -162,12 +171,12 @@ class JobJournal:
 
     def partial_dir(self, key: str) -> Path:
         """The folder in which the job ``key`` keeps its state while it runs (see the module docstring)."""
-        return self.folder / f"{key}.partial"
+        return self.folder / f"{_file_name(key, 'key')}.partial"
 
     def kept_dir(self, name: str) -> Path:
         """The folder in which a finished job's last state is kept under ``name`` (see the module
         docstring)."""
-        return self.folder / f"{name}.kept"
+        return self.folder / f"{_file_name(name, 'name')}.kept"
 
     def kept_states(self) -> list[Path]:
         """The kept states the folder holds (:meth:`kept_dir`), sorted."""

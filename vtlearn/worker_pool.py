@@ -60,6 +60,11 @@ def exit_with_parent(parent: int, period_s: float = 0.2) -> None:
     import threading
     import time
 
+    from vtlearn.validation import as_int, as_real
+
+    parent = as_int(parent, "parent")
+    period_s = as_real(period_s, "period_s", low=0.0, open_low=True)
+
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(period_s)

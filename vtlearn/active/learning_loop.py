@@ -362,6 +362,7 @@ def history_of_fewer_rounds(state_dir, rounds: int) -> list[RoundResult] | None:
     loop's :meth:`ActiveLearningLoop.restore` then says why) or one stopped before its round ``rounds`` with
     its pool not spent. The other settings are not compared: the caller keys the folder by them.
     """
+    rounds = as_int(rounds, "rounds", minimum=0)
     path = Path(state_dir) / LOOP_STATE_FILE
     if not path.is_file():
         return None
