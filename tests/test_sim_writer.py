@@ -149,14 +149,49 @@ def test_killed_then_rerun_gives_identical_manifest(tmp_path):
             proc.kill()
     finished = len(list(out.glob("*.npz.json")))
     assert 3 <= finished < 12 and not (out / "manifest.json").exists()
-    # simulate a shard caught mid-write and a shard whose sidecar is stale
-    (out / "train-00099.npz.tmp123").write_bytes(b"partial")
+    # simulate shards caught mid-write (by the killed run, and by a run of the writer from before atomic_path)
+    # and a shard whose sidecar is stale
+    ended = _ended_pid()
+    (out / f".train-00099.tmp-{ended}.npz").write_bytes(b"partial")
+    (out / f"train-00098.npz.tmp{ended}").write_bytes(b"partial")
     first = sorted(out.glob("*.npz"))[0]
     first.write_bytes(b"corrupt")
     resumed = generate_dataset(_cfg(), out, progress=False)
     assert resumed == ref
     assert (out / "manifest.json").read_text() == (tmp_path / "ref" / "manifest.json").read_text()
     assert not list(out.glob("*.tmp*"))
+
+
+def _ended_pid() -> int:
+    """The process id of a process that has ended."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_resuming_removes_the_temporaries_of_ended_writers_only(tmp_path):
+    """A resumed folder loses the partial files of writers that have ended; a writer still running in the
+    same folder keeps its temporary file, and a user's file whose name holds ``.tmp`` stays."""
+    from vtlearn.io import remove_stale_temporaries_in
+
+    out = tmp_path / "d"
+    generate_dataset(_cfg(), out, progress=False)
+    ended = _ended_pid()
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        stale = [out / f".train-00099.tmp-{ended}.npz", out / f".config.tmp-{ended}.json",
+                 out / f"train-00098.npz.tmp{ended}"]
+        kept = [out / f".train-00097.tmp-{running.pid}.npz", out / "notes.tmp.txt", out / "train.tmp",
+                out / f".train-00096.tmp-{os.getpid()}.npz", out / ".x.tmp-0.npz", out / f"a.tmp{10**40}"]
+        for f in stale + kept:
+            f.write_bytes(b"partial")
+        assert generate_dataset(_cfg(), out, progress=False)  # resumes: every shard is there
+        assert sorted(f.name for f in out.iterdir() if ".tmp" in f.name) == sorted(f.name for f in kept)
+        assert remove_stale_temporaries_in(out) == []
+        assert remove_stale_temporaries_in(tmp_path / "missing") == []
+    finally:
+        running.kill()
+        running.wait()
 
 
 def test_shards_record_their_host_and_a_resume_elsewhere_is_flagged(tmp_path, caplog):
@@ -260,6 +295,39 @@ def test_crossmodal_visual_crop_drops_see_through_returns(tmp_path):
 
     assert outside(0.05, tmp_path / "crop") == 0.0
     assert outside(None, tmp_path / "mask") > 0.2
+
+
+def test_opaque_gives_a_glass_category_a_dense_visual_cloud_and_keeps_its_shapes(tmp_path):
+    """With ``transparency=False`` (``gen-data --opaque``) a wineglass is rendered opaque: its visual clouds
+    hold hundreds of distinct points where the glass failure leaves a few dozen, and its mesh is the same
+    instance as with glass. An older folder's config, without the key, resumes as the default."""
+    from vtlearn.sim_data.fixtures import tiny_config
+
+    def distinct(transparency, out):
+        cfg = tiny_config("crossmodal")
+        cfg.categories, cfg.per_category, cfg.split_fractions = ["wineglass"], 1, [1.0, 0.0, 0.0]
+        cfg.image_width, cfg.image_height, cfg.views, cfg.tactile_clouds = 320, 240, 2, 1
+        cfg.transparency = transparency
+        m = generate_dataset(cfg, out, progress=False)
+        with np.load(out / m["shards"][0]["file"], allow_pickle=False) as z:
+            n = [len(np.unique(v.round(5), axis=0)) for v in z["visual"]]
+            return bool(z["transparent"][0]), n, z["dense"][0].copy()
+
+    glass, n_glass, dense_glass = distinct(True, tmp_path / "glass")
+    opaque, n_opaque, dense_opaque = distinct(False, tmp_path / "opaque")
+    assert glass and not opaque
+    assert max(n_glass) < 100 and min(n_opaque) > 200, (n_glass, n_opaque)
+    np.testing.assert_array_equal(dense_glass, dense_opaque)
+    # a folder made before the option (no key in config.json) resumes with the default, not with --opaque
+    cfg_path = tmp_path / "glass" / "config.json"
+    old = json.loads(cfg_path.read_text())
+    del old["transparency"]
+    cfg_path.write_text(json.dumps(old))
+    assert distinct(True, tmp_path / "glass")[1] == n_glass
+    with pytest.raises(ValueError, match="transparency"):
+        distinct(False, tmp_path / "glass")
+    with pytest.raises(ValueError, match="transparency"):
+        GenConfig(kind="crossmodal", transparency="no")
 
 
 def test_crop_to_box_and_bad_margin():

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -320,6 +321,31 @@ def atomic_path(path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def _writer_ended(pid: int) -> bool:
+    """Whether process ``pid`` (the writer named in a temporary file's name) has ended: not this process,
+    and signal 0 finds no such process (one of another user exists). A number that no process can have
+    (0 would signal this process group) is not taken for an ended writer."""
+    if pid == os.getpid() or not 0 < pid < 2**31:
+        return False
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # it exists, under another user
+        return False
+    return False
+
+
+def _remove_ended(candidates, pid_of) -> list[Path]:
+    removed = []
+    for tmp in sorted(candidates):
+        pid = pid_of(tmp.name)
+        if pid is not None and _writer_ended(pid):
+            tmp.unlink(missing_ok=True)
+            removed.append(tmp)
+    return removed
+
+
 def remove_stale_temporaries(path) -> list[Path]:
     """Remove the temporary files of :func:`atomic_path` beside ``path`` whose writing process is no longer
     running (a SIGKILL between the write and the rename leaves one) and return them. Those of running
@@ -329,21 +355,38 @@ def remove_stale_temporaries(path) -> list[Path]:
     head = f".{p.stem}.tmp-"
     if os.name != "posix" or not p.parent.is_dir():
         return []
-    removed = []
-    for tmp in sorted(p.parent.glob(f"{head}*{p.suffix}")):
-        pid = tmp.name[len(head):len(tmp.name) - len(p.suffix)]
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            os.kill(int(pid), 0)  # signal 0: only asks whether the process exists
-            continue
-        except ProcessLookupError:
-            pass
-        except PermissionError:  # it exists, under another user
-            continue
-        tmp.unlink(missing_ok=True)
-        removed.append(tmp)
-    return removed
+
+    def pid_of(name: str) -> int | None:
+        pid = name[len(head):len(name) - len(p.suffix)]
+        return int(pid) if pid.isdigit() else None
+
+    return _remove_ended(p.parent.glob(f"{head}*{p.suffix}"), pid_of)
+
+
+_TEMPORARIES = (
+    re.compile(r"\..+\.tmp-(\d+)(\.[^.]*)?"),  # atomic_path's ".<stem>.tmp-<pid><suffix>"
+    re.compile(r".+\.tmp(\d+)"),  # the dataset writer's "<name>.tmp<pid>", before atomic_path
+)
+
+
+def remove_stale_temporaries_in(folder) -> list[Path]:
+    """:func:`remove_stale_temporaries` for every file directly in ``folder``: the :func:`atomic_path`
+    temporaries (and the ``<name>.tmp<pid>`` ones of the dataset writer from before it) whose writer has
+    ended, as a dataset folder's shards, side files and JSON leave them. Those of running writers (another
+    process generating into the same folder) are kept, and so is every file of another name (a user's
+    ``notes.tmp.txt``). Nothing is removed on a system without POSIX process signals."""
+    folder = Path(folder)
+    if os.name != "posix" or not folder.is_dir():
+        return []
+
+    def pid_of(name: str) -> int | None:
+        for pattern in _TEMPORARIES:
+            m = pattern.fullmatch(name)
+            if m:
+                return int(m.group(1))
+        return None
+
+    return _remove_ended((f for f in folder.glob("*.tmp*") if f.is_file()), pid_of)
 
 
 def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:

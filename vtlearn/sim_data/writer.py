@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from vtlearn.bench_utils import host_info
-from vtlearn.io import atomic_path, atomic_write_npz, sha256_file
+from vtlearn.io import atomic_path, atomic_write_npz, remove_stale_temporaries_in, sha256_file
 from vtlearn.sim_data.shapes import CATEGORIES, check_out_dir, generate_shape, instance_seed
 from vtlearn.validation import as_bool, as_int, as_real
 from vtlearn.worker_pool import worker_pool
@@ -61,9 +61,9 @@ class GenConfig:
     Field checks run on construction (``ValueError`` naming the field): counts ``per_category``,
     ``shard_size``, ``dense_points``, ``touches``, ``views``, ``visual_points``, ``image_width``,
     ``image_height``, ``tactile_clouds`` are integers >= 1, ``pinches`` and ``seed`` integers >= 0,
-    ``sections`` >= 8, ``keep_split`` a bool that needs a ``mesh_source``. :meth:`validate` (called by
-    :func:`generate_dataset`) also checks ``sensor`` and that ``mesh_source`` is ``"procedural"``,
-    ``"pybullet_data"`` or an existing directory.
+    ``sections`` >= 8, ``keep_split`` a bool that needs a ``mesh_source``, ``transparency`` a bool.
+    :meth:`validate` (called by :func:`generate_dataset`) also checks ``sensor`` and that ``mesh_source``
+    is ``"procedural"``, ``"pybullet_data"`` or an existing directory.
     ``categories=None`` means all: the 12 procedural ones, or every category of ``mesh_source`` with a usable
     mesh (:func:`generate_dataset` records the list it found).
     """
@@ -86,6 +86,11 @@ class GenConfig:
     image_width: int = 320
     image_height: int = 240
     depth_noise: bool = True
+    # crossmodal: the camera's glass failure (:class:`~vtlearn.sim_data.camera.TransparencyModel`) applies to
+    # the instances drawn as glass (shapes.TRANSPARENT_PROB: every wineglass, half the bottles and jars, a
+    # third of the cups); False renders every instance opaque, so each class has a dense visual source.
+    # The draw of which instance is glass is kept, so the shapes are those of the default.
+    transparency: bool = True
     # crossmodal: segment each view by the object's world bounding box grown by this fraction of its
     # largest extent (the PCL segmentation of thesis 7.3.1); None keeps every pixel of the body's mask,
     # including the see-through returns of transparent objects (datasets made before this option).
@@ -148,6 +153,7 @@ class GenConfig:
         if f.shape != (3,) or (f < 0).any() or not np.isclose(f.sum(), 1.0):
             raise ValueError(f"split_fractions: need three non-negative fractions summing to 1, got {f}")
         as_bool(self.keep_split, "keep_split")
+        as_bool(self.transparency, "transparency")
         if self.keep_split and self.mesh_source == "procedural":
             raise ValueError("keep_split: keeps a mesh dataset's own train/test split, but procedural shapes "
                              "have none; use it with mesh_source (--meshes) a ModelNet40/10 tree")
@@ -380,8 +386,9 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
     """Create ``out`` and record ``config.json``, or refuse (:class:`OutDirConfigError`, a ValueError) a
     folder made with another config.
 
-    ``old_defaults`` fills keys that older config files lack, so their datasets still resume. Leftover
-    ``*.tmp*`` files of a killed run are removed; their shards are redone.
+    ``old_defaults`` fills keys that older config files lack, so their datasets still resume. The temporary
+    files of a killed run are removed (:func:`~vtlearn.io.remove_stale_temporaries_in`: those of a writer
+    still running, and files of other names, are kept); their shards are redone.
     """
     out = check_out_dir(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -393,8 +400,8 @@ def claim_out_dir(out: Path, cfg_dict: dict, old_defaults: dict | None = None, w
             raise OutDirConfigError(out, what, old, new)
     else:
         write_json_atomic(cfg_path, cfg_dict)
-    for stale in out.glob("*.tmp*"):
-        stale.unlink()
+    for stale in remove_stale_temporaries_in(out):
+        log.info("removed %s, a partial file of a stopped run", stale.name)
 
 
 def _run_in_pool(todo: list[dict], worker, worker_args: tuple, out: Path, workers: int, done: dict,
@@ -576,6 +583,7 @@ def generate_shard(cfg: GenConfig, job: dict) -> dict[str, np.ndarray]:
     with Scene() as scene:
         for item in job["items"]:
             mesh, scale, transparent = _load_mesh(item, cfg)
+            transparent = transparent and cfg.transparency
             body, T = _place(scene, mesh, scale, transparent)
             sim = TactileSimulator(scene, cfg.sensor, tcfg, objects=[body])
             lo, hi = scene.objects[body].mesh_m.bounds + T[:3, 3]
@@ -820,7 +828,7 @@ def generate_dataset(
     cfg_dict = asdict(cfg)
     # pre-crop and pre-keep_split datasets resume; those of touch sampler 1 (no such key) are refused
     claim_out_dir(out, cfg_dict, old_defaults={"visual_crop_margin": None, "touch_sampler": 1,
-                                               "keep_split": False})
+                                               "keep_split": False, "transparency": True})
     plan = plan_instances(cfg, mesh_items)
     if mesh_items is not None:
         _claim_mesh_list(out, cfg, plan)
