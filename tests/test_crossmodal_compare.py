@@ -15,6 +15,8 @@ from vtlearn.models.crossmodal_compare import (
     paired_rows,
     paired_table_columns,
     parse_pairs,
+    per_class_scores,
+    per_class_table_rows,
     score_field,
     set_paired_rows,
     set_summaries,
@@ -331,3 +333,42 @@ def test_bench_merges_keep_only_the_rows_asked(tmp_path, capsys):
                       (["--variants", "noda", "--rows", "noda"], "--rows: only with --merge")]:
         assert main(["bench", "crossmodal", *argv, "--no-figures", "--json", str(out)]) == 2
         assert msg in capsys.readouterr().err
+
+
+def test_per_class_recall_and_prediction_share_pool_the_seeds_confusions():
+    """Each row's recall per class and its share of the predictions, from its confusion matrices summed over
+    seeds (true x predicted), worked by hand; a class without test clouds has no recall; rows without a
+    matrix are left out; matrices of two sizes are refused."""
+    runs = [{"variant": "noda", "seed": 0, "tactile_acc": 0, "confusion": [[2, 0, 0], [3, 1, 0], [0, 0, 0]]},
+            {"variant": "noda", "seed": 1, "tactile_acc": 0, "confusion": [[1, 1, 0], [2, 2, 0], [0, 0, 0]]},
+            {"variant": "vtloss", "seed": 0, "tactile_acc": 0, "confusion": [[3, 0, 0], [0, 4, 0], [0, 0, 0]]},
+            {"variant": "gfk_1nn", "seed": 0, "tactile_acc": 0}]
+    scores = per_class_scores(runs, ["noda", "vtloss", "gfk_1nn"])
+    assert list(scores) == ["noda", "vtloss"]
+    # noda summed: [[3, 1, 0], [5, 3, 0], [0, 0, 0]]: recall 3/4, 3/8; predictions 8 and 4 of 12
+    assert scores["noda"]["recall"][:2] == pytest.approx([75.0, 37.5]) and scores["noda"]["recall"][2] is None
+    assert scores["noda"]["predicted_share"] == pytest.approx([200 / 3, 100 / 3, 0.0])
+    assert (scores["noda"]["clouds"], scores["noda"]["seeds"]) == (12, 2)
+    rows = per_class_table_rows(scores, ["can", "mug", "box"])
+    assert rows[0] == {"class": "can", "noda": "75 (67)", "vtloss": "100 (43)"}
+    assert rows[2]["noda"] == "- (0)"
+    assert [r["class"] for r in per_class_table_rows(scores, None)] == ["0", "1", "2"]
+    with pytest.raises(ValueError, match="runs: the confusion matrices of noda"):
+        per_class_scores([runs[0], {**runs[1], "confusion": [[1, 0], [0, 1]]}], ["noda"])
+
+
+def test_merge_carries_the_class_names_and_prints_the_per_class_table(tmp_path, capsys):
+    from vtlearn.cli import main
+
+    conf = [[4, 0], [3, 1]]
+    f1 = _result(tmp_path, "a.json", _runs("noda", [0], [62.5], confusion=conf), class_names=["can", "mug"])
+    f2 = _result(tmp_path, "b.json", _runs("noda", [1], [62.5], confusion=conf))  # merged before the names
+    meta, _ = load_crossmodal_results([f1, f2])
+    assert meta["class_names"] == ["can", "mug"]
+    out = tmp_path / "m.json"
+    assert main(["bench", "crossmodal", "--merge", f1, f2, "--no-figures", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["class_names"] == ["can", "mug"]
+    assert res["per_class"]["noda"]["recall"] == pytest.approx([100.0, 25.0])
+    assert "| can   | 100 (88) |" in capsys.readouterr().out
+

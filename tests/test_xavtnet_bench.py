@@ -109,6 +109,10 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     captured = capsys.readouterr()
     printed = captured.out
     assert "Table 7.2/7.4 analogue" in printed and "Seed-paired differences" in printed
+    # per class, from the runs' confusion matrices summed over the seeds: recall and share of the predictions
+    assert "Per class: tactile recall" in printed and list(res["per_class"]) == ["noda", "vtloss"]
+    conf = np.sum([r["confusion"] for r in res["runs"] if r["variant"] == "vtloss"], axis=0)
+    assert res["per_class"]["vtloss"]["predicted_share"] == pytest.approx(100 * conf.sum(0) / conf.sum())
     # the bar counts the trainings' epochs as they run: 2 rows x 2 seeds x max_epochs
     assert f"{4 * res['max_epochs']}/{4 * res['max_epochs']} " in captured.err.split("bench crossmodal")[-1]
     # with two seeds every row is paired against no-DA, seed by seed, in the table, the JSON and a figure

@@ -150,6 +150,8 @@ def _pool_results(paths: list[str], docs: list[dict], flag: str) -> tuple[dict, 
             where[key] = len(runs)
             runs.append({**r, "machine": r.get("machine") or machine, "file": str(path)})
     meta = {key: docs[0].get(key) for key in _MERGE_KEYS}
+    names = {json.dumps(doc.get("class_names")) for doc in docs if doc.get("class_names")}
+    meta["class_names"] = json.loads(names.pop()) if len(names) == 1 else None  # None where files disagree
     meta.update({"data_fingerprint": fingerprint, "variant_settings": settings,
                  "config": [doc.get("config") for doc in docs], "merged_from": [str(p) for p in paths]})
     return meta, runs
@@ -294,6 +296,52 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
         row["sets ahead"] = f"{row['ahead']}/{len(labels)}"
         out.append(row)
     return with_holm(out)
+
+
+def per_class_scores(runs: list[dict], variants: list[str]) -> dict[str, dict]:
+    """Each row's tactile recall per class and share of the predictions per class (%), from the confusion
+    matrices of its runs summed over seeds: the diagonal of thesis Table 7.3 (the tactile confusion matrix,
+    rows normalised) for every row, and the column sums that show a class the row sends most clouds to.
+    Rows whose runs hold no confusion matrix (the classical ones) are left out; a class with no test
+    cloud has recall None.
+
+    Shapes:
+        runs: one dict per (row, seed), ``confusion`` (C, C) true x predicted -> {row: {"recall": (C,),
+        "predicted_share": (C,), "clouds": int, "seeds": int}}
+    """
+    out = {}
+    for variant in variants:
+        confs = [np.asarray(r["confusion"], dtype=float) for r in runs
+                 if r["variant"] == variant and r.get("confusion") is not None]
+        if not confs:
+            continue
+        if len({c.shape for c in confs}) != 1 or confs[0].ndim != 2 or confs[0].shape[0] != confs[0].shape[1]:
+            raise ValueError(f"runs: the confusion matrices of {variant} are not square matrices of one size "
+                             f"({sorted({c.shape for c in confs})})")
+        conf = np.sum(confs, axis=0)
+        truth, total = conf.sum(1), conf.sum()
+        out[variant] = {
+            "recall": [100 * float(conf[k, k] / truth[k]) if truth[k] else None for k in range(len(conf))],
+            "predicted_share": (100 * conf.sum(0) / total).tolist() if total else [0.0] * len(conf),
+            "clouds": int(total), "seeds": len(confs),
+        }
+    return out
+
+
+def per_class_table_rows(scores: dict[str, dict], class_names: list[str] | None) -> list[dict]:
+    """:func:`per_class_scores` as table rows, one per class: each row's recall with its share of the
+    predictions in brackets (``"31 (14)"``); classes are named by ``class_names`` or by index.
+
+    Shapes:
+        scores: {row: {"recall": (C,), "predicted_share": (C,)}} -> C dicts
+    """
+    if not scores:
+        return []
+    n = len(next(iter(scores.values()))["recall"])
+    names = list(class_names) if class_names and len(class_names) == n else [str(k) for k in range(n)]
+    return [{"class": names[k], **{v: ("-" if s["recall"][k] is None else f"{s['recall'][k]:.0f}")
+                                   + f" ({s['predicted_share'][k]:.0f})" for v, s in scores.items()}}
+            for k in range(n)]
 
 
 def set_summaries(sets: list[dict]) -> list[dict]:

@@ -877,6 +877,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     per_run.sort(key=lambda r: order[(r["variant"], r["seed"])])
 
     rows, checks, discrepancy_rows = _report_rows(variants, per_run, data_kwargs, max_epochs, len(seeds))
+    per_class = _report_per_class(variants, per_run, class_names)
     paired = _report_paired(args, variants, per_run, asked, strict=False)  # trained results are kept whatever
 
     result = {
@@ -885,6 +886,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
         "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
         "rows": rows, "runs": per_run, "checks": checks,
         **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
+        **({"per_class": per_class} if per_class else {}),
         **({"paired": paired} if paired else {}),
         "class_names": class_names, "figures": {}, "machine": machine_info(),
         "accelerator": args.accelerator, "workers": args.workers,
@@ -952,11 +954,13 @@ def _merge_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]]) ->
     print(f"merged {len(args.merge)} results: rows {variants}, seeds {seeds}")
     rows, checks, discrepancy_rows = _report_rows(variants, runs, meta["data"], meta["max_epochs"],
                                                   len(seeds))
+    per_class = _report_per_class(variants, runs, meta.get("class_names"))
     paired = _report_paired(args, variants, runs, asked)
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
     result = {"bench": "crossmodal", **meta, "seeds": seeds, "rows": rows, "runs": runs, "checks": checks,
               **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
+              **({"per_class": per_class} if per_class else {}),
               **({"paired": paired} if paired else {}), "machines": machines, "figures": {}}
     write_json(args.json, result)
     if paired and not args.no_figures:
@@ -1125,6 +1129,22 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
                     "eval-mode features, visual test clouds vs tactile test clouds, and the tactile over "
                     "the visual mean feature norm (mean ± std over seeds)")
     return rows, checks, discrepancy_rows
+
+
+def _report_per_class(variants: list[str], per_run: list[dict], class_names: list[str] | None) -> dict:
+    """Prints and returns each trained row's tactile recall and share of the predictions per class, seeds
+    pooled (:func:`~vtlearn.models.crossmodal_compare.per_class_scores`): where a row's mean is won or lost,
+    and a class that absorbs the clouds of others (no-DA sends a third of the tactile clouds to a class whose
+    visual clouds are as sparse as touches; docs/xavtnet_results.md, stop 78)."""
+    from vtlearn.bench_utils import print_table
+    from vtlearn.models.crossmodal_compare import per_class_scores, per_class_table_rows
+
+    scores = per_class_scores(per_run, variants)
+    if scores:
+        print_table(per_class_table_rows(scores, class_names), ["class", *scores],
+                    "Per class: tactile recall % (share of the tactile predictions %), seeds pooled "
+                    "(the diagonal of Table 7.3's confusion matrix, and its column sums)")
+    return scores
 
 
 def _report_paired(args: argparse.Namespace, variants: list[str], per_run: list[dict],
