@@ -341,7 +341,8 @@ def test_per_class_recall_and_prediction_share_pool_the_seeds_confusions():
     matrix are left out; matrices of two sizes are refused."""
     runs = [{"variant": "noda", "seed": 0, "tactile_acc": 0, "confusion": [[2, 0, 0], [3, 1, 0], [0, 0, 0]]},
             {"variant": "noda", "seed": 1, "tactile_acc": 0, "confusion": [[1, 1, 0], [2, 2, 0], [0, 0, 0]]},
-            {"variant": "vtloss", "seed": 0, "tactile_acc": 0, "confusion": [[3, 0, 0], [0, 4, 0], [0, 0, 0]]},
+            {"variant": "vtloss", "seed": 0, "tactile_acc": 0,
+             "confusion": [[3, 0, 0], [0, 4, 0], [0, 0, 0]]},
             {"variant": "gfk_1nn", "seed": 0, "tactile_acc": 0}]
     scores = per_class_scores(runs, ["noda", "vtloss", "gfk_1nn"])
     assert list(scores) == ["noda", "vtloss"]

@@ -306,7 +306,7 @@ def test_opaque_gives_a_glass_category_a_dense_visual_cloud_and_keeps_its_shapes
     def distinct(transparency, out):
         cfg = tiny_config("crossmodal")
         cfg.categories, cfg.per_category, cfg.split_fractions = ["wineglass"], 1, [1.0, 0.0, 0.0]
-        cfg.image_width, cfg.image_height, cfg.views, cfg.tactile_clouds = 320, 240, 2, 1
+        cfg.image_width, cfg.image_height, cfg.views, cfg.tactile_clouds = 320, 240, 1, 1
         cfg.transparency = transparency
         m = generate_dataset(cfg, out, progress=False)
         with np.load(out / m["shards"][0]["file"], allow_pickle=False) as z:
