@@ -189,6 +189,8 @@ def test_resuming_removes_the_temporaries_of_ended_writers_only(tmp_path):
         assert sorted(f.name for f in out.iterdir() if ".tmp" in f.name) == sorted(f.name for f in kept)
         assert remove_stale_temporaries_in(out) == []
         assert remove_stale_temporaries_in(tmp_path / "missing") == []
+        with pytest.raises(ValueError, match="folder: need a path"):
+            remove_stale_temporaries_in(None)
     finally:
         running.kill()
         running.wait()

@@ -374,7 +374,10 @@ def remove_stale_temporaries_in(folder) -> list[Path]:
     temporaries (and the ``<name>.tmp<pid>`` ones of the dataset writer from before it) whose writer has
     ended, as a dataset folder's shards, side files and JSON leave them. Those of running writers (another
     process generating into the same folder) are kept, and so is every file of another name (a user's
-    ``notes.tmp.txt``). Nothing is removed on a system without POSIX process signals."""
+    ``notes.tmp.txt``). Nothing is removed on a system without POSIX process signals. ``folder`` must be a
+    path (``str`` or ``os.PathLike``); one that is no folder holds nothing to remove."""
+    if not isinstance(folder, str | os.PathLike):
+        raise ValueError(f"folder: need a path (str or os.PathLike), got {type(folder).__name__}")
     folder = Path(folder)
     if os.name != "posix" or not folder.is_dir():
         return []
