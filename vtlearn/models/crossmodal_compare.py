@@ -298,12 +298,29 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
     return with_holm(out)
 
 
+def summed_confusion(runs: list[dict], variant: str) -> np.ndarray | None:
+    """The tactile confusion matrices of ``variant``'s runs summed over its seeds (true x predicted), or None
+    when none of its runs holds one (results written before the bench recorded them). A ValueError names
+    ``runs`` when the matrices are not square matrices of one size.
+
+    Shapes:
+        runs: one dict per (row, seed), ``confusion`` (C, C) -> (C, C)
+    """
+    confs = [np.asarray(r["confusion"], dtype=float) for r in runs
+             if r["variant"] == variant and r.get("confusion") is not None]
+    if not confs:
+        return None
+    if len({c.shape for c in confs}) != 1 or confs[0].ndim != 2 or confs[0].shape[0] != confs[0].shape[1]:
+        raise ValueError(f"runs: the confusion matrices of {variant} are not square matrices of one size "
+                         f"({sorted({c.shape for c in confs})})")
+    return np.sum(confs, axis=0)
+
+
 def per_class_scores(runs: list[dict], variants: list[str]) -> dict[str, dict]:
-    """Each row's tactile recall per class and share of the predictions per class (%), from the confusion
-    matrices of its runs summed over seeds: the diagonal of thesis Table 7.3 (the tactile confusion matrix,
-    rows normalised) for every row, and the column sums that show a class the row sends most clouds to.
-    Rows whose runs hold no confusion matrix (the classical ones) are left out; a class with no test
-    cloud has recall None.
+    """Each row's tactile recall per class and share of the predictions per class (%), from its
+    :func:`summed_confusion`: the diagonal of thesis Table 7.3 (the tactile confusion matrix, rows
+    normalised) for every row, and the column sums that show a class the row sends most clouds to. Rows
+    whose runs hold no confusion matrix are left out; a class with no test cloud has recall None.
 
     Shapes:
         runs: one dict per (row, seed), ``confusion`` (C, C) true x predicted -> {row: {"recall": (C,),
@@ -311,19 +328,15 @@ def per_class_scores(runs: list[dict], variants: list[str]) -> dict[str, dict]:
     """
     out = {}
     for variant in variants:
-        confs = [np.asarray(r["confusion"], dtype=float) for r in runs
-                 if r["variant"] == variant and r.get("confusion") is not None]
-        if not confs:
+        conf = summed_confusion(runs, variant)
+        if conf is None:
             continue
-        if len({c.shape for c in confs}) != 1 or confs[0].ndim != 2 or confs[0].shape[0] != confs[0].shape[1]:
-            raise ValueError(f"runs: the confusion matrices of {variant} are not square matrices of one size "
-                             f"({sorted({c.shape for c in confs})})")
-        conf = np.sum(confs, axis=0)
         truth, total = conf.sum(1), conf.sum()
         out[variant] = {
             "recall": [100 * float(conf[k, k] / truth[k]) if truth[k] else None for k in range(len(conf))],
             "predicted_share": (100 * conf.sum(0) / total).tolist() if total else [0.0] * len(conf),
-            "clouds": int(total), "seeds": len(confs),
+            "clouds": int(total),
+            "seeds": sum(1 for r in runs if r["variant"] == variant and r.get("confusion") is not None),
         }
     return out
 

@@ -767,7 +767,7 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
     from vtlearn.bench_utils import check_output_path, machine_info, write_json
-    from vtlearn.models.crossmodal_compare import paired_figure, parse_pairs, score_field
+    from vtlearn.models.crossmodal_compare import paired_figure, parse_pairs, score_field, summed_confusion
 
     margin = getattr(args, "margin", None)
     if margin is not None and not np.isfinite(margin):
@@ -897,11 +897,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if not args.no_figures:
         # VTLoss's, else the first row's: the matrices of different rows are not summed into one
         shown = "vtloss" if "vtloss" in variants else variants[0]
-        conf_runs = [r for r in per_run if r["variant"] == shown]
-        conf = np.sum([np.array(r["confusion"]) for r in conf_runs], axis=0)
         figures["confusion"] = str(out_dir / f"confusion_{shown}.png")
-        _confusion_figure(conf, class_names, Path(figures["confusion"]),
-                          f"Tactile confusion ({conf_runs[0]['variant']}, summed over seeds)")
+        _confusion_figure(summed_confusion(per_run, shown), class_names, Path(figures["confusion"]),
+                          f"Tactile confusion ({shown}, summed over seeds)")
         panels = {}
         if "noda" in keep:
             panels["before adaptation (no-DA)"] = keep["noda"]
@@ -1132,7 +1130,7 @@ def _report_rows(variants: list[str], per_run: list[dict], data_kwargs: dict, ma
 
 
 def _report_per_class(variants: list[str], per_run: list[dict], class_names: list[str] | None) -> dict:
-    """Prints and returns each trained row's tactile recall and share of the predictions per class, seeds
+    """Prints and returns each row's tactile recall and share of the predictions per class, seeds
     pooled (:func:`~vtlearn.models.crossmodal_compare.per_class_scores`): where a row's mean is won or lost,
     and a class that absorbs the clouds of others (no-DA sends a third of the tactile clouds to a class whose
     visual clouds are as sparse as touches; docs/xavtnet_results.md, stop 78)."""
