@@ -16,6 +16,14 @@ SIGINT_AS_IN_A_TERMINAL = ("import signal; signal.pthread_sigmask(signal.SIG_UNB
                            "signal.signal(signal.SIGINT, signal.default_int_handler); ")
 
 
+def ended_pid() -> int:
+    """The process id of a child interpreter that has ended (a writer that a SIGKILL stopped, for the tests
+    of the temporaries it leaves)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
 def env_with_path(folder: Path) -> dict[str, str]:
     """This process's environment with ``folder`` first on the child interpreter's ``PYTHONPATH``."""
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]))

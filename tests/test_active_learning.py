@@ -444,12 +444,9 @@ def test_finished_loop_built_with_more_rounds_goes_on_to_the_longer_runs_history
 def test_loop_removes_the_partial_state_a_killed_process_left(tmp_path):
     """A SIGKILL between the write and the rename of the state leaves a temporary file: the next loop on
     that state_dir removes it; a temporary file of a running process (here this one) is kept."""
-    import subprocess
-    import sys
+    from _interrupt import ended_pid
 
-    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                          text=True, check=True)
-    dead = tmp_path / f".loop_state.tmp-{int(done.stdout)}.npz"
+    dead = tmp_path / f".loop_state.tmp-{ended_pid()}.npz"
     alive = tmp_path / f".loop_state.tmp-{os.getpid()}.npz"
     other = tmp_path / ".other.tmp-1.npz"
     for f in (dead, alive, other):

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from _interrupt import interrupt_once_started
+from _interrupt import ended_pid, interrupt_once_started
 
 from vtlearn.sim_data.writer import GenConfig, _split_counts, generate_dataset, sha256_file
 
@@ -151,7 +151,7 @@ def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     assert 3 <= finished < 12 and not (out / "manifest.json").exists()
     # simulate shards caught mid-write (by the killed run, and by a run of the writer from before atomic_path)
     # and a shard whose sidecar is stale
-    ended = _ended_pid()
+    ended = ended_pid()
     (out / f".train-00099.tmp-{ended}.npz").write_bytes(b"partial")
     (out / f"train-00098.npz.tmp{ended}").write_bytes(b"partial")
     first = sorted(out.glob("*.npz"))[0]
@@ -162,13 +162,6 @@ def test_killed_then_rerun_gives_identical_manifest(tmp_path):
     assert not list(out.glob("*.tmp*"))
 
 
-def _ended_pid() -> int:
-    """The process id of a process that has ended."""
-    proc = subprocess.Popen([sys.executable, "-c", "pass"])
-    proc.wait()
-    return proc.pid
-
-
 def test_resuming_removes_the_temporaries_of_ended_writers_only(tmp_path):
     """A resumed folder loses the partial files of writers that have ended; a writer still running in the
     same folder keeps its temporary file, and a user's file whose name holds ``.tmp`` stays."""
@@ -176,7 +169,7 @@ def test_resuming_removes_the_temporaries_of_ended_writers_only(tmp_path):
 
     out = tmp_path / "d"
     generate_dataset(_cfg(), out, progress=False)
-    ended = _ended_pid()
+    ended = ended_pid()
     running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         stale = [out / f".train-00099.tmp-{ended}.npz", out / f".config.tmp-{ended}.json",
