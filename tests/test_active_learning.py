@@ -446,15 +446,18 @@ def test_loop_removes_the_partial_state_a_killed_process_left(tmp_path):
     that state_dir removes it; a temporary file of a running process (here this one) is kept."""
     from _interrupt import ended_pid
 
-    dead = tmp_path / f".loop_state.tmp-{ended_pid()}.npz"
+    pid = ended_pid()
+    dead = tmp_path / f".loop_state.tmp-{pid}.npz"
     alive = tmp_path / f".loop_state.tmp-{os.getpid()}.npz"
-    other = tmp_path / ".other.tmp-1.npz"
-    for f in (dead, alive, other):
+    # another file's temporaries of the same ended writer: another stem, another suffix
+    others = [tmp_path / f".other.tmp-{pid}.npz", tmp_path / f".loop_state.tmp-{pid}.json",
+              tmp_path / f".loop_state.tmp-{pid}"]
+    for f in (dead, alive, *others):
         f.write_bytes(b"partial")
     loop = ActiveLearningLoop(TinyPoolDM(), lambda s: XAVTNet(**TINY), rounds=1, state_dir=tmp_path,
                               show_progress=False)
     assert loop.restore() == 0
-    assert not dead.exists() and alive.exists() and other.exists()
+    assert not dead.exists() and alive.exists() and all(f.exists() for f in others)
 
 
 def test_loop_state_dir_of_other_settings_labels_or_model_is_refused(tmp_path):

@@ -14,6 +14,7 @@ unreadable, empty or malformed one.
 
 from __future__ import annotations
 
+import glob
 import hashlib
 import os
 import re
@@ -302,6 +303,27 @@ def read_poses(path, name: str, *, n: int | None = None) -> np.ndarray:
     return np.stack([as_stored_transform(T, f"{name} (pose {i})") for i, T in enumerate(arr)])
 
 
+def _temporary_of(p: Path, pid: int) -> Path:
+    """The temporary file that :func:`atomic_path` in process ``pid`` writes for ``p``:
+    ``.<stem>.tmp-<pid><suffix>``, which ``_TEMPORARIES[0]`` reads back."""
+    return p.with_name(f".{p.stem}.tmp-{pid}{p.suffix}")
+
+
+_TEMPORARIES = (
+    re.compile(r"\..+\.tmp-(\d+)(\.[^.]*)?"),  # _temporary_of's ".<stem>.tmp-<pid><suffix>"
+    re.compile(r".+\.tmp(\d+)"),  # the dataset writer's "<name>.tmp<pid>", before atomic_path
+)
+
+
+def _writer_pid(name: str, patterns=_TEMPORARIES) -> int | None:
+    """The writer's pid in a temporary file's ``name``, by the first of ``patterns`` it matches, or None."""
+    for pattern in patterns:
+        m = pattern.fullmatch(name)
+        if m:
+            return int(m.group(1))
+    return None
+
+
 @contextmanager
 def atomic_path(path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write into, renamed over ``path`` (``os.replace``) when the block
@@ -313,7 +335,7 @@ def atomic_path(path) -> Iterator[Path]:
     """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.stem}.tmp-{os.getpid()}{p.suffix}")
+    tmp = _temporary_of(p, os.getpid())
     try:
         yield tmp
         os.replace(tmp, p)
@@ -352,21 +374,14 @@ def remove_stale_temporaries(path) -> list[Path]:
     processes, this one included, are kept; so is everything on a system without POSIX process signals.
     """
     p = Path(path)
-    head = f".{p.stem}.tmp-"
     if os.name != "posix" or not p.parent.is_dir():
         return []
 
-    def pid_of(name: str) -> int | None:
-        pid = name[len(head):len(name) - len(p.suffix)]
-        return int(pid) if pid.isdigit() else None
+    def pid_of(name: str) -> int | None:  # only p's own temporaries, not another stem's
+        pid = _writer_pid(name, _TEMPORARIES[:1])
+        return pid if pid is not None and _temporary_of(p, pid).name == name else None
 
-    return _remove_ended(p.parent.glob(f"{head}*{p.suffix}"), pid_of)
-
-
-_TEMPORARIES = (
-    re.compile(r"\..+\.tmp-(\d+)(\.[^.]*)?"),  # atomic_path's ".<stem>.tmp-<pid><suffix>"
-    re.compile(r".+\.tmp(\d+)"),  # the dataset writer's "<name>.tmp<pid>", before atomic_path
-)
+    return _remove_ended(p.parent.glob(f".{glob.escape(p.stem)}.tmp-*"), pid_of)
 
 
 def remove_stale_temporaries_in(folder) -> list[Path]:
@@ -382,14 +397,7 @@ def remove_stale_temporaries_in(folder) -> list[Path]:
     if os.name != "posix" or not folder.is_dir():
         return []
 
-    def pid_of(name: str) -> int | None:
-        for pattern in _TEMPORARIES:
-            m = pattern.fullmatch(name)
-            if m:
-                return int(m.group(1))
-        return None
-
-    return _remove_ended((f for f in folder.glob("*.tmp*") if f.is_file()), pid_of)
+    return _remove_ended((f for f in folder.glob("*.tmp*") if f.is_file()), _writer_pid)
 
 
 def atomic_write_npz(path, *, compress: bool = False, **arrays) -> Path:
