@@ -1,5 +1,6 @@
 """Ctrl-C sent to a child Python process once its workers have started a job (for the worker-pool tests)."""
 
+import functools
 import os
 import signal
 import subprocess
@@ -59,14 +60,19 @@ def interrupt_once_started(code: str, folder: Path, workers: int) -> tuple[int, 
 
 
 class CountedCalls:
-    """A stand-in for a function (e.g. ``learning_loop.train_and_test``) that counts its calls in ``calls``
-    and raises ``KeyboardInterrupt`` in the ``stop_at``-th, as a Ctrl-C in that training would."""
+    """A stand-in for a function (e.g. ``learning_loop.train_and_test``, or a bench's job function) that
+    counts its calls in ``calls``, records each call's first two positional arguments in ``seen`` (a bench
+    job's (variant or strategy, seed)) and raises ``KeyboardInterrupt``, as a Ctrl-C in that call would, in
+    the ``stop_at``-th call or, where ``stop_at`` is a tuple, in the call whose first arguments it is. It
+    keeps ``real``'s name, which is part of a bench journal's job key."""
 
-    def __init__(self, real, stop_at: int | None = None) -> None:
-        self.real, self.stop_at, self.calls = real, stop_at, 0
+    def __init__(self, real, stop_at: int | tuple | None = None) -> None:
+        functools.update_wrapper(self, real)
+        self.real, self.stop_at, self.calls, self.seen = real, stop_at, 0, []
 
     def __call__(self, *args, **kwargs):
         self.calls += 1
-        if self.calls == self.stop_at:
+        self.seen.append(tuple(args[:2]))
+        if self.stop_at in (self.calls, self.seen[-1]):
             raise KeyboardInterrupt
         return self.real(*args, **kwargs)

@@ -243,20 +243,6 @@ def tiny_crossmodal(tmp_path_factory):
     return make_tiny_dataset("crossmodal", tmp_path_factory.mktemp("cross"))
 
 
-def _counting(real, calls, stop_at=None):
-    """``real`` that records each call's (variant or strategy, seed) and raises KeyboardInterrupt, as a Ctrl-C
-    during that job would, for ``stop_at``. Keeps ``real``'s name, which is part of the journal key."""
-
-    @functools.wraps(real)
-    def job(*args, **kwargs):
-        calls.append(tuple(args[:2]))
-        if tuple(args[:2]) == stop_at:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    return job
-
-
 def test_bench_crossmodal_stopped_by_ctrl_c_goes_on_from_its_finished_trainings(tmp_path, tiny_crossmodal,
                                                                                   monkeypatch, capsys):
     import vtlearn.models.xavtnet_cli as xcli
@@ -265,27 +251,26 @@ def test_bench_crossmodal_stopped_by_ctrl_c_goes_on_from_its_finished_trainings(
     real = xcli._crossmodal_job
     cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal)
     argv = ["bench", "crossmodal", "--config", str(cfg), "--variants", "noda", "--seeds", "2"]
-    calls: list[tuple] = []
-    monkeypatch.setattr(xcli, "_crossmodal_job", _counting(real, calls, stop_at=("noda", 1)))
+    monkeypatch.setattr(xcli, "_crossmodal_job", CountedCalls(real, stop_at=("noda", 1)))
     out = tmp_path / "a.json"
     assert main([*argv, "--json", str(out)]) == 130
     err = capsys.readouterr().err
     assert f"1 of 2 jobs are kept in {tmp_path / 'a.jobs'}" in err and not out.exists()
     shutil.copytree(tmp_path / "a.jobs", tmp_path / "b.jobs")  # the same stopped run, for --fresh below
 
-    calls.clear()
-    monkeypatch.setattr(xcli, "_crossmodal_job", _counting(real, calls))
+    jobs = CountedCalls(real)
+    monkeypatch.setattr(xcli, "_crossmodal_job", jobs)
     assert main([*argv, "--json", str(out)]) == 0
-    assert calls == [("noda", 1)]  # seed 0 came from the journal
+    assert jobs.seen == [("noda", 1)]  # seed 0 came from the journal
     assert "1 of 2 jobs finished earlier are reused" in capsys.readouterr().out
     resumed = json.loads(out.read_text())
     assert not (tmp_path / "a.jobs").exists()  # removed once the results and the figures are written
     # seed 0 was the t-SNE figure's job: its features came back from the journal's arrays
     assert (tmp_path / "a" / "tsne_before_after.png").is_file()
 
-    calls.clear()
+    jobs.seen.clear()
     assert main([*argv, "--json", str(tmp_path / "b.json"), "--fresh"]) == 0
-    assert calls == [("noda", 0), ("noda", 1)]
+    assert jobs.seen == [("noda", 0), ("noda", 1)]
     fresh = json.loads((tmp_path / "b.json").read_text())
     same = ("variant", "seed", "tactile_acc", "visual_acc", "confusion")
     assert [[r[k] for k in same] for r in resumed["runs"]] == [[r[k] for k in same] for r in fresh["runs"]]
@@ -301,17 +286,16 @@ def test_bench_active_learning_stopped_by_ctrl_c_goes_on_from_its_finished_runs(
     cfg = tiny_xavtnet_config(tmp_path, tiny_crossmodal, active=True)
     out = tmp_path / "al.json"
     argv = ["bench", "active-learning", "--config", str(cfg), "--seeds", "1", "--json", str(out)]
-    calls: list[tuple] = []
-    monkeypatch.setattr(xcli, "_active_learning_job", _counting(real, calls, stop_at=("random", 0)))
+    monkeypatch.setattr(xcli, "_active_learning_job", CountedCalls(real, stop_at=("random", 0)))
     assert main(argv) == 130
     assert "2 of 3 jobs are kept" in capsys.readouterr().err
     kept = {tuple(r[:2]): r[2] for r, _ in JobJournal(tmp_path / "al.jobs").finished().values()}
     assert set(kept) == {("full", 0), ("entropy", 0)}
 
-    calls.clear()
-    monkeypatch.setattr(xcli, "_active_learning_job", _counting(real, calls))
+    jobs = CountedCalls(real)
+    monkeypatch.setattr(xcli, "_active_learning_job", jobs)
     assert main(argv) == 0
-    assert calls == [("random", 0)] and not (tmp_path / "al.jobs").exists()
+    assert jobs.seen == [("random", 0)] and not (tmp_path / "al.jobs").exists()
     res = json.loads(out.read_text())
     assert res["full_acc"] == [kept["full", 0]] and res["curves"]["entropy"]["runs"] == [kept["entropy", 0]]
     assert [h["n_labels"] for h in res["curves"]["random"]["runs"][0]] == [3, 5]
