@@ -298,6 +298,18 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
     return with_holm(out)
 
 
+def _confusions(runs: list[dict], variant: str) -> list[np.ndarray]:
+    """The tactile confusion matrices (true x predicted) of ``variant``'s runs that hold one, one per seed; a
+    ValueError names ``runs`` when they are not square matrices of one size."""
+    confs = [np.asarray(r["confusion"], dtype=float) for r in runs
+             if r["variant"] == variant and r.get("confusion") is not None]
+    if confs and (len({c.shape for c in confs}) != 1 or confs[0].ndim != 2
+                  or confs[0].shape[0] != confs[0].shape[1]):
+        raise ValueError(f"runs: the confusion matrices of {variant} are not square matrices of one size "
+                         f"({sorted({c.shape for c in confs})})")
+    return confs
+
+
 def summed_confusion(runs: list[dict], variant: str) -> np.ndarray | None:
     """The tactile confusion matrices of ``variant``'s runs summed over its seeds (true x predicted), or None
     when none of its runs holds one (results written before the bench recorded them). A ValueError names
@@ -306,19 +318,13 @@ def summed_confusion(runs: list[dict], variant: str) -> np.ndarray | None:
     Shapes:
         runs: one dict per (row, seed), ``confusion`` (C, C) -> (C, C)
     """
-    confs = [np.asarray(r["confusion"], dtype=float) for r in runs
-             if r["variant"] == variant and r.get("confusion") is not None]
-    if not confs:
-        return None
-    if len({c.shape for c in confs}) != 1 or confs[0].ndim != 2 or confs[0].shape[0] != confs[0].shape[1]:
-        raise ValueError(f"runs: the confusion matrices of {variant} are not square matrices of one size "
-                         f"({sorted({c.shape for c in confs})})")
-    return np.sum(confs, axis=0)
+    confs = _confusions(runs, variant)
+    return np.sum(confs, axis=0) if confs else None
 
 
 def per_class_scores(runs: list[dict], variants: list[str]) -> dict[str, dict]:
-    """Each row's tactile recall per class and share of the predictions per class (%), from its
-    :func:`summed_confusion`: the diagonal of thesis Table 7.3 (the tactile confusion matrix, rows
+    """Each row's tactile recall per class and share of the predictions per class (%), from its confusion
+    matrices summed over its seeds: the diagonal of thesis Table 7.3 (the tactile confusion matrix, rows
     normalised) for every row, and the column sums that show a class the row sends most clouds to. Rows
     whose runs hold no confusion matrix are left out; a class with no test cloud has recall None.
 
@@ -328,15 +334,15 @@ def per_class_scores(runs: list[dict], variants: list[str]) -> dict[str, dict]:
     """
     out = {}
     for variant in variants:
-        conf = summed_confusion(runs, variant)
-        if conf is None:
+        confs = _confusions(runs, variant)
+        if not confs:
             continue
+        conf = np.sum(confs, axis=0)
         truth, total = conf.sum(1), conf.sum()
         out[variant] = {
             "recall": [100 * float(conf[k, k] / truth[k]) if truth[k] else None for k in range(len(conf))],
             "predicted_share": (100 * conf.sum(0) / total).tolist() if total else [0.0] * len(conf),
-            "clouds": int(total),
-            "seeds": sum(1 for r in runs if r["variant"] == variant and r.get("confusion") is not None),
+            "clouds": int(total), "seeds": len(confs),
         }
     return out
 
