@@ -21,6 +21,7 @@ from vtlearn.models.crossmodal_compare import (
     set_paired_rows,
     set_summaries,
     set_table_rows,
+    versus_set_rows,
 )
 
 HOST_A = {"platform": "Linux-6.18.44-fc-v1252-x86_64", "cpu_model": "AMD EPYC", "cpu_capability": "AVX512"}
@@ -297,6 +298,81 @@ def test_bench_merge_sets_writes_the_set_table_pairs_and_figure(tmp_path, capsys
     assert main(["bench", "crossmodal", "--merge-sets", *files, "--baseline", "coral",
                  "--json", str(out)]) == 2
     assert "--baseline: 'coral' is not one of the rows" in capsys.readouterr().err
+
+
+def test_versus_sets_pair_the_same_sets_read_twice(tmp_path):
+    """--versus-sets: the i-th set of one reading against the i-th of the other; a row's reading per set is
+    its mean there, a margin's the mean difference over the seeds both rows have there; the statistics are
+    paired_difference of those readings; a row or margin one set lacks is read over the others."""
+    opaque = [_set(tmp_path, "o1.json", "o1", _runs("noda", [0, 1], [30.0, 34.0])
+                   + _runs("vtloss", [0, 1], [55.0, 53.0])),
+              _set(tmp_path, "o2.json", "o2", _runs("noda", [0, 1], [40.0, 40.0])
+                   + _runs("vtloss", [0], [60.0])),
+              _set(tmp_path, "o3.json", "o3", _runs("noda", [0, 1], [20.0, 22.0]), machine=HOST_B)]
+    glass = [_set(tmp_path, "g1.json", "g1", _runs("noda", [0, 1], [33.0, 35.0])
+                  + _runs("vtloss", [0, 1], [50.0, 52.0])),
+             _set(tmp_path, "g2.json", "g2", _runs("noda", [0, 1, 2], [41.0, 43.0, 60.0])
+                  + _runs("vtloss", [0, 1, 2], [55.0, 57.0, 70.0])),
+             _set(tmp_path, "g3.json", "g3", _runs("noda", [0], [25.0]))]
+    _, sets = load_object_sets(opaque)
+    _, versus = load_object_sets(glass)
+    rows = {r["comparison"]: r for r in versus_set_rows(sets, versus, [("noda", None), ("vtloss", None),
+                                                                       ("vtloss", "noda")])}
+    noda = rows["noda"]
+    assert noda["sets"] == ["o1 : g1", "o2 : g2", "o3 : g3"]
+    assert noda["diffs"] == pytest.approx([32.0 - 34.0, 40.0 - 48.0, 21.0 - 25.0])
+    assert noda["cross_machine"] == 1 and noda["sets ahead"] == "0/3"  # o3 ran on another host than g3
+    # o2 has vtloss on seed 0 only: its margin is read there; o3 has no vtloss and is left out
+    margin = rows["vtloss − noda"]
+    assert margin["sets"] == ["o1 : g1", "o2 : g2"]
+    glass_margins = [17.0, np.mean([55.0 - 41.0, 57.0 - 43.0, 70.0 - 60.0])]
+    assert margin["diffs"] == pytest.approx([22.0 - glass_margins[0], 20.0 - glass_margins[1]])
+    ref = paired_difference([22.0, 20.0], glass_margins)
+    assert margin["mean_diff"] == pytest.approx(ref["mean_diff"])
+    assert margin["t_p"] == pytest.approx(ref["t_p"])
+    assert rows["vtloss"]["diffs"] == pytest.approx([54.0 - 51.0, 60.0 - np.mean([55.0, 57.0, 70.0])])
+    holm = holm_adjust([rows[c]["t_p"] for c in rows])
+    assert [rows[c]["t_p_holm"] for c in rows] == pytest.approx(holm)
+    with pytest.raises(ValueError, match="--versus-sets: 2 object sets against the 3 of --merge-sets"):
+        versus_set_rows(sets, versus[:2], [("noda", None)])
+    with pytest.raises(ValueError, match="--versus-sets: no pair of object sets has mmd − noda"):
+        versus_set_rows(sets, versus, [("mmd", "noda")])
+
+
+def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
+    """`--merge-sets A --versus-sets B`: A's table as without it, then B's per-set table and the rows and
+    margins paired set by set, in the JSON's ``versus`` with a figure; refused by name: B without
+    --merge-sets, B of another protocol or with another number of sets, B holding none of A's rows."""
+    from vtlearn.cli import main
+
+    a = [_set(tmp_path, f"a{i}.json", f"a{i}", _runs("noda", [0, 1], [30.0 + i, 32.0])
+              + _runs("vtloss", [0, 1], [50.0 + i, 52.0])) for i in range(3)]
+    b = [_set(tmp_path, f"b{i}.json", f"b{i}", _runs("noda", [0, 1], [31.0, 33.0 + i])
+              + _runs("vtloss", [0, 1], [48.0, 50.0]) + _runs("mmd", [0, 1], [47.0, 49.0])) for i in range(3)]
+    out = tmp_path / "vs.json"
+    assert main(["bench", "crossmodal", "--merge-sets", *a, "--versus-sets", *b, "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [p["comparison"] for p in res["paired"]] == ["vtloss − noda"]  # A's own table is unchanged
+    vs = res["versus"]
+    assert vs["merged_from"] == b and vs["pairing"] == [["a0", "b0"], ["a1", "b1"], ["a2", "b2"]]
+    assert [s["label"] for s in vs["sets"]] == ["b0", "b1", "b2"] and "mmd" in vs["sets"][0]["means"]
+    rows = {r["comparison"]: r for r in vs["paired"]}
+    assert list(rows) == ["noda", "vtloss", "vtloss − noda"]  # mmd is B's only
+    assert rows["vtloss − noda"]["diffs"] == pytest.approx([20.0 - 17.0, 20.0 - 16.5, 20.0 - 16.0])
+    assert rows["noda"]["diffs"] == pytest.approx([31.0 - 32.0, 31.5 - 32.5, 32.0 - 33.0])
+    assert Path(res["figures"]["versus"]).exists() and Path(res["figures"]["paired"]).exists()
+    text = capsys.readouterr().out
+    assert "--versus-sets: V→T accuracy" in text and "a2 : b2" in text and "| vtloss − noda |" in text
+    ep = [_set(tmp_path, f"e{i}.json", f"e{i}", _runs("noda", [0], [30.0]), max_epochs=60) for i in range(3)]
+    other = [_set(tmp_path, f"m{i}.json", f"m{i}", _runs("mmd", [0], [30.0])) for i in range(3)]
+    for argv, msg in [(["--versus-sets", *b], "--versus-sets: only with --merge-sets"),
+                      (["--merge-sets", *a, "--versus-sets", *b[:2]], "2 object sets against the 3"),
+                      (["--merge-sets", *a, "--versus-sets", *ep], "max_epochs=60"),
+                      (["--merge-sets", *a, "--versus-sets", *other], "hold none of the rows of"),
+                      (["--merge-sets", *a, "--versus-sets", *b, "--json", b[0]], "--json:")]:
+        given = argv if "--json" in argv else [*argv, "--json", str(out)]
+        assert main(["bench", "crossmodal", *given, "--no-figures"]) == 2
+        assert msg in capsys.readouterr().err
 
 
 def test_bench_merges_keep_only_the_rows_asked(tmp_path, capsys):

@@ -30,7 +30,8 @@ from vtlearn.bench_utils import check_same_protocol, holm_adjust, paired_differe
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
            "paired_table_columns", "paired_figure", "load_object_sets", "set_paired_rows",
-           "set_summaries", "set_table_rows", "with_holm"]
+           "set_summaries", "set_table_rows", "check_versus_protocol", "versus_set_rows",
+           "with_holm"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
@@ -187,6 +188,77 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
         row = {"comparison": f"{a} − {b}", "a": a, "b": b, "seeds": seeds, **_pair_row(x, y, margin),
                "cross_machine": cross}
         row["seeds ahead"] = f"{row['ahead']}/{len(seeds)}"
+        out.append(row)
+    return with_holm(out)
+
+
+def check_versus_protocol(meta: dict, versus_meta: dict, paths: list[str],
+                          flag: str = "--versus-sets") -> None:
+    """A ``ValueError`` naming ``flag`` and the two files (``paths``: the first of each reading) unless two
+    readings of :func:`load_object_sets` share their protocol bar the data: the datamodule settings but the
+    folders, the training length, the model, and the settings of every row both train."""
+    docs = [{key: m.get(key) for key in _MERGE_KEYS} for m in (meta, versus_meta)]
+    check_same_protocol(paths, docs, _MERGE_KEYS, flag)
+    _merge_settings(list(zip(paths, (meta.get("variant_settings"), versus_meta.get("variant_settings")),
+                             strict=True)), flag)
+
+
+def _set_value(runs: list[dict], a: str, b: str | None) -> tuple[float, list] | None:
+    """One object set's reading of a row (``b`` None: ``a``'s mean over its seeds there) or of a margin
+    (``a − b``: the mean difference over the seeds both have there), with the machines of the runs read;
+    None when the set lacks it."""
+    va, fa = score_field(a)
+    ra = {r["seed"]: r for r in runs if r["variant"] == va and r.get(fa) is not None}
+    if b is None:
+        seeds, rb, fb = sorted(ra), {}, fa
+    else:
+        vb, fb = score_field(b)
+        rb = {r["seed"]: r for r in runs if r["variant"] == vb and r.get(fb) is not None}
+        seeds = sorted(set(ra) & set(rb))
+    if not seeds:
+        return None
+    value = float(np.mean([ra[k][fa] - (rb[k][fb] if b is not None else 0.0) for k in seeds]))
+    return value, [r.get("machine") for k in seeds for r in ([ra[k], rb[k]] if b is not None else [ra[k]])]
+
+
+def versus_set_rows(sets: list[dict], versus: list[dict], comparisons: list[tuple[str, str | None]],
+                    flag: str = "--versus-sets") -> list[dict]:
+    """How rows and margins move between two readings of the same object sets (the same draws rendered
+    otherwise, with other touches, on other data settings), paired set by set: the i-th set of ``sets`` with
+    the i-th of ``versus``, both as :func:`load_object_sets` gives them (in the order first named).
+
+    For each ``(a, None)`` of ``comparisons`` the reading per set is ``a``'s mean over its seeds there, for
+    each ``(a, b)`` the margin of ``a`` over ``b`` (their mean difference over the seeds both have there).
+    Each row is :func:`~vtlearn.bench_utils.paired_difference` of the ``sets`` readings over the ``versus``
+    ones over the pairs of sets that both have it, the sets paired (``"label : label"``), the pairs of sets
+    whose runs ran on more than one machine (``cross_machine``), the t-test p adjusted over the rows
+    (:func:`with_holm`) and table text. A ``ValueError`` names ``flag`` when the two hold different numbers
+    of sets, and a comparison that no pair of sets has on both sides.
+
+    Shapes:
+        sets (S,), versus (S,): one dict per object set, each with its runs -> one dict per comparison
+    """
+    if len(sets) != len(versus):
+        raise ValueError(f"{flag}: {len(versus)} object sets against the {len(sets)} of --merge-sets; the "
+                         "sets are paired in the order first named, so both need as many")
+    out = []
+    for a, b in comparisons:
+        name = a if b is None else f"{a} − {b}"
+        labels, x, y, cross = [], [], [], 0
+        for s, v in zip(sets, versus, strict=True):
+            got, ref = _set_value(s["runs"], a, b), _set_value(v["runs"], a, b)
+            if got is None or ref is None:
+                continue
+            labels.append(f"{s['label']} : {v['label']}")
+            x.append(got[0])
+            y.append(ref[0])
+            machines = got[1] + ref[1]
+            cross += not all(_same_machine(machines[0], m) for m in machines[1:])
+        if not labels:
+            raise ValueError(f"{flag}: no pair of object sets has {name} on both sides")
+        row = {"comparison": name, "a": a, "b": b, "sets": labels,
+               **_pair_row(np.array(x), np.array(y), None), "cross_machine": cross}
+        row["sets ahead"] = f"{row['ahead']}/{len(labels)}"
         out.append(row)
     return with_holm(out)
 

@@ -776,6 +776,8 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
     if getattr(args, "merge", None) and getattr(args, "merge_sets", None):
         raise ValueError("--merge-sets: give either --merge (the seeds of one dataset) or --merge-sets (one "
                          "protocol on several datasets), not both")
+    if getattr(args, "versus_sets", None) and not getattr(args, "merge_sets", None):
+        raise ValueError("--versus-sets: only with --merge-sets, whose object sets it is paired with")
     if getattr(args, "merge", None):
         return _merge_crossmodal(args, asked)
     if getattr(args, "merge_sets", None):
@@ -981,7 +983,6 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
     from vtlearn.bench_utils import print_table, write_json
     from vtlearn.models.crossmodal_compare import (
         default_pairs,
-        load_object_sets,
         paired_figure,
         paired_table_columns,
         set_paired_rows,
@@ -989,18 +990,10 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
         set_table_rows,
     )
 
-    out_dir = _merged_output(args, args.merge_sets, "--merge-sets")
-    meta, sets = load_object_sets(args.merge_sets)
-    kept = {r["variant"] for r in _keep_rows(args, meta, [r for s in sets for r in s["runs"]])}
-    for s in sets:
-        s["runs"] = [r for r in s["runs"] if r["variant"] in kept]
-    dropped = [s["label"] for s in sets if not s["runs"]]
-    if dropped:
-        print(f"--rows: {', '.join(dropped)} hold none of the rows kept, so they are left out")
-        sets = [s for s in sets if s["runs"]]
-    if len(sets) < 2:
-        raise ValueError(f"--rows: only {len(sets)} object set holds the rows kept; pairing by object set "
-                         "needs two or more")
+    versus_paths = getattr(args, "versus_sets", None)
+    out_dir = _merged_output(args, args.merge_sets + (versus_paths or []), "--merge-sets")
+    meta, sets = _object_sets(args, args.merge_sets, "--merge-sets")
+    versus = _object_sets(args, versus_paths, "--versus-sets") if versus_paths else None
     runs = [r for s in sets for r in s["runs"]]
     baseline = getattr(args, "baseline", "noda")
     variants = list(dict.fromkeys(r["variant"] for r in runs))
@@ -1025,19 +1018,93 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
                     "p adjusted by Holm's method over the comparisons of the table, sets and runs ahead"
                     + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
                        if margin is not None else ""))
+    if versus is not None:
+        versus_result = _versus_sets(args, meta, sets, *versus, variants, pairs)
+        runs += [r for s in versus[1] for r in s["runs"]]
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
     result = {"bench": "crossmodal", "by": "object set", **meta, "sets": summaries, "paired": paired,
-              "machines": machines, "figures": {}}
+              **({"versus": versus_result} if versus is not None else {}), "machines": machines,
+              "figures": {}}
     write_json(args.json, result)
-    if paired and not args.no_figures:
-        result["figures"]["paired"] = str(out_dir / "paired_sets.png")
-        paired_figure(paired, result["figures"]["paired"], margin,
-                      f"Object-set-paired differences, {len(sets)} sets", unit="object sets")
-        print(f"paired: {result['figures']['paired']}")
-        write_json(args.json, result)
+    if not args.no_figures:
+        if paired:
+            result["figures"]["paired"] = str(out_dir / "paired_sets.png")
+            paired_figure(paired, result["figures"]["paired"], margin,
+                          f"Object-set-paired differences, {len(sets)} sets", unit="object sets")
+        if versus is not None:
+            result["figures"]["versus"] = str(out_dir / "versus_sets.png")
+            paired_figure(versus_result["paired"], result["figures"]["versus"], None,
+                          "--merge-sets minus --versus-sets, paired by object set", unit="object sets")
+        for name, path in result["figures"].items():
+            print(f"{name}: {path}")
+        if result["figures"]:
+            write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
+
+
+def _object_sets(args: argparse.Namespace, paths: list[str], flag: str) -> tuple[dict, list[dict]]:
+    """:func:`~vtlearn.models.crossmodal_compare.load_object_sets` of ``paths`` (named by ``flag``) with only
+    the rows of ``--rows``; a set left without any is dropped with a line saying so, and fewer than two sets
+    left are refused."""
+    from vtlearn.models.crossmodal_compare import load_object_sets
+
+    meta, sets = load_object_sets(paths, flag)
+    kept = {r["variant"] for r in _keep_rows(args, meta, [r for s in sets for r in s["runs"]])}
+    for s in sets:
+        s["runs"] = [r for r in s["runs"] if r["variant"] in kept]
+    dropped = [s["label"] for s in sets if not s["runs"]]
+    if dropped:
+        print(f"--rows: {', '.join(dropped)} hold none of the rows kept, so they are left out")
+        sets = [s for s in sets if s["runs"]]
+    if len(sets) < 2:
+        raise ValueError(f"--rows: only {len(sets)} object set of {flag} holds the rows kept; pairing by "
+                         "object set needs two or more")
+    return meta, sets
+
+
+def _versus_sets(args: argparse.Namespace, meta: dict, sets: list[dict], versus_meta: dict,
+                 versus: list[dict], variants: list[str], pairs: list[tuple[str, str]]) -> dict:
+    """``--merge-sets A ... --versus-sets B ...``: the same object sets read twice (rendered otherwise, other
+    touches), the i-th set of A paired with the i-th of B. Checks that B is of A's protocol bar the data
+    (the datamodule settings but the folders, the training length, the model, the settings of the rows both
+    train), prints B's per-set table, the pairs of sets and how every row both hold (its accuracy) and every
+    comparison of A's table (its margin) moved from B to A
+    (:func:`~vtlearn.models.crossmodal_compare.versus_set_rows`), and returns that for the JSON."""
+    from vtlearn.bench_utils import print_table
+    from vtlearn.models.crossmodal_compare import (
+        check_versus_protocol,
+        paired_table_columns,
+        score_field,
+        set_summaries,
+        set_table_rows,
+        versus_set_rows,
+    )
+
+    check_versus_protocol(meta, versus_meta, [args.merge_sets[0], args.versus_sets[0]])
+    held = {r["variant"] for s in versus for r in s["runs"]}
+    summaries = set_summaries(versus)
+    shown = [v for v in variants if v in held] + sorted(held - set(variants))
+    print(f"--versus-sets: {len(args.versus_sets)} results on {len(versus)} object sets: rows {shown}")
+    print_table(set_table_rows(summaries, shown), ["set", *shown, "seeds"],
+                "--versus-sets: V→T accuracy (%) on tactile test clouds per object set")
+    comparisons = [(v, None) for v in variants if v in held]
+    comparisons += [p for p in pairs if all(score_field(side)[0] in held for side in p)]
+    if not comparisons:
+        raise ValueError(f"--versus-sets: its sets hold none of the rows of --merge-sets ({variants}); "
+                         f"they hold {sorted(held)}")
+    rows = versus_set_rows(sets, versus, comparisons)
+    cols = paired_table_columns(rows, None)
+    cols[cols.index("seeds ahead")] = "sets ahead"
+    print_table(rows, cols,
+                "How each row's accuracy and each margin moved from --versus-sets to --merge-sets (points), "
+                "paired by object set in the order first named (" + ", ".join(
+                    f"{s['label']} : {v['label']}" for s, v in zip(sets, versus, strict=True)) + "): mean ± "
+                "std over the pairs of sets, 95 % interval, two-sided p of the paired t and Wilcoxon tests, "
+                "the t-test's p adjusted by Holm's method over the table's rows, sets ahead")
+    return {"merged_from": [str(p) for p in args.versus_sets], "sets": summaries,
+            "pairing": [[s["label"], v["label"]] for s, v in zip(sets, versus, strict=True)], "paired": rows}
 
 
 def _keep_rows(args: argparse.Namespace, meta: dict, runs: list[dict]) -> list[dict]:
@@ -2026,6 +2093,11 @@ def register_bench(sub) -> None:
                         "fingerprints), pool each set's files as --merge does, and pair the rows by object "
                         "set (each set's mean over its seeds is one pair): a per-set table, the set-paired "
                         "comparisons (--baseline, --pairs, --margin), a figure and --json")
+    p.add_argument("--versus-sets", dest="versus_sets", nargs="+", default=None, metavar="JSON",
+                   help="with --merge-sets: the same object sets read otherwise (rendered opaque, other "
+                        "touches; the same protocol bar the data), paired with --merge-sets' sets in the "
+                        "order first named: how each row's accuracy and each margin moved, set by set, a "
+                        "figure and a 'versus' part of --json")
     p.add_argument("--rows", default=None, metavar="ROW,...",
                    help="with --merge or --merge-sets: keep only these rows of the files read (default: "
                         "all), in the tables, the comparisons and --json")
