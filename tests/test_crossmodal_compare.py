@@ -341,8 +341,9 @@ def test_versus_sets_pair_the_same_sets_read_twice(tmp_path):
 
 def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
     """`--merge-sets A --versus-sets B`: A's table as without it, then B's per-set table and the rows and
-    margins paired set by set, in the JSON's ``versus`` with a figure; refused by name: B without
-    --merge-sets, B of another protocol or with another number of sets, B holding none of A's rows."""
+    margins paired set by set, in the JSON's ``versus`` with a figure; refused by name before any table: B
+    without --merge-sets, B of another protocol or with another number of sets, B holding none of A's rows,
+    one of B's files as --json."""
     from vtlearn.cli import main
 
     a = [_set(tmp_path, f"a{i}.json", f"a{i}", _runs("noda", [0, 1], [30.0 + i, 32.0])
@@ -372,7 +373,8 @@ def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
                       (["--merge-sets", *a, "--versus-sets", *b, "--json", b[0]], "--json:")]:
         given = argv if "--json" in argv else [*argv, "--json", str(out)]
         assert main(["bench", "crossmodal", *given, "--no-figures"]) == 2
-        assert msg in capsys.readouterr().err
+        text = capsys.readouterr()
+        assert msg in text.err and "V→T accuracy" not in text.out  # refused before any table
 
 
 def test_bench_merges_keep_only_the_rows_asked(tmp_path, capsys):

@@ -192,16 +192,27 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
     return with_holm(out)
 
 
-def check_versus_protocol(meta: dict, versus_meta: dict, paths: list[str],
-                          flag: str = "--versus-sets") -> None:
-    """A ``ValueError`` naming ``flag`` and the two files (``paths``: the first of each reading) unless two
-    readings of :func:`load_object_sets` share their protocol bar the data: the datamodule settings but the
-    folders, the training length, the model, and the settings of every row both train."""
+def check_versus_protocol(meta: dict, versus_meta: dict, paths: list[str], sets: list[dict],
+                          versus: list[dict], flag: str = "--versus-sets") -> None:
+    """A ``ValueError`` naming ``flag`` unless two readings of :func:`load_object_sets` (``meta``, ``sets``
+    and ``versus_meta``, ``versus``; ``paths``: the first file of each) can be paired set by set: the same
+    protocol bar the data (the datamodule settings but the folders, the training length, the model, and the
+    settings of every row both train), as many sets, and a row in common."""
     docs = [{key: m.get(key) for key in _MERGE_KEYS} for m in (meta, versus_meta)]
     check_same_protocol(paths, docs, _MERGE_KEYS, flag)
     _merge_settings(list(zip(paths, (meta.get("variant_settings"), versus_meta.get("variant_settings")),
                              strict=True)), flag)
+    _check_set_count(sets, versus, flag)
+    rows, held = ({r["variant"] for s in group for r in s["runs"]} for group in (sets, versus))
+    if not rows & held:
+        raise ValueError(f"{flag}: its sets hold none of the rows of --merge-sets ({sorted(rows)}); they "
+                         f"hold {sorted(held)}")
 
+
+def _check_set_count(sets: list[dict], versus: list[dict], flag: str) -> None:
+    if len(sets) != len(versus):
+        raise ValueError(f"{flag}: {len(versus)} object sets against the {len(sets)} of --merge-sets; the "
+                         "sets are paired in the order first named, so both need as many")
 
 def _set_value(runs: list[dict], a: str, b: str | None) -> tuple[float, list] | None:
     """One object set's reading of a row (``b`` None: ``a``'s mean over its seeds there) or of a margin
@@ -238,9 +249,7 @@ def versus_set_rows(sets: list[dict], versus: list[dict], comparisons: list[tupl
     Shapes:
         sets (S,), versus (S,): one dict per object set, each with its runs -> one dict per comparison
     """
-    if len(sets) != len(versus):
-        raise ValueError(f"{flag}: {len(versus)} object sets against the {len(sets)} of --merge-sets; the "
-                         "sets are paired in the order first named, so both need as many")
+    _check_set_count(sets, versus, flag)
     out = []
     for a, b in comparisons:
         name = a if b is None else f"{a} − {b}"

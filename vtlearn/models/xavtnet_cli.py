@@ -982,6 +982,7 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
     figure. Trains nothing."""
     from vtlearn.bench_utils import print_table, write_json
     from vtlearn.models.crossmodal_compare import (
+        check_versus_protocol,
         default_pairs,
         paired_figure,
         paired_table_columns,
@@ -994,6 +995,8 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
     out_dir = _merged_output(args, args.merge_sets + (versus_paths or []), "--merge-sets")
     meta, sets = _object_sets(args, args.merge_sets, "--merge-sets")
     versus = _object_sets(args, versus_paths, "--versus-sets") if versus_paths else None
+    if versus is not None:  # before any table: B of A's protocol, as many sets, a row in common
+        check_versus_protocol(meta, versus[0], [args.merge_sets[0], versus_paths[0]], sets, versus[1])
     runs = [r for s in sets for r in s["runs"]]
     baseline = getattr(args, "baseline", "noda")
     variants = list(dict.fromkeys(r["variant"] for r in runs))
@@ -1019,7 +1022,7 @@ def _merge_sets_crossmodal(args: argparse.Namespace, asked: list[tuple[str, str]
                     + (f"; p(≤ {margin:g}): one-sided p that the margin is no more than {margin:g}"
                        if margin is not None else ""))
     if versus is not None:
-        versus_result = _versus_sets(args, meta, sets, *versus, variants, pairs)
+        versus_result = _versus_sets(args, sets, versus[1], variants, pairs)
         runs += [r for s in versus[1] for r in s["runs"]]
     machines = list({json.dumps(r["machine"], sort_keys=True): r["machine"] for r in runs if r.get("machine")}
                     .values())
@@ -1064,17 +1067,16 @@ def _object_sets(args: argparse.Namespace, paths: list[str], flag: str) -> tuple
     return meta, sets
 
 
-def _versus_sets(args: argparse.Namespace, meta: dict, sets: list[dict], versus_meta: dict,
-                 versus: list[dict], variants: list[str], pairs: list[tuple[str, str]]) -> dict:
+def _versus_sets(args: argparse.Namespace, sets: list[dict], versus: list[dict], variants: list[str],
+                 pairs: list[tuple[str, str]]) -> dict:
     """``--merge-sets A ... --versus-sets B ...``: the same object sets read twice (rendered otherwise, other
-    touches), the i-th set of A paired with the i-th of B. Checks that B is of A's protocol bar the data
-    (the datamodule settings but the folders, the training length, the model, the settings of the rows both
-    train), prints B's per-set table, the pairs of sets and how every row both hold (its accuracy) and every
-    comparison of A's table (its margin) moved from B to A
+    touches), the i-th set of A paired with the i-th of B (checked beforehand by
+    :func:`~vtlearn.models.crossmodal_compare.check_versus_protocol`). Prints B's per-set table, the pairs
+    of sets and how every row both hold (its accuracy) and every comparison of A's table (its margin) moved
+    from B to A
     (:func:`~vtlearn.models.crossmodal_compare.versus_set_rows`), and returns that for the JSON."""
     from vtlearn.bench_utils import print_table
     from vtlearn.models.crossmodal_compare import (
-        check_versus_protocol,
         paired_table_columns,
         score_field,
         set_summaries,
@@ -1082,7 +1084,6 @@ def _versus_sets(args: argparse.Namespace, meta: dict, sets: list[dict], versus_
         versus_set_rows,
     )
 
-    check_versus_protocol(meta, versus_meta, [args.merge_sets[0], args.versus_sets[0]])
     held = {r["variant"] for s in versus for r in s["runs"]}
     summaries = set_summaries(versus)
     shown = [v for v in variants if v in held] + sorted(held - set(variants))
@@ -1091,9 +1092,6 @@ def _versus_sets(args: argparse.Namespace, meta: dict, sets: list[dict], versus_
                 "--versus-sets: V→T accuracy (%) on tactile test clouds per object set")
     comparisons = [(v, None) for v in variants if v in held]
     comparisons += [p for p in pairs if all(score_field(side)[0] in held for side in p)]
-    if not comparisons:
-        raise ValueError(f"--versus-sets: its sets hold none of the rows of --merge-sets ({variants}); "
-                         f"they hold {sorted(held)}")
     rows = versus_set_rows(sets, versus, comparisons)
     cols = paired_table_columns(rows, None)
     cols[cols.index("seeds ahead")] = "sets ahead"
