@@ -214,6 +214,7 @@ def _check_set_count(sets: list[dict], versus: list[dict], flag: str) -> None:
         raise ValueError(f"{flag}: {len(versus)} object sets against the {len(sets)} of --merge-sets; the "
                          "sets are paired in the order first named, so both need as many")
 
+
 def _set_value(runs: list[dict], a: str, b: str | None) -> tuple[float, list] | None:
     """One object set's reading of a row (``b`` None: ``a``'s mean over its seeds there) or of a margin
     (``a − b``: the mean difference over the seeds both have there), with the machines of the runs read;
@@ -228,14 +229,14 @@ def _set_value(runs: list[dict], a: str, b: str | None) -> tuple[float, list] | 
         seeds = sorted(set(ra) & set(rb))
     if not seeds:
         return None
-    value = float(np.mean([ra[k][fa] - (rb[k][fb] if b is not None else 0.0) for k in seeds]))
-    return value, [r.get("machine") for k in seeds for r in ([ra[k], rb[k]] if b is not None else [ra[k]])]
+    value = float(np.mean([ra[k][fa] - (rb[k][fb] if k in rb else 0.0) for k in seeds]))
+    return value, [r.get("machine") for k in seeds for r in (ra[k], rb.get(k)) if r is not None]
 
 
 def versus_set_rows(sets: list[dict], versus: list[dict], comparisons: list[tuple[str, str | None]],
                     flag: str = "--versus-sets") -> list[dict]:
     """How rows and margins move between two readings of the same object sets (the same draws rendered
-    otherwise, with other touches, on other data settings), paired set by set: the i-th set of ``sets`` with
+    otherwise, or generated with other touches), paired set by set: the i-th set of ``sets`` with
     the i-th of ``versus``, both as :func:`load_object_sets` gives them (in the order first named).
 
     For each ``(a, None)`` of ``comparisons`` the reading per set is ``a``'s mean over its seeds there, for
