@@ -9,7 +9,9 @@ from scipy import stats
 
 from vtlearn.bench_utils import holm_adjust, paired_difference
 from vtlearn.models.crossmodal_compare import (
+    check_versus_protocol,
     default_pairs,
+    generation_differences,
     load_crossmodal_results,
     load_object_sets,
     paired_rows,
@@ -339,6 +341,35 @@ def test_versus_sets_pair_the_same_sets_read_twice(tmp_path):
         versus_set_rows(sets, versus, [("mmd", "noda")])
 
 
+def test_versus_sets_check_the_draws_they_pair_by_their_gen_data_settings(tmp_path):
+    """Where the bench results recorded their datasets' gen-data settings, a pair of sets drawn with other
+    seeds is refused (the files were named in another order), and the settings the two readings differ in
+    are listed, without the seed; results without the record are paired as named."""
+    def gen(seed, transparency):
+        return {"data_dir": {"seed": seed, "transparency": transparency, "views": 60}}
+
+    opaque = [_set(tmp_path, f"o{k}.json", f"o{k}", _runs("noda", [0], [30.0]),
+                   data_generation=gen(k, False)) for k in (11, 12)]
+    glass = [_set(tmp_path, f"g{k}.json", f"g{k}", _runs("noda", [0], [31.0]),
+                  data_generation=gen(k, True)) for k in (11, 12)]
+    (meta, sets), (vmeta, versus) = load_object_sets(opaque), load_object_sets(glass)
+    assert sets[0]["generation"] == {"seed": 11, "transparency": False, "views": 60}
+    # --merge keeps the record (from the first file that has one), so a merged result can be paired too
+    unrecorded_run = _set(tmp_path, "o11b.json", "o11", _runs("vtloss", [0], [50.0]))
+    assert load_crossmodal_results([unrecorded_run, opaque[0]])[0]["data_generation"] == gen(11, False)
+    assert load_crossmodal_results([unrecorded_run])[0]["data_generation"] is None
+    check_versus_protocol(meta, vmeta, [opaque[0], glass[0]], sets, versus)
+    assert generation_differences(sets, versus) == {"transparency": ([False], [True])}
+    (vmeta2, swapped) = load_object_sets(glass[::-1])
+    with pytest.raises(ValueError, match=r"--versus-sets: pairs o11 \(gen-data --seed 11\) with g12 "
+                                         r"\(--seed 12\)"):
+        check_versus_protocol(meta, vmeta2, [opaque[0], glass[1]], sets, swapped)
+    old = [_set(tmp_path, f"n{k}.json", f"n{k}", _runs("noda", [0], [31.0])) for k in (12, 11)]
+    (ometa, unrecorded) = load_object_sets(old)
+    check_versus_protocol(meta, ometa, [opaque[0], old[0]], sets, unrecorded)
+    assert generation_differences(sets, unrecorded) == {} and unrecorded[0]["generation"] is None
+
+
 def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
     """`--merge-sets A --versus-sets B`: A's table as without it, then B's per-set table and the rows and
     margins paired set by set, in the JSON's ``versus`` with a figure; refused by name before any table: B
@@ -347,9 +378,11 @@ def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
     from vtlearn.cli import main
 
     a = [_set(tmp_path, f"a{i}.json", f"a{i}", _runs("noda", [0, 1], [30.0 + i, 32.0])
-              + _runs("vtloss", [0, 1], [50.0 + i, 52.0])) for i in range(3)]
+              + _runs("vtloss", [0, 1], [50.0 + i, 52.0]),
+              data_generation={"data_dir": {"seed": i, "transparency": False}}) for i in range(3)]
     b = [_set(tmp_path, f"b{i}.json", f"b{i}", _runs("noda", [0, 1], [31.0, 33.0 + i])
-              + _runs("vtloss", [0, 1], [48.0, 50.0]) + _runs("mmd", [0, 1], [47.0, 49.0])) for i in range(3)]
+              + _runs("vtloss", [0, 1], [48.0, 50.0]) + _runs("mmd", [0, 1], [47.0, 49.0]),
+              data_generation={"data_dir": {"seed": i, "transparency": True}}) for i in range(3)]
     out = tmp_path / "vs.json"
     assert main(["bench", "crossmodal", "--merge-sets", *a, "--versus-sets", *b, "--json", str(out)]) == 0
     res = json.loads(out.read_text())
@@ -362,8 +395,10 @@ def test_bench_versus_sets_writes_how_the_rows_moved(tmp_path, capsys):
     assert rows["vtloss − noda"]["diffs"] == pytest.approx([20.0 - 17.0, 20.0 - 16.5, 20.0 - 16.0])
     assert rows["noda"]["diffs"] == pytest.approx([31.0 - 32.0, 31.5 - 32.5, 32.0 - 33.0])
     assert Path(res["figures"]["versus"]).exists() and Path(res["figures"]["paired"]).exists()
+    assert vs["generation_differences"] == {"transparency": {"sets": [False], "versus": [True]}}
     text = capsys.readouterr().out
     assert "--versus-sets: V→T accuracy" in text and "a2 : b2" in text and "| vtloss − noda |" in text
+    assert "generated with other transparency (False here, against True)" in text
     ep = [_set(tmp_path, f"e{i}.json", f"e{i}", _runs("noda", [0], [30.0]), max_epochs=60) for i in range(3)]
     other = [_set(tmp_path, f"m{i}.json", f"m{i}", _runs("mmd", [0], [30.0])) for i in range(3)]
     for argv, msg in [(["--versus-sets", *b], "--versus-sets: only with --merge-sets"),

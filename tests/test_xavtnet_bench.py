@@ -100,6 +100,9 @@ def test_bench_crossmodal_smoke(tmp_path, tiny_crossmodal, capsys):
     from vtlearn.datamodules.shards import dataset_fingerprint
 
     assert res["data_fingerprint"] == {"data_dir": dataset_fingerprint(tiny_crossmodal)}
+    # and how they were drawn: the gen-data settings of the dataset's manifest
+    manifest = json.loads((Path(tiny_crossmodal) / "manifest.json").read_text())
+    assert res["data_generation"] == {"data_dir": manifest["config"]} and "seed" in manifest["config"]
     # what each row sets over model_base is recorded with its numbers
     assert res["variant_settings"]["noda"] == {"da_method": "none"}
     assert res["variant_settings"]["vtloss"]["da_layers"] == ["fc1", "fc2"]

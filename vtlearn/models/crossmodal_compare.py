@@ -30,8 +30,8 @@ from vtlearn.bench_utils import check_same_protocol, holm_adjust, paired_differe
 
 __all__ = ["load_crossmodal_results", "score_field", "parse_pairs", "default_pairs", "paired_rows",
            "paired_table_columns", "paired_figure", "load_object_sets", "set_paired_rows",
-           "set_summaries", "set_table_rows", "check_versus_protocol", "versus_set_rows",
-           "with_holm"]
+           "set_summaries", "set_table_rows", "check_versus_protocol", "generation_differences",
+           "versus_set_rows", "with_holm"]
 
 # The keys two results must share for their runs to be pooled.
 _MERGE_KEYS = ("data", "max_epochs", "model_base")
@@ -109,8 +109,9 @@ def load_crossmodal_results(paths: list[str], flag: str = "--merge") -> tuple[di
     were recorded are compared on the rest. ``flag`` is the command-line flag the messages name.
 
     Returns:
-        meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the
-        ``variant_settings`` known, ``config`` and ``merged_from`` lists), runs (one dict per (row, seed))
+        meta (the shared ``data``, ``max_epochs``, ``model_base``, ``data_fingerprint``, the first
+        ``data_generation`` recorded (None if none is), the ``variant_settings`` known, ``config`` and
+        ``merged_from`` lists), runs (one dict per (row, seed))
     """
     return _pool_results(paths, read_results(paths, "crossmodal", "runs", flag), flag)
 
@@ -153,6 +154,8 @@ def _pool_results(paths: list[str], docs: list[dict], flag: str) -> tuple[dict, 
     meta = {key: docs[0].get(key) for key in _MERGE_KEYS}
     names = {json.dumps(doc.get("class_names")) for doc in docs if doc.get("class_names")}
     meta["class_names"] = json.loads(names.pop()) if len(names) == 1 else None  # None where files disagree
+    # how the data were drawn, from the first file that recorded it (the fingerprint check makes them one)
+    meta["data_generation"] = next((d["data_generation"] for d in docs if d.get("data_generation")), None)
     meta.update({"data_fingerprint": fingerprint, "variant_settings": settings,
                  "config": [doc.get("config") for doc in docs], "merged_from": [str(p) for p in paths]})
     return meta, runs
@@ -203,10 +206,38 @@ def check_versus_protocol(meta: dict, versus_meta: dict, paths: list[str], sets:
     _merge_settings(list(zip(paths, (meta.get("variant_settings"), versus_meta.get("variant_settings")),
                              strict=True)), flag)
     _check_set_count(sets, versus, flag)
+    for s, v in zip(sets, versus, strict=True):
+        seeds = [(g or {}).get("seed") for g in (s.get("generation"), v.get("generation"))]
+        if None not in seeds and seeds[0] != seeds[1]:
+            raise ValueError(f"{flag}: pairs {s['label']} (gen-data --seed {seeds[0]}) with {v['label']} "
+                             f"(--seed {seeds[1]}), which are other object draws; the sets are paired in "
+                             "the order first named, so name the files of each in the same order")
     rows, held = ({r["variant"] for s in group for r in s["runs"]} for group in (sets, versus))
     if not rows & held:
         raise ValueError(f"{flag}: its sets hold none of the rows of --merge-sets ({sorted(rows)}); they "
                          f"hold {sorted(held)}")
+
+
+def generation_differences(sets: list[dict], versus: list[dict]) -> dict[str, tuple[list, list]]:
+    """The ``gen-data`` settings in which the datasets of two readings differ (``--opaque`` is
+    ``transparency``), over the pairs of sets whose bench results recorded them (``data_generation``):
+    ``{setting: (its values in sets, its values in versus)}``, each list without repeats; the seed, which
+    the pairing keeps, is left out.
+
+    Shapes:
+        sets (S,), versus (S,): one dict per object set -> {setting: ([values], [values])}
+    """
+    out: dict[str, tuple[list, list]] = {}
+    for s, v in zip(sets, versus, strict=True):
+        a, b = s.get("generation"), v.get("generation")
+        if not (isinstance(a, dict) and isinstance(b, dict)):
+            continue
+        for key in sorted((set(a) | set(b)) - {"seed"}):
+            if a.get(key) != b.get(key):
+                here, there = out.setdefault(key, ([], []))
+                here.extend([a.get(key)] if a.get(key) not in here else [])
+                there.extend([b.get(key)] if b.get(key) not in there else [])
+    return out
 
 
 def _check_set_count(sets: list[dict], versus: list[dict], flag: str) -> None:
@@ -307,7 +338,8 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
         meta (``data`` without the folders, ``max_epochs``, ``model_base``, ``variant_settings``,
         ``merged_from``), sets (one dict per dataset in the order first named: ``label``, the folder's name,
         with the fingerprint's first characters where two sets share a name; ``data_dir``,
-        ``data_fingerprint``, ``files``, ``runs``)
+        ``data_fingerprint``, ``files``, ``generation``, the gen-data settings its results recorded
+        (``data_generation``) or None; ``runs``)
     """
     docs = read_results(paths, "crossmodal", "runs", flag)
     groups: dict[str, list[int]] = {}
@@ -330,8 +362,11 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
         meta, runs = _pool_results([paths[i] for i in group], [docs[i] for i in group], flag)
         named.append((paths[group[0]], meta["variant_settings"]))
         data_dir = str((meta["data"] or {}).get("data_dir", ""))
+        recorded = meta["data_generation"]
+        generation = recorded.get("data_dir") if isinstance(recorded, dict) else None
         sets.append({"label": Path(data_dir).name or data_dir, "data_dir": data_dir, "runs": runs,
-                     "data_fingerprint": meta["data_fingerprint"], "files": meta["merged_from"]})
+                     "data_fingerprint": meta["data_fingerprint"], "files": meta["merged_from"],
+                     "generation": generation})
     settings = _merge_settings(named, flag)  # a row trained alike in every set
     names = [s["label"] for s in sets]
     for s in sets:

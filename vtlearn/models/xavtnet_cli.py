@@ -884,8 +884,9 @@ def run_crossmodal_bench(args: argparse.Namespace) -> int:
 
     result = {
         "bench": "crossmodal", "config": args.config, "data": data_kwargs,
-        "data_fingerprint": fingerprint, "max_epochs": max_epochs,
-        "seeds": seeds, "model_base": base, "variant_settings": _variant_settings(variants),
+        "data_fingerprint": fingerprint, "data_generation": _data_generation(data_kwargs),
+        "max_epochs": max_epochs, "seeds": seeds, "model_base": base,
+        "variant_settings": _variant_settings(variants),
         "rows": rows, "runs": per_run, "checks": checks,
         **({"discrepancy": discrepancy_rows} if discrepancy_rows else {}),
         **({"per_class": per_class} if per_class else {}),
@@ -1077,6 +1078,7 @@ def _versus_sets(args: argparse.Namespace, sets: list[dict], versus: list[dict],
     (:func:`~vtlearn.models.crossmodal_compare.versus_set_rows`), and returns that for the JSON."""
     from vtlearn.bench_utils import print_table
     from vtlearn.models.crossmodal_compare import (
+        generation_differences,
         paired_table_columns,
         score_field,
         set_summaries,
@@ -1092,6 +1094,11 @@ def _versus_sets(args: argparse.Namespace, sets: list[dict], versus: list[dict],
                 "--versus-sets: V→T accuracy (%) on tactile test clouds per object set")
     comparisons = [(v, None) for v in variants if v in held]
     comparisons += [p for p in pairs if all(score_field(side)[0] in held for side in p)]
+    differ = generation_differences(sets, versus)
+    if differ:
+        print("--versus-sets: the paired datasets were generated with other " + "; ".join(
+            f"{key} ({' / '.join(map(str, values))} here, against {' / '.join(map(str, others))})"
+            for key, (values, others) in differ.items()))
     rows = versus_set_rows(sets, versus, comparisons)
     cols = paired_table_columns(rows, None)
     cols[cols.index("seeds ahead")] = "sets ahead"
@@ -1102,7 +1109,9 @@ def _versus_sets(args: argparse.Namespace, sets: list[dict], versus: list[dict],
                 "std over the pairs of sets, 95 % interval, two-sided p of the paired t and Wilcoxon tests, "
                 "the t-test's p adjusted by Holm's method over the table's rows, sets ahead")
     return {"merged_from": [str(p) for p in args.versus_sets], "sets": summaries,
-            "pairing": [[s["label"], v["label"]] for s, v in zip(sets, versus, strict=True)], "paired": rows}
+            "pairing": [[s["label"], v["label"]] for s, v in zip(sets, versus, strict=True)],
+            "generation_differences": {k: {"sets": a, "versus": b} for k, (a, b) in differ.items()},
+            "paired": rows}
 
 
 def _keep_rows(args: argparse.Namespace, meta: dict, runs: list[dict]) -> list[dict]:
@@ -1260,6 +1269,21 @@ def _data_fingerprints(data_kwargs: dict) -> dict[str, str]:
 
     return {key: dataset_fingerprint(data_kwargs[key], key) for key in ("data_dir", "target_data_dir")
             if data_kwargs.get(key)}
+
+
+def _data_generation(data_kwargs: dict) -> dict[str, dict | None]:
+    """The ``gen-data`` settings (its manifest's ``config``: seed, categories, rendering, touches) of every
+    dataset folder a bench reads, keyed as :func:`_data_fingerprints`, or None for a folder whose manifest
+    records none: so that a JSON says how its data were drawn, and ``--versus-sets`` can check that it pairs
+    the same object draws."""
+    from vtlearn.datamodules.shards import load_manifest
+
+    out = {}
+    for key in ("data_dir", "target_data_dir"):
+        if data_kwargs.get(key):
+            config = load_manifest(data_kwargs[key], key).get("config")
+            out[key] = config if isinstance(config, dict) else None
+    return out
 
 
 def _variant_settings(variants: list[str]) -> dict[str, dict]:
