@@ -207,7 +207,8 @@ def check_versus_protocol(meta: dict, versus_meta: dict, paths: list[str], sets:
                              strict=True)), flag)
     _check_set_count(sets, versus, flag)
     for s, v in zip(sets, versus, strict=True):
-        seeds = [(g or {}).get("seed") for g in (s.get("generation"), v.get("generation"))]
+        seeds = [g.get("seed") if isinstance(g, dict) else None
+                 for g in (s.get("generation"), v.get("generation"))]
         if None not in seeds and seeds[0] != seeds[1]:
             raise ValueError(f"{flag}: pairs {s['label']} (gen-data --seed {seeds[0]}) with {v['label']} "
                              f"(--seed {seeds[1]}), which are other object draws; the sets are paired in "
@@ -364,6 +365,7 @@ def load_object_sets(paths: list[str], flag: str = "--merge-sets") -> tuple[dict
         data_dir = str((meta["data"] or {}).get("data_dir", ""))
         recorded = meta["data_generation"]
         generation = recorded.get("data_dir") if isinstance(recorded, dict) else None
+        generation = generation if isinstance(generation, dict) else None  # a record of another shape: none
         sets.append({"label": Path(data_dir).name or data_dir, "data_dir": data_dir, "runs": runs,
                      "data_fingerprint": meta["data_fingerprint"], "files": meta["merged_from"],
                      "generation": generation})
