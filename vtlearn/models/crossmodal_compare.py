@@ -161,6 +161,13 @@ def _pool_results(paths: list[str], docs: list[dict], flag: str) -> tuple[dict, 
     return meta, runs
 
 
+def _by_seed(runs: list[dict], spec: str) -> tuple[str, dict[int, dict]]:
+    """The run field that the comparison side ``spec`` reads (:func:`score_field`) and the runs of its row
+    that hold that field, keyed by seed."""
+    variant, field = score_field(spec)
+    return field, {r["seed"]: r for r in runs if r["variant"] == variant and r.get(field) is not None}
+
+
 def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | None = None) -> list[dict]:
     """One row per ``(a, b)`` of ``pairs`` (sides as :func:`score_field` reads them): the seeds both have,
     :func:`~vtlearn.bench_utils.paired_difference` of ``a`` over ``b`` on them, the pairs whose runs ran on
@@ -175,11 +182,10 @@ def paired_rows(runs: list[dict], pairs: list[tuple[str, str]], margin: float | 
     for a, b in pairs:
         sides = []
         for spec in (a, b):
-            variant, field = score_field(spec)
-            got = {r["seed"]: r for r in runs if r["variant"] == variant and r.get(field) is not None}
+            field, got = _by_seed(runs, spec)
             if not got:
                 have = sorted({r["variant"] for r in runs})
-                raise ValueError(f"--pairs: no run of {variant} with {field} (rows: {have})")
+                raise ValueError(f"--pairs: no run of {score_field(spec)[0]} with {field} (rows: {have})")
             sides.append((field, got))
         (fa, ra), (fb, rb) = sides
         seeds = sorted(set(ra) & set(rb))
@@ -236,8 +242,9 @@ def generation_differences(sets: list[dict], versus: list[dict]) -> dict[str, tu
         for key in sorted((set(a) | set(b)) - {"seed"}):
             if a.get(key) != b.get(key):
                 here, there = out.setdefault(key, ([], []))
-                here.extend([a.get(key)] if a.get(key) not in here else [])
-                there.extend([b.get(key)] if b.get(key) not in there else [])
+                for values, value in ((here, a.get(key)), (there, b.get(key))):
+                    if value not in values:
+                        values.append(value)
     return out
 
 
@@ -251,14 +258,9 @@ def _set_value(runs: list[dict], a: str, b: str | None) -> tuple[float, list] | 
     """One object set's reading of a row (``b`` None: ``a``'s mean over its seeds there) or of a margin
     (``a − b``: the mean difference over the seeds both have there), with the machines of the runs read;
     None when the set lacks it."""
-    va, fa = score_field(a)
-    ra = {r["seed"]: r for r in runs if r["variant"] == va and r.get(fa) is not None}
-    if b is None:
-        seeds, rb, fb = sorted(ra), {}, fa
-    else:
-        vb, fb = score_field(b)
-        rb = {r["seed"]: r for r in runs if r["variant"] == vb and r.get(fb) is not None}
-        seeds = sorted(set(ra) & set(rb))
+    fa, ra = _by_seed(runs, a)
+    fb, rb = _by_seed(runs, b) if b is not None else (fa, {})
+    seeds = sorted(ra) if b is None else sorted(set(ra) & set(rb))
     if not seeds:
         return None
     value = float(np.mean([ra[k][fa] - (rb[k][fb] if k in rb else 0.0) for k in seeds]))
@@ -392,11 +394,9 @@ def set_paired_rows(sets: list[dict], pairs: list[tuple[str, str]], margin: floa
     """
     out = []
     for a, b in pairs:
-        (va, fa), (vb, fb) = score_field(a), score_field(b)
         labels, xa, xb, run_a, run_b, cross = [], [], [], [], [], 0
         for s in sets:
-            ra = {r["seed"]: r for r in s["runs"] if r["variant"] == va and r.get(fa) is not None}
-            rb = {r["seed"]: r for r in s["runs"] if r["variant"] == vb and r.get(fb) is not None}
+            (fa, ra), (fb, rb) = _by_seed(s["runs"], a), _by_seed(s["runs"], b)
             seeds = sorted(set(ra) & set(rb))
             if not seeds:
                 continue
